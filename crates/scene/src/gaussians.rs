@@ -1,0 +1,138 @@
+//! The in-memory 3DGS scene: a struct of arrays, one entry per Gaussian.
+
+/// Number of SH coefficients per colour channel for a degree (1, 4, 9, 16).
+pub const fn sh_coeffs(degree: u32) -> usize {
+    ((degree + 1) * (degree + 1)) as usize
+}
+
+/// A set of 3D Gaussians in the INRIA 3DGS parameterisation.
+///
+/// Every per-Gaussian array has the same length `len()`; [`Gaussians::validate`]
+/// checks it. Parameters are stored unactivated, exactly as in the PLY file:
+/// log-scales, opacity logits, unnormalised (w, x, y, z) quaternions.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Gaussians {
+    /// Centres in world space.
+    pub means: Vec<[f32; 3]>,
+    /// Natural log of the per-axis standard deviations.
+    pub log_scales: Vec<[f32; 3]>,
+    /// Rotation quaternions (w, x, y, z), not necessarily normalised.
+    pub rotations: Vec<[f32; 4]>,
+    /// Opacity as a logit: opacity = sigmoid(logit).
+    pub opacity_logits: Vec<f32>,
+    /// SH degree, 0 to 3.
+    pub sh_degree: u32,
+    /// SH coefficients, `len() * sh_coeffs(sh_degree) * 3` values laid out
+    /// `[gaussian][coefficient][channel]`; coefficient 0 is the DC term (`f_dc_*`).
+    pub sh: Vec<f32>,
+    /// Extra per-Gaussian properties carried through I/O (e.g. semantic latents `sem_0..`).
+    pub extra: Extra,
+}
+
+/// Named extra per-Gaussian float properties, `values[i * names.len() + k]`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Extra {
+    pub names: Vec<String>,
+    pub values: Vec<f32>,
+}
+
+impl Extra {
+    /// Number of extra properties per Gaussian.
+    pub fn width(&self) -> usize {
+        self.names.len()
+    }
+}
+
+impl Gaussians {
+    /// Number of Gaussians.
+    pub fn len(&self) -> usize {
+        self.means.len()
+    }
+
+    /// True when there are no Gaussians.
+    pub fn is_empty(&self) -> bool {
+        self.means.is_empty()
+    }
+
+    /// SH coefficients per channel.
+    pub fn sh_coeffs(&self) -> usize {
+        sh_coeffs(self.sh_degree)
+    }
+
+    /// The SH coefficients of Gaussian `i`, `[coefficient][channel]` flattened.
+    pub fn sh_of(&self, i: usize) -> &[f32] {
+        let k = self.sh_coeffs() * 3;
+        &self.sh[i * k..(i + 1) * k]
+    }
+
+    /// Checks that every array has the right length and the SH degree is 0..=3.
+    pub fn validate(&self) -> Result<(), String> {
+        let n = self.len();
+        if self.sh_degree > 3 {
+            return Err(format!("SH degree {} is not in 0..=3", self.sh_degree));
+        }
+        let checks = [
+            ("log_scales", self.log_scales.len(), n),
+            ("rotations", self.rotations.len(), n),
+            ("opacity_logits", self.opacity_logits.len(), n),
+            ("sh", self.sh.len(), n * self.sh_coeffs() * 3),
+            ("extra", self.extra.values.len(), n * self.extra.width()),
+        ];
+        for (name, got, want) in checks {
+            if got != want {
+                return Err(format!("{name} has {got} values, expected {want} for {n} Gaussians"));
+            }
+        }
+        Ok(())
+    }
+
+    /// Index of the first Gaussian with a NaN or infinite parameter, and which one.
+    pub fn first_non_finite(&self) -> Option<(usize, &'static str)> {
+        let k = self.sh_coeffs() * 3;
+        let e = self.extra.width();
+        (0..self.len()).find_map(|i| {
+            let bad = |v: &[f32]| v.iter().any(|x| !x.is_finite());
+            if bad(&self.means[i]) {
+                Some((i, "position"))
+            } else if bad(&self.log_scales[i]) {
+                Some((i, "scale"))
+            } else if bad(&self.rotations[i]) || self.rotations[i].iter().all(|&x| x == 0.0) {
+                Some((i, "rotation"))
+            } else if !self.opacity_logits[i].is_finite() {
+                Some((i, "opacity"))
+            } else if bad(&self.sh[i * k..(i + 1) * k]) {
+                Some((i, "SH colour"))
+            } else if bad(&self.extra.values[i * e..(i + 1) * e]) {
+                Some((i, "extra property"))
+            } else {
+                None
+            }
+        })
+    }
+
+    /// Keeps only the Gaussians for which `keep[i]` is true, in order.
+    pub fn retain(&mut self, keep: &[bool]) {
+        assert_eq!(keep.len(), self.len());
+        fn filter<T: Copy>(v: &[T], keep: &[bool], stride: usize) -> Vec<T> {
+            v.chunks_exact(stride.max(1))
+                .zip(keep)
+                .filter(|(_, &k)| k)
+                .flat_map(|(c, _)| c.iter().copied())
+                .collect()
+        }
+        let k = self.sh_coeffs() * 3;
+        self.means = filter(&self.means, keep, 1);
+        self.log_scales = filter(&self.log_scales, keep, 1);
+        self.rotations = filter(&self.rotations, keep, 1);
+        self.opacity_logits = filter(&self.opacity_logits, keep, 1);
+        self.sh = filter(&self.sh, keep, k);
+        if self.extra.width() > 0 {
+            self.extra.values = filter(&self.extra.values, keep, self.extra.width());
+        }
+    }
+}
+
+/// Logistic sigmoid.
+pub fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + (-x).exp())
+}

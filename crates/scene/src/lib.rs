@@ -1,0 +1,21 @@
+//! Scene and camera I/O for transsplat.
+//!
+//! - [`Gaussians`]: the 3DGS scene as a struct of arrays, read and written as the
+//!   INRIA 3DGS PLY ([`ply`]).
+//! - [`Camera`]: pinhole cameras in the OpenCV convention, read from INRIA
+//!   `cameras.json`, COLMAP `sparse/0` and nerfstudio / Blender `transforms.json`
+//!   ([`cameras`]).
+//! - [`npy`]: numpy `.npy` arrays (float32 in and out).
+//! - [`atomic`]: write-to-temporary-then-rename for every output.
+//!
+//! Every error names the file it is about ([`Error`]).
+
+pub mod atomic;
+pub mod camera;
+pub mod error;
+pub mod gaussians;
+pub mod npy;
+
+pub use camera::Camera;
+pub use error::{Error, Result};
+pub use gaussians::{sh_coeffs, sigmoid, Extra, Gaussians};
