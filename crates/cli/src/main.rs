@@ -1,1 +1,51 @@
-fn main() {}
+//! The `transsplat` binary: argument parsing and logging only; the work is in the crates.
+
+mod commands;
+
+use clap::{Parser, Subcommand};
+
+/// Language-driven editing of 3D Gaussian Splatting scenes by unbalanced semantic transport.
+#[derive(Parser, Debug)]
+#[command(name = "transsplat", version, about, long_about = None)]
+struct Cli {
+    /// More log output (-v debug, -vv trace).
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Solve one entropic unbalanced transport problem from .npy files.
+    Uot(commands::uot::UotArgs),
+    /// Benchmarks.
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+#[derive(Subcommand, Debug)]
+enum BenchCommand {
+    /// Unbalanced transport solver: dense and top-k, 1e5 and 1e6 sources.
+    Transport(commands::uot::BenchArgs),
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let level = match cli.verbose {
+        0 => "info",
+        1 => "debug",
+        _ => "trace",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level));
+    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
+    let result = match &cli.command {
+        Command::Uot(a) => commands::uot::run(a),
+        Command::Bench(BenchCommand::Transport(a)) => commands::uot::bench(a),
+    };
+    if let Err(e) = result {
+        eprintln!("error: {e:#}");
+        std::process::exit(2);
+    }
+}

@@ -43,7 +43,8 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<Array> {
     let header = std::str::from_utf8(&bytes[start..end]).map_err(|_| err("non-UTF-8 .npy header".into()))?;
     let descr = dict_value(header, "descr").ok_or_else(|| err("header has no 'descr'".into()))?;
     let descr = descr.trim_matches(|c| c == '\'' || c == '"');
-    let fortran = dict_value(header, "fortran_order").ok_or_else(|| err("header has no 'fortran_order'".into()))?;
+    let fortran =
+        dict_value(header, "fortran_order").ok_or_else(|| err("header has no 'fortran_order'".into()))?;
     let shape_s = dict_value(header, "shape").ok_or_else(|| err("header has no 'shape'".into()))?;
     let shape: Vec<usize> = shape_s
         .trim_matches(|c| c == '(' || c == ')')
@@ -60,7 +61,10 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<Array> {
     let payload = &bytes[end..];
     let need = count.checked_mul(size).ok_or_else(|| err("array too large".into()))?;
     if payload.len() < need {
-        return Err(err(format!("data truncated: shape {shape:?} needs {need} bytes, file has {}", payload.len())));
+        return Err(err(format!(
+            "data truncated: shape {shape:?} needs {need} bytes, file has {}",
+            payload.len()
+        )));
     }
     let mut data: Vec<f32> = payload[..need]
         .chunks_exact(size)
@@ -137,7 +141,8 @@ fn dict_value<'a>(header: &'a str, key: &str) -> Option<&'a str> {
 fn parse_descr(d: &str) -> Option<(char, char, usize)> {
     let mut chars = d.chars();
     let first = chars.next()?;
-    let (endian, rest) = if matches!(first, '<' | '>' | '|' | '=') { (first, chars.as_str()) } else { ('<', d) };
+    let (endian, rest) =
+        if matches!(first, '<' | '>' | '|' | '=') { (first, chars.as_str()) } else { ('<', d) };
     let endian = if endian == '>' { '>' } else { '<' };
     let kind = rest.chars().next()?;
     let size: usize = rest[1..].parse().ok()?;
@@ -174,11 +179,19 @@ fn half_to_f32(h: u16) -> f32 {
     let v = if e == 0 {
         (m as f32) * 2f32.powi(-24)
     } else if e == 31 {
-        if m == 0 { f32::INFINITY } else { f32::NAN }
+        if m == 0 {
+            f32::INFINITY
+        } else {
+            f32::NAN
+        }
     } else {
         (1.0 + m as f32 / 1024.0) * 2f32.powi(e - 15)
     };
-    if s == 1 { -v } else { v }
+    if s == 1 {
+        -v
+    } else {
+        v
+    }
 }
 
 #[cfg(test)]
