@@ -88,26 +88,30 @@ impl Gaussians {
 
     /// Index of the first Gaussian with a NaN or infinite parameter, and which one.
     pub fn first_non_finite(&self) -> Option<(usize, &'static str)> {
+        (0..self.len()).find_map(|i| self.non_finite_at(i).map(|what| (i, what)))
+    }
+
+    /// Which parameter group of Gaussian `i` is NaN or infinite (or an all-zero
+    /// rotation), if any. Assumes [`Gaussians::validate`] passes.
+    pub fn non_finite_at(&self, i: usize) -> Option<&'static str> {
         let k = self.sh_coeffs() * 3;
         let e = self.extra.width();
-        (0..self.len()).find_map(|i| {
-            let bad = |v: &[f32]| v.iter().any(|x| !x.is_finite());
-            if bad(&self.means[i]) {
-                Some((i, "position"))
-            } else if bad(&self.log_scales[i]) {
-                Some((i, "scale"))
-            } else if bad(&self.rotations[i]) || self.rotations[i].iter().all(|&x| x == 0.0) {
-                Some((i, "rotation"))
-            } else if !self.opacity_logits[i].is_finite() {
-                Some((i, "opacity"))
-            } else if bad(&self.sh[i * k..(i + 1) * k]) {
-                Some((i, "SH colour"))
-            } else if bad(&self.extra.values[i * e..(i + 1) * e]) {
-                Some((i, "extra property"))
-            } else {
-                None
-            }
-        })
+        let bad = |v: &[f32]| v.iter().any(|x| !x.is_finite());
+        if bad(&self.means[i]) {
+            Some("position")
+        } else if bad(&self.log_scales[i]) {
+            Some("scale")
+        } else if bad(&self.rotations[i]) || self.rotations[i].iter().all(|&x| x == 0.0) {
+            Some("rotation")
+        } else if !self.opacity_logits[i].is_finite() {
+            Some("opacity")
+        } else if bad(&self.sh[i * k..(i + 1) * k]) {
+            Some("SH colour")
+        } else if bad(&self.extra.values[i * e..(i + 1) * e]) {
+            Some("extra property")
+        } else {
+            None
+        }
     }
 
     /// Keeps only the Gaussians for which `keep[i]` is true, in order.

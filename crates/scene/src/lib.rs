@@ -15,6 +15,7 @@ pub mod camera;
 pub mod error;
 pub mod gaussians;
 pub mod npy;
+pub mod ply;
 
 pub use camera::Camera;
 pub use error::{Error, Result};
