@@ -1,0 +1,234 @@
+//! Projection of every Gaussian, front-to-back depth sort and tile binning.
+//!
+//! Visible Gaussians are sorted once by depth (radix sort on the float bits, which
+//! are monotonic for positive depths) and then distributed over 16×16 tiles by a
+//! counting sort that keeps depth order, so every tile list is front to back.
+
+use crate::project::{project, Splat2d, View};
+use crate::Splats;
+use rayon::prelude::*;
+
+/// Tile edge in pixels.
+pub const TILE: usize = 16;
+
+/// A projected Gaussian packed for the compositing loops.
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C)]
+pub struct Packed {
+    pub x: f32,
+    pub y: f32,
+    pub a: f32,
+    pub b: f32,
+    pub c: f32,
+    pub opacity: f32,
+    pub color: [f32; 3],
+    pub depth: f32,
+    /// Box half-extents in pixels.
+    pub rx: f32,
+    pub ry: f32,
+}
+
+/// Everything the compositing passes need for one view.
+#[derive(Clone, Debug, Default)]
+pub struct Binned {
+    pub width: usize,
+    pub height: usize,
+    pub tiles_x: usize,
+    pub tiles_y: usize,
+    /// Number of Gaussians in the scene.
+    pub num_gaussians: usize,
+    /// Global id of each visible Gaussian, front to back.
+    pub ids: Vec<u32>,
+    /// Packed splats in the same (depth) order.
+    pub splats: Vec<Packed>,
+    /// Extra features in depth order, `num_features` per splat.
+    pub feats: Vec<f32>,
+    pub num_features: usize,
+    /// Per-Gaussian (global id) 2D mean, depth and radius; radius (0, 0) = culled.
+    pub means2d: Vec<[f32; 2]>,
+    pub depths: Vec<f32>,
+    pub radii: Vec<[u32; 2]>,
+    /// Tile `t` holds `lists[offsets[t]..offsets[t+1]]`, indices into `splats`.
+    pub offsets: Vec<u32>,
+    pub lists: Vec<u32>,
+}
+
+impl Binned {
+    /// The pixel rectangle of tile `t`: (x0, y0, x1, y1), exclusive ends.
+    pub fn tile_rect(&self, t: usize) -> (usize, usize, usize, usize) {
+        let (tx, ty) = (t % self.tiles_x, t / self.tiles_x);
+        let (x0, y0) = (tx * TILE, ty * TILE);
+        (x0, y0, (x0 + TILE).min(self.width), (y0 + TILE).min(self.height))
+    }
+
+    /// The depth-ordered splat indices of tile `t`.
+    pub fn tile_list(&self, t: usize) -> &[u32] {
+        &self.lists[self.offsets[t] as usize..self.offsets[t + 1] as usize]
+    }
+
+    /// Total number of (tile, Gaussian) pairs.
+    pub fn intersections(&self) -> usize {
+        self.lists.len()
+    }
+}
+
+fn tile_span(p: &Packed, tiles_x: usize, tiles_y: usize) -> (usize, usize, usize, usize) {
+    let t = TILE as f32;
+    let x0 = ((p.x - p.rx) / t).floor().max(0.0) as usize;
+    let y0 = ((p.y - p.ry) / t).floor().max(0.0) as usize;
+    let x1 = (((p.x + p.rx) / t).ceil().max(0.0) as usize).min(tiles_x);
+    let y1 = (((p.y + p.ry) / t).ceil().max(0.0) as usize).min(tiles_y);
+    (x0, y0, x1, y1)
+}
+
+/// Projects, sorts and bins the splats for `view`.
+pub fn bin(splats: &Splats, view: &View) -> Binned {
+    let n = splats.len();
+    let (width, height) = (view.width as usize, view.height as usize);
+    let tiles_x = width.div_ceil(TILE);
+    let tiles_y = height.div_ceil(TILE);
+    let projected: Vec<Option<(Splat2d, [u32; 2])>> =
+        (0..n).into_par_iter().with_min_len(1024).map(|i| project(view, &splats.params(i))).collect();
+
+    let mut means2d = vec![[0.0f32; 2]; n];
+    let mut depths = vec![0.0f32; n];
+    let mut radii = vec![[0u32; 2]; n];
+    let mut keys = Vec::with_capacity(n);
+    for (i, p) in projected.iter().enumerate() {
+        if let Some((s, r)) = p {
+            means2d[i] = s.xy;
+            depths[i] = s.depth;
+            radii[i] = *r;
+            keys.push((s.depth.to_bits(), i as u32));
+        }
+    }
+    radix_sort(&mut keys);
+    let ids: Vec<u32> = keys.iter().map(|k| k.1).collect();
+    let packed: Vec<Packed> = ids
+        .par_iter()
+        .with_min_len(4096)
+        .map(|&i| {
+            let (s, r) = projected[i as usize].expect("visible");
+            Packed {
+                x: s.xy[0],
+                y: s.xy[1],
+                a: s.conic[0],
+                b: s.conic[1],
+                c: s.conic[2],
+                opacity: s.opacity,
+                color: s.color,
+                depth: s.depth,
+                rx: r[0] as f32,
+                ry: r[1] as f32,
+            }
+        })
+        .collect();
+    drop(projected);
+    let f = splats.num_features;
+    let mut feats = vec![0.0f32; ids.len() * f];
+    if f > 0 {
+        feats.par_chunks_mut(f).zip(ids.par_iter()).for_each(|(dst, &i)| {
+            dst.copy_from_slice(&splats.features[i as usize * f..(i as usize + 1) * f]);
+        });
+    }
+
+    // Counting sort into tiles, in parallel over chunks of the depth order.
+    let num_tiles = tiles_x * tiles_y;
+    let chunk = packed.len().div_ceil(rayon::current_num_threads() * 4).max(4096);
+    let counts: Vec<Vec<u32>> = packed
+        .par_chunks(chunk)
+        .map(|ch| {
+            let mut c = vec![0u32; num_tiles];
+            for p in ch {
+                let (x0, y0, x1, y1) = tile_span(p, tiles_x, tiles_y);
+                for ty in y0..y1 {
+                    for cnt in &mut c[ty * tiles_x + x0..ty * tiles_x + x1] {
+                        *cnt += 1;
+                    }
+                }
+            }
+            c
+        })
+        .collect();
+    // starts[c][t] = offset of chunk c's first entry in tile t.
+    let mut offsets = vec![0u32; num_tiles + 1];
+    let mut starts = vec![vec![0u32; num_tiles]; counts.len()];
+    let mut acc = 0u32;
+    for t in 0..num_tiles {
+        offsets[t] = acc;
+        for (c, cnt) in counts.iter().enumerate() {
+            starts[c][t] = acc;
+            acc += cnt[t];
+        }
+    }
+    offsets[num_tiles] = acc;
+    let mut lists = vec![0u32; acc as usize];
+    let out = crate::par::SharedMut(lists.as_mut_ptr());
+    packed.par_chunks(chunk).zip(starts.into_par_iter()).enumerate().for_each(|(c, (ch, mut start))| {
+        let out = out;
+        let base = (c * chunk) as u32;
+        for (k, p) in ch.iter().enumerate() {
+            let (x0, y0, x1, y1) = tile_span(p, tiles_x, tiles_y);
+            for ty in y0..y1 {
+                for s in &mut start[ty * tiles_x + x0..ty * tiles_x + x1] {
+                    // SAFETY: each (chunk, tile) owns the disjoint range reserved by the prefix sum.
+                    unsafe { *out.0.add(*s as usize) = base + k as u32 };
+                    *s += 1;
+                }
+            }
+        }
+    });
+
+    Binned {
+        width,
+        height,
+        tiles_x,
+        tiles_y,
+        num_gaussians: n,
+        ids,
+        splats: packed,
+        feats,
+        num_features: f,
+        means2d,
+        depths,
+        radii,
+        offsets,
+        lists,
+    }
+}
+
+/// Stable LSD radix sort of (key, value) pairs by key, 11 bits per pass.
+fn radix_sort(v: &mut Vec<(u32, u32)>) {
+    let mut tmp = vec![(0u32, 0u32); v.len()];
+    for pass in 0..3 {
+        let shift = pass * 11;
+        let mut count = vec![0usize; 2049];
+        for &(k, _) in v.iter() {
+            count[((k >> shift) & 0x7ff) as usize + 1] += 1;
+        }
+        if count[1..].iter().any(|&c| c == v.len()) {
+            continue;
+        }
+        for i in 0..2048 {
+            count[i + 1] += count[i];
+        }
+        for &e in v.iter() {
+            let b = ((e.0 >> shift) & 0x7ff) as usize;
+            tmp[count[b]] = e;
+            count[b] += 1;
+        }
+        std::mem::swap(v, &mut tmp);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn radix_sort_is_a_stable_sort() {
+        let mut v: Vec<(u32, u32)> = (0..5000u32).map(|i| ((i * 2_654_435_761) % 977 * 4_400_000, i)).collect();
+        let mut want = v.clone();
+        want.sort_by_key(|e| e.0);
+        super::radix_sort(&mut v);
+        assert_eq!(v, want);
+    }
+}

@@ -1,0 +1,360 @@
+//! Per-Gaussian projection (EWA splatting) in the classic 3DGS / gsplat 1.5
+//! semantics, and its exact backward pass.
+//!
+//! Σ = R S Sᵀ Rᵀ from the normalised quaternion and exp(log-scale); camera-space
+//! mean t = R_w x + t_w; 2D mean (fx t_x/t_z + c_x, fy t_y/t_z + c_y); Jacobian with
+//! the 1.3× tan-fov clamp; Σ₂ = J R_w Σ R_wᵀ Jᵀ + 0.3 I; conic = Σ₂⁻¹; per-axis
+//! radius ⌈3.33 √diag Σ₂⌉; colour = SH(x − camera centre) + 0.5, clamped at 0.
+
+use crate::sh;
+use transsplat_scene::Camera;
+
+/// Near and far clipping planes on camera-space depth.
+pub const NEAR: f32 = 0.01;
+pub const FAR: f32 = 1e10;
+/// Added to the 2D covariance diagonal (low-pass filter).
+pub const EPS2D: f32 = 0.3;
+/// Bounding-box extent in standard deviations.
+pub const EXTENT: f32 = 3.33;
+
+type M3 = [[f32; 3]; 3];
+
+/// Camera quantities shared by every Gaussian of a view.
+#[derive(Clone, Debug)]
+pub struct View {
+    pub width: u32,
+    pub height: u32,
+    pub fx: f32,
+    pub fy: f32,
+    pub cx: f32,
+    pub cy: f32,
+    pub rot: M3,
+    pub trans: [f32; 3],
+    pub centre: [f32; 3],
+    lim_x_pos: f32,
+    lim_x_neg: f32,
+    lim_y_pos: f32,
+    lim_y_neg: f32,
+}
+
+impl View {
+    /// Precomputes the per-view constants.
+    pub fn new(cam: &Camera) -> Self {
+        let (w, h) = (cam.width as f32, cam.height as f32);
+        let tan_fovx = 0.5 * w / cam.fx;
+        let tan_fovy = 0.5 * h / cam.fy;
+        View {
+            width: cam.width,
+            height: cam.height,
+            fx: cam.fx,
+            fy: cam.fy,
+            cx: cam.cx,
+            cy: cam.cy,
+            rot: cam.rotation,
+            trans: cam.translation,
+            centre: cam.centre(),
+            lim_x_pos: (w - cam.cx) / cam.fx + 0.3 * tan_fovx,
+            lim_x_neg: cam.cx / cam.fx + 0.3 * tan_fovx,
+            lim_y_pos: (h - cam.cy) / cam.fy + 0.3 * tan_fovy,
+            lim_y_neg: cam.cy / cam.fy + 0.3 * tan_fovy,
+        }
+    }
+
+    /// World point to camera coordinates.
+    pub fn to_camera(&self, p: [f32; 3]) -> [f32; 3] {
+        let r = &self.rot;
+        std::array::from_fn(|i| r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + self.trans[i])
+    }
+}
+
+/// A projected Gaussian: everything the per-pixel compositing needs.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Splat2d {
+    /// 2D mean in pixels.
+    pub xy: [f32; 2],
+    /// Inverse 2D covariance (a, b, c): σ = ½(a dx² + c dy²) + b dx dy.
+    pub conic: [f32; 3],
+    /// Activated opacity.
+    pub opacity: f32,
+    /// Colour after SH evaluation, +0.5 and the clamp at 0.
+    pub color: [f32; 3],
+    /// Camera-space depth of the mean.
+    pub depth: f32,
+}
+
+/// Parameters of one Gaussian as stored (unactivated).
+#[derive(Clone, Copy, Debug)]
+pub struct GaussianParams<'a> {
+    pub mean: [f32; 3],
+    pub log_scale: [f32; 3],
+    pub quat: [f32; 4],
+    pub opacity_logit: f32,
+    /// `[coefficient][channel]`, at least `(active_degree+1)²` coefficients.
+    pub sh: &'a [f32],
+    pub active_degree: u32,
+}
+
+/// Gradients of one Gaussian's parameters.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GaussianGrads {
+    pub mean: [f32; 3],
+    pub log_scale: [f32; 3],
+    pub quat: [f32; 4],
+    pub opacity_logit: f32,
+}
+
+/// Gradients arriving at a projected Gaussian from compositing.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Splat2dGrads {
+    pub xy: [f32; 2],
+    pub conic: [f32; 3],
+    pub opacity: f32,
+    pub color: [f32; 3],
+    pub depth: f32,
+}
+
+fn quat_to_rotmat(q: [f32; 4]) -> ([f32; 4], f32, M3) {
+    let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    let [w, x, y, z] = [q[0] / n, q[1] / n, q[2] / n, q[3] / n];
+    let r = [
+        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
+        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
+        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+    ];
+    ([w, x, y, z], n, r)
+}
+
+fn matmul(a: &M3, b: &M3) -> M3 {
+    std::array::from_fn(|i| std::array::from_fn(|j| a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j]))
+}
+
+fn transpose(a: &M3) -> M3 {
+    std::array::from_fn(|i| std::array::from_fn(|j| a[j][i]))
+}
+
+/// Intermediate quantities of the projection, recomputed by the backward pass.
+struct Fwd {
+    qn: [f32; 4],
+    qnorm: f32,
+    rot: M3,
+    scale: [f32; 3],
+    m: M3,
+    cov_cam: M3,
+    t: [f32; 3],
+    tx_c: f32,
+    ty_c: f32,
+    clamped_x: bool,
+    clamped_y: bool,
+    j: [[f32; 3]; 2],
+    cov2d: [f32; 3],
+    det: f32,
+}
+
+fn forward_internals(view: &View, p: &GaussianParams) -> Fwd {
+    let (qn, qnorm, rot) = quat_to_rotmat(p.quat);
+    let scale = p.log_scale.map(f32::exp);
+    // M = R S
+    let m: M3 = std::array::from_fn(|i| std::array::from_fn(|j| rot[i][j] * scale[j]));
+    let cov = matmul(&m, &transpose(&m));
+    let wc = matmul(&view.rot, &cov);
+    let cov_cam = matmul(&wc, &transpose(&view.rot));
+    let t = view.to_camera(p.mean);
+    let tz = t[2];
+    let rx = t[0] / tz;
+    let ry = t[1] / tz;
+    let cx_ = rx.clamp(-view.lim_x_neg, view.lim_x_pos);
+    let cy_ = ry.clamp(-view.lim_y_neg, view.lim_y_pos);
+    let clamped_x = cx_ != rx;
+    let clamped_y = cy_ != ry;
+    let tx_c = tz * cx_;
+    let ty_c = tz * cy_;
+    let j = [
+        [view.fx / tz, 0.0, -view.fx * tx_c / (tz * tz)],
+        [0.0, view.fy / tz, -view.fy * ty_c / (tz * tz)],
+    ];
+    // cov2d = J cov_cam Jᵀ (symmetric 2x2: a, b, c)
+    let jc: [[f32; 3]; 2] =
+        std::array::from_fn(|i| std::array::from_fn(|k| (0..3).map(|l| j[i][l] * cov_cam[l][k]).sum()));
+    let c00 = (0..3).map(|l| jc[0][l] * j[0][l]).sum::<f32>() + EPS2D;
+    let c01 = (0..3).map(|l| jc[0][l] * j[1][l]).sum::<f32>();
+    let c11 = (0..3).map(|l| jc[1][l] * j[1][l]).sum::<f32>() + EPS2D;
+    let det = c00 * c11 - c01 * c01;
+    Fwd {
+        qn,
+        qnorm,
+        rot,
+        scale,
+        m,
+        cov_cam,
+        t,
+        tx_c,
+        ty_c,
+        clamped_x,
+        clamped_y,
+        j,
+        cov2d: [c00, c01, c11],
+        det,
+    }
+}
+
+fn view_dir(view: &View, mean: [f32; 3]) -> ([f32; 3], f32) {
+    let d = [mean[0] - view.centre[0], mean[1] - view.centre[1], mean[2] - view.centre[2]];
+    let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-12);
+    ([d[0] / n, d[1] / n, d[2] / n], n)
+}
+
+/// SH colour before the clamp (`Σ_k sh_k Y_k(d) + 0.5`).
+fn sh_color(view: &View, p: &GaussianParams) -> [f32; 3] {
+    let (d, _) = view_dir(view, p.mean);
+    let b = sh::basis(p.active_degree, d);
+    let k = crate::sh_coeffs(p.active_degree);
+    let mut c = [0.5f32; 3];
+    for (kk, bk) in b.iter().enumerate().take(k) {
+        for (ch, cc) in c.iter_mut().enumerate() {
+            *cc += bk * p.sh[kk * 3 + ch];
+        }
+    }
+    c
+}
+
+/// Projects one Gaussian. Returns `None` when it is culled (behind the near plane,
+/// degenerate covariance, or a bounding box that misses the image), else the splat
+/// and its per-axis pixel radius.
+pub fn project(view: &View, p: &GaussianParams) -> Option<(Splat2d, [u32; 2])> {
+    let t = view.to_camera(p.mean);
+    if !(t[2] > NEAR && t[2] < FAR) {
+        return None;
+    }
+    let f = forward_internals(view, p);
+    if !(f.det > 0.0) {
+        return None;
+    }
+    let [c00, c01, c11] = f.cov2d;
+    let inv = 1.0 / f.det;
+    let conic = [c11 * inv, -c01 * inv, c00 * inv];
+    let rx = (EXTENT * c00.sqrt()).ceil();
+    let ry = (EXTENT * c11.sqrt()).ceil();
+    if rx <= 0.0 && ry <= 0.0 {
+        return None;
+    }
+    let xy = [view.fx * f.t[0] / f.t[2] + view.cx, view.fy * f.t[1] / f.t[2] + view.cy];
+    if !(xy[0] + rx > 0.0 && xy[0] - rx < view.width as f32 && xy[1] + ry > 0.0 && xy[1] - ry < view.height as f32)
+    {
+        return None;
+    }
+    let color = sh_color(view, p).map(|c| c.max(0.0));
+    let opacity = transsplat_scene::sigmoid(p.opacity_logit);
+    Some((Splat2d { xy, conic, opacity, color, depth: f.t[2] }, [rx as u32, ry as u32]))
+}
+
+/// Backward of [`project`] for a visible Gaussian: from the gradients on its
+/// splat to the gradients on its parameters. SH coefficient gradients are written
+/// into `v_sh` (`[coefficient][channel]`, the active coefficients only).
+pub fn project_backward(view: &View, p: &GaussianParams, g: &Splat2dGrads, v_sh: &mut [f32]) -> GaussianGrads {
+    let f = forward_internals(view, p);
+    let [c00, c01, c11] = f.cov2d;
+    let inv = 1.0 / f.det;
+    let q = [[c11 * inv, -c01 * inv], [-c01 * inv, c00 * inv]];
+    // σ = ½ dᵀ Q d with Q = [[a, b], [b, c]]: dL/dQ = [[va, vb/2], [vb/2, vc]].
+    let vq = [[g.conic[0], 0.5 * g.conic[1]], [0.5 * g.conic[1], g.conic[2]]];
+    // Q = C⁻¹ ⇒ dL/dC = −Q (dL/dQ) Q.
+    let qv: [[f32; 2]; 2] = std::array::from_fn(|i| std::array::from_fn(|k| q[i][0] * vq[0][k] + q[i][1] * vq[1][k]));
+    let vc: [[f32; 2]; 2] = std::array::from_fn(|i| std::array::from_fn(|k| -(qv[i][0] * q[0][k] + qv[i][1] * q[1][k])));
+
+    // C = J Σc Jᵀ: dΣc = Jᵀ dC J; dJ = dC J Σc + dCᵀ J Σcᵀ = 2 dC J Σc (dC, Σc symmetric).
+    let j = &f.j;
+    let mut v_cov_cam = [[0.0f32; 3]; 3];
+    for (a, row) in v_cov_cam.iter_mut().enumerate() {
+        for (b, v) in row.iter_mut().enumerate() {
+            *v = (0..2).map(|i| (0..2).map(|k| j[i][a] * vc[i][k] * j[k][b]).sum::<f32>()).sum();
+        }
+    }
+    let jsc: [[f32; 3]; 2] =
+        std::array::from_fn(|i| std::array::from_fn(|k| (0..3).map(|l| j[i][l] * f.cov_cam[l][k]).sum()));
+    let vj: [[f32; 3]; 2] =
+        std::array::from_fn(|i| std::array::from_fn(|k| (vc[i][0] * jsc[0][k] + vc[i][1] * jsc[1][k]) * 2.0));
+
+    // Camera-space mean gradient: from the 2D mean, the depth and the Jacobian.
+    let [tx, ty, tz] = f.t;
+    let (fx, fy) = (view.fx, view.fy);
+    let mut vt = [0.0f32; 3];
+    vt[0] += fx / tz * g.xy[0];
+    vt[1] += fy / tz * g.xy[1];
+    vt[2] += -fx * tx / (tz * tz) * g.xy[0] - fy * ty / (tz * tz) * g.xy[1];
+    vt[2] += g.depth;
+    let tz2 = tz * tz;
+    let tz3 = tz2 * tz;
+    // J00 = fx/tz, J11 = fy/tz, J02 = -fx tx'/tz², J12 = -fy ty'/tz² with
+    // tx' = tz·clamp(tx/tz): unclamped ∂tx'/∂tx = 1; clamped ∂tx'/∂tz = tx'/tz.
+    vt[2] += -fx / tz2 * vj[0][0] - fy / tz2 * vj[1][1];
+    vt[2] += 2.0 * fx * f.tx_c / tz3 * vj[0][2] + 2.0 * fy * f.ty_c / tz3 * vj[1][2];
+    let v_txc = -fx / tz2 * vj[0][2];
+    let v_tyc = -fy / tz2 * vj[1][2];
+    if f.clamped_x {
+        vt[2] += v_txc * f.tx_c / tz;
+    } else {
+        vt[0] += v_txc;
+    }
+    if f.clamped_y {
+        vt[2] += v_tyc * f.ty_c / tz;
+    } else {
+        vt[1] += v_tyc;
+    }
+    // t = R_w x + t_w
+    let w = &view.rot;
+    let mut v_mean: [f32; 3] = std::array::from_fn(|k| w[0][k] * vt[0] + w[1][k] * vt[1] + w[2][k] * vt[2]);
+
+    // Σc = W Σ Wᵀ ⇒ dΣ = Wᵀ dΣc W.
+    let wt = transpose(w);
+    let v_cov = matmul(&matmul(&wt, &v_cov_cam), w);
+    // Σ = M Mᵀ ⇒ dM = (dΣ + dΣᵀ) M.
+    let v_m: M3 = std::array::from_fn(|i| {
+        std::array::from_fn(|k| (0..3).map(|l| (v_cov[i][l] + v_cov[l][i]) * f.m[l][k]).sum())
+    });
+    // M = R S.
+    let mut v_log_scale = [0.0f32; 3];
+    for (k, v) in v_log_scale.iter_mut().enumerate() {
+        *v = (0..3).map(|i| v_m[i][k] * f.rot[i][k]).sum::<f32>() * f.scale[k];
+    }
+    let gr: M3 = std::array::from_fn(|i| std::array::from_fn(|k| v_m[i][k] * f.scale[k]));
+    let [qw, qx, qy, qz] = f.qn;
+    let vqn = [
+        2.0 * (-qz * gr[0][1] + qy * gr[0][2] + qz * gr[1][0] - qx * gr[1][2] - qy * gr[2][0] + qx * gr[2][1]),
+        2.0 * (qy * gr[0][1] + qz * gr[0][2] + qy * gr[1][0] - 2.0 * qx * gr[1][1] - qw * gr[1][2]
+            + qz * gr[2][0]
+            + qw * gr[2][1]
+            - 2.0 * qx * gr[2][2]),
+        2.0 * (-2.0 * qy * gr[0][0] + qx * gr[0][1] + qw * gr[0][2] + qx * gr[1][0] + qz * gr[1][2]
+            - qw * gr[2][0]
+            + qz * gr[2][1]
+            - 2.0 * qy * gr[2][2]),
+        2.0 * (-2.0 * qz * gr[0][0] - qw * gr[0][1] + qx * gr[0][2] + qw * gr[1][0] - 2.0 * qz * gr[1][1]
+            + qy * gr[1][2]
+            + qx * gr[2][0]
+            + qy * gr[2][1]),
+    ];
+    let dot = (0..4).map(|k| vqn[k] * f.qn[k]).sum::<f32>();
+    let v_quat: [f32; 4] = std::array::from_fn(|k| (vqn[k] - f.qn[k] * dot) / f.qnorm);
+
+    // Colour: c = max(Σ_k sh_k Y_k(d) + 0.5, 0).
+    let raw = sh_color(view, p);
+    let vcol: [f32; 3] = std::array::from_fn(|c| if raw[c] < 0.0 { 0.0 } else { g.color[c] });
+    let (d, dn) = view_dir(view, p.mean);
+    let b = sh::basis(p.active_degree, d);
+    let k = crate::sh_coeffs(p.active_degree);
+    let mut gk = [0.0f32; 16];
+    for kk in 0..k {
+        for c in 0..3 {
+            v_sh[kk * 3 + c] = b[kk] * vcol[c];
+            gk[kk] += p.sh[kk * 3 + c] * vcol[c];
+        }
+    }
+    let vd = sh::basis_vjp(p.active_degree, d, &gk);
+    let dd = vd[0] * d[0] + vd[1] * d[1] + vd[2] * d[2];
+    for a in 0..3 {
+        v_mean[a] += (vd[a] - d[a] * dd) / dn;
+    }
+
+    let o = transsplat_scene::sigmoid(p.opacity_logit);
+    GaussianGrads { mean: v_mean, log_scale: v_log_scale, quat: v_quat, opacity_logit: g.opacity * o * (1.0 - o) }
+}
