@@ -6,16 +6,19 @@
 //!   `cameras.json`, COLMAP `sparse/0` and nerfstudio / Blender `transforms.json`
 //!   ([`cameras`]).
 //! - [`npy`]: numpy `.npy` arrays (float32 in and out).
+//! - [`scene_paths`]: finding the scene and cameras in an INRIA 3DGS output folder.
 //! - [`atomic`]: write-to-temporary-then-rename for every output.
 //!
 //! Every error names the file it is about ([`Error`]).
 
 pub mod atomic;
 pub mod camera;
+pub mod cameras;
 pub mod error;
 pub mod gaussians;
 pub mod npy;
 pub mod ply;
+pub mod scene_paths;
 
 pub use camera::Camera;
 pub use error::{Error, Result};

@@ -75,7 +75,7 @@ pub fn parse_with(bytes: &[u8], path: &Path, options: &ReadOptions) -> Result<(G
 ///
 /// Extra property names are made safe (whitespace replaced, clashes with standard
 /// names prefixed `extra_`). Panics if `g.validate()` fails (a programming error);
-/// [`write`] checks first and returns an error instead.
+/// [`write()`] checks first and returns an error instead.
 pub fn to_bytes(g: &Gaussians) -> Vec<u8> {
     let row = 4 * (17 + g.sh_coeffs().saturating_sub(1) * 3 + g.extra.width());
     let mut out = Vec::with_capacity(1024 + g.len() * row);

@@ -1,0 +1,120 @@
+//! Cameras from the formats 3DGS tools use, all converted to [`Camera`] (OpenCV
+//! convention, world-to-camera, pinhole):
+//!
+//! - [`inria`]: the INRIA 3DGS `cameras.json` (read and write);
+//! - [`colmap`]: COLMAP `sparse/0` in `.bin` or `.txt` (cameras, images, points3D);
+//! - [`transforms`]: nerfstudio / Blender `transforms.json` (OpenGL camera-to-world).
+//!
+//! [`load`] picks the format from a path. Every returned camera passes
+//! [`Camera::validate`]; distortion that is not exactly zero is refused, never ignored.
+
+use crate::{Camera, Error, Result};
+use std::path::{Path, PathBuf};
+
+pub mod colmap;
+pub mod image_size;
+pub mod inria;
+pub mod transforms;
+
+/// Loads cameras from `path`, detecting the format:
+///
+/// - a `.json` file: an INRIA `cameras.json` (a list) or a `transforms.json` (an object
+///   with `frames`);
+/// - a COLMAP model folder (containing `cameras.bin` or `cameras.txt`), or a dataset
+///   folder containing `sparse/0` (or `sparse`);
+/// - an INRIA output folder (containing `cameras.json`);
+/// - a dataset folder containing `transforms.json`.
+pub fn load(path: &Path) -> Result<Vec<Camera>> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if meta.is_file() {
+        return load_json(path);
+    }
+    match find_in_dir(path) {
+        Some(Found::Json(p)) => load_json(&p),
+        Some(Found::Colmap(d)) => Ok(colmap::read_sparse(&d)?.cameras),
+        None => Err(Error::format(
+            path,
+            "no cameras found: expected cameras.json, transforms.json, a COLMAP model \
+             (cameras.bin/.txt) or sparse/0 inside this folder",
+        )),
+    }
+}
+
+enum Found {
+    Json(PathBuf),
+    Colmap(PathBuf),
+}
+
+fn is_colmap_dir(d: &Path) -> bool {
+    d.join("cameras.bin").is_file() || d.join("cameras.txt").is_file()
+}
+
+fn find_in_dir(dir: &Path) -> Option<Found> {
+    for name in ["cameras.json", "transforms.json"] {
+        let p = dir.join(name);
+        if p.is_file() {
+            return Some(Found::Json(p));
+        }
+    }
+    [dir.to_path_buf(), dir.join("sparse").join("0"), dir.join("sparse")]
+        .into_iter()
+        .find(|d| is_colmap_dir(d))
+        .map(Found::Colmap)
+}
+
+/// The COLMAP or JSON camera source inside a folder, if there is one (see [`load`]).
+pub fn find_cameras_in(dir: &Path) -> Option<PathBuf> {
+    find_in_dir(dir).map(|f| match f {
+        Found::Json(p) | Found::Colmap(p) => p,
+    })
+}
+
+fn load_json(path: &Path) -> Result<Vec<Camera>> {
+    let bytes = crate::atomic::read(path)?;
+    let value: serde_json::Value =
+        serde_json::from_slice(&bytes).map_err(|e| Error::format(path, format!("not valid JSON: {e}")))?;
+    match &value {
+        serde_json::Value::Array(_) => inria::from_value(&value, path),
+        serde_json::Value::Object(m) if m.contains_key("frames") => {
+            Ok(transforms::from_value(&value, path)?.cameras)
+        }
+        _ => Err(Error::format(
+            path,
+            "unrecognised camera JSON: expected an INRIA cameras.json list or a transforms.json \
+             object with \"frames\"",
+        )),
+    }
+}
+
+/// Checks every camera, naming `path` in the error.
+pub(crate) fn validated(cameras: Vec<Camera>, path: &Path) -> Result<Vec<Camera>> {
+    for c in &cameras {
+        c.validate().map_err(|m| Error::format(path, m))?;
+    }
+    Ok(cameras)
+}
+
+/// A positive image dimension from a JSON number (integral floats like `800.0` allowed).
+pub(crate) fn json_dim(v: &serde_json::Value) -> Option<u32> {
+    let f = v.as_f64()?;
+    (f.fract() == 0.0 && f >= 0.0 && f <= u32::MAX as f64).then_some(f as u32)
+}
+
+/// Rotation matrix of a (w, x, y, z) quaternion, normalised first. None for a zero
+/// or non-finite quaternion.
+pub(crate) fn quat_to_matrix(q: [f64; 4]) -> Option<[[f32; 3]; 3]> {
+    let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+    if !(n.is_finite() && n > 0.0) {
+        return None;
+    }
+    let [w, x, y, z] = q.map(|v| v / n);
+    let m = [
+        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
+        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
+        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+    ];
+    Some(m.map(|r| r.map(|v| v as f32)))
+}
+
+#[cfg(test)]
+mod tests;
