@@ -86,8 +86,12 @@ pub fn to_bytes(g: &Gaussians) -> Vec<u8> {
 }
 
 /// Writes a scene atomically as a binary little-endian float32 INRIA PLY.
+/// Refuses (before creating anything) a scene with NaN or infinite parameters.
 pub fn write(path: &Path, g: &Gaussians) -> Result<()> {
     g.validate().map_err(|m| Error::format(path, format!("cannot write scene: {m}")))?;
+    if let Some((i, what)) = g.first_non_finite() {
+        return Err(Error::format(path, format!("cannot write scene: Gaussian {i} has an invalid {what}")));
+    }
     atomic::write_with(path, |w| write_to(w, g))
 }
 
@@ -517,6 +521,34 @@ trait Source {
     fn count(&mut self, t: Scalar) -> Option<usize>;
     fn skip_items(&mut self, t: Scalar, n: usize) -> Option<()>;
     fn remaining(&self) -> usize;
+    /// Binary only: the next `n` rows of `stride` bytes as one slice, and whether
+    /// values are big-endian.
+    fn fixed_rows(&mut self, _stride: usize, _n: usize) -> Option<(&[u8], bool)> {
+        None
+    }
+}
+
+/// One scalar from exactly `t.size()` bytes (shorter input gives NaN; callers pass
+/// exact slices).
+fn decode(t: Scalar, b: &[u8], big: bool) -> f32 {
+    fn arr<const N: usize>(b: &[u8], big: bool) -> Option<[u8; N]> {
+        let mut a: [u8; N] = b.get(..N)?.try_into().ok()?;
+        if big {
+            a.reverse();
+        }
+        Some(a)
+    }
+    let v = match t {
+        Scalar::F32 => return arr(b, big).map_or(f32::NAN, f32::from_le_bytes),
+        Scalar::I8 => arr(b, big).map(|a| i8::from_le_bytes(a) as f32),
+        Scalar::U8 => arr(b, big).map(|a| u8::from_le_bytes(a) as f32),
+        Scalar::I16 => arr(b, big).map(|a| i16::from_le_bytes(a) as f32),
+        Scalar::U16 => arr(b, big).map(|a| u16::from_le_bytes(a) as f32),
+        Scalar::I32 => arr(b, big).map(|a| i32::from_le_bytes(a) as f32),
+        Scalar::U32 => arr(b, big).map(|a| u32::from_le_bytes(a) as f32),
+        Scalar::F64 => arr(b, big).map(|a| f64::from_le_bytes(a) as f32),
+    };
+    v.unwrap_or(f32::NAN)
 }
 
 struct Binary<'a> {
@@ -573,6 +605,12 @@ impl Source for Binary<'_> {
     }
     fn remaining(&self) -> usize {
         self.bytes.len().saturating_sub(self.pos)
+    }
+    fn fixed_rows(&mut self, stride: usize, n: usize) -> Option<(&[u8], bool)> {
+        let len = stride.checked_mul(n)?;
+        let start = self.pos;
+        self.skip(len)?;
+        Some((&self.bytes[start..start + len], self.big))
     }
 }
 
@@ -669,6 +707,26 @@ fn read_elements<S: Source>(
     };
     plan.reserve(&mut g, n);
     let mut row = vec![0.0f32; el.props.len()];
+    if let Some(stride) = el.fixed_size().filter(|_| binary) {
+        // Fast path: fixed-size binary rows, already checked to fit.
+        let mut cols = Vec::with_capacity(el.props.len());
+        let mut off = 0;
+        for p in &el.props {
+            if let Kind::Scalar(t) = p.kind {
+                cols.push((off, t));
+                off += t.size();
+            }
+        }
+        if let Some((rows, big)) = src.fixed_rows(stride, n) {
+            for chunk in rows.chunks_exact(stride.max(1)) {
+                for (slot, &(off, t)) in cols.iter().enumerate() {
+                    row[slot] = decode(t, &chunk[off..], big);
+                }
+                plan.push_row(&mut g, &row);
+            }
+            return Ok(g);
+        }
+    }
     for i in 0..n {
         for (slot, p) in el.props.iter().enumerate() {
             let ok = match p.kind {

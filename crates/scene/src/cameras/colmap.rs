@@ -130,7 +130,7 @@ fn read_cameras_file(path: &Path) -> Result<HashMap<u32, Intrinsics>> {
     Ok(out)
 }
 
-type RawCamera = (u32, &'static (i32, &'static str, usize, bool), u64, u64, Vec<f64>);
+pub(crate) type RawCamera = (u32, &'static (i32, &'static str, usize, bool), u64, u64, Vec<f64>);
 
 fn to_pinhole(
     id: u32,
@@ -173,7 +173,7 @@ fn model_by_name(name: &str) -> Option<&'static (i32, &'static str, usize, bool)
     MODELS.iter().find(|m| m.1 == name)
 }
 
-struct Image {
+pub(crate) struct Image {
     image_id: u32,
     q: [f64; 4],
     t: [f64; 3],
@@ -254,7 +254,7 @@ fn truncated(what: &str, i: u64, n: u64) -> String {
     format!("truncated: {what} {i} of {n} ends past the end of the file (wrong count or cut-off file)")
 }
 
-fn parse_cameras_bin(b: &[u8]) -> std::result::Result<Vec<RawCamera>, String> {
+pub(crate) fn parse_cameras_bin(b: &[u8]) -> std::result::Result<Vec<RawCamera>, String> {
     let mut c = Cursor { b, pos: 0 };
     let (n, cap) = c.count(48).ok_or("truncated: no camera count")?;
     let mut out = Vec::with_capacity(cap);
@@ -272,7 +272,7 @@ fn parse_cameras_bin(b: &[u8]) -> std::result::Result<Vec<RawCamera>, String> {
     Ok(out)
 }
 
-fn parse_images_bin(b: &[u8]) -> std::result::Result<Vec<Image>, String> {
+pub(crate) fn parse_images_bin(b: &[u8]) -> std::result::Result<Vec<Image>, String> {
     let mut c = Cursor { b, pos: 0 };
     let (n, cap) = c.count(4 + 56 + 4 + 1 + 8).ok_or("truncated: no image count")?;
     let mut out = Vec::with_capacity(cap);
@@ -297,7 +297,7 @@ fn parse_images_bin(b: &[u8]) -> std::result::Result<Vec<Image>, String> {
     Ok(out)
 }
 
-fn parse_points_bin(b: &[u8]) -> std::result::Result<Vec<Point3D>, String> {
+pub(crate) fn parse_points_bin(b: &[u8]) -> std::result::Result<Vec<Point3D>, String> {
     let mut c = Cursor { b, pos: 0 };
     let (n, cap) = c.count(8 + 24 + 3 + 8 + 8).ok_or("truncated: no point count")?;
     let mut out = Vec::with_capacity(cap);
@@ -336,7 +336,7 @@ fn num<T: std::str::FromStr>(tok: Option<&str>, line: usize, what: &str) -> std:
     tok.parse::<T>().map_err(|_| format!("line {line}: {what} {tok:?} is not a valid number"))
 }
 
-fn parse_cameras_txt(b: &[u8]) -> std::result::Result<Vec<RawCamera>, String> {
+pub(crate) fn parse_cameras_txt(b: &[u8]) -> std::result::Result<Vec<RawCamera>, String> {
     let mut out = Vec::new();
     for (ln, l) in text_lines(b)? {
         if is_skip(l) {
@@ -356,7 +356,7 @@ fn parse_cameras_txt(b: &[u8]) -> std::result::Result<Vec<RawCamera>, String> {
     Ok(out)
 }
 
-fn parse_images_txt(b: &[u8]) -> std::result::Result<Vec<Image>, String> {
+pub(crate) fn parse_images_txt(b: &[u8]) -> std::result::Result<Vec<Image>, String> {
     let lines = text_lines(b)?;
     let mut out = Vec::new();
     let mut it = lines.into_iter();
@@ -364,19 +364,28 @@ fn parse_images_txt(b: &[u8]) -> std::result::Result<Vec<Image>, String> {
         if is_skip(l) {
             continue;
         }
-        let mut tok = l.splitn(10, char::is_whitespace).filter(|t| !t.is_empty());
-        let image_id: u32 = num(tok.next(), ln, "image id")?;
+        let mut rest = l;
+        let mut tok = || {
+            let (t, r) = split_token(rest);
+            rest = r;
+            (!t.is_empty()).then_some(t)
+        };
+        let image_id: u32 = num(tok(), ln, "image id")?;
         let mut q = [0.0; 4];
         for (v, w) in q.iter_mut().zip(["QW", "QX", "QY", "QZ"]) {
-            *v = num(tok.next(), ln, w)?;
+            *v = num(tok(), ln, w)?;
         }
         let mut t = [0.0; 3];
         for (v, w) in t.iter_mut().zip(["TX", "TY", "TZ"]) {
-            *v = num(tok.next(), ln, w)?;
+            *v = num(tok(), ln, w)?;
         }
-        let camera_id: u32 = num(tok.next(), ln, "camera id")?;
-        let name = tok.next().map(str::trim).filter(|s| !s.is_empty());
-        let name = name.ok_or_else(|| format!("line {ln}: missing image name"))?.to_string();
+        let camera_id: u32 = num(tok(), ln, "camera id")?;
+        // The name is the rest of the line (it may contain spaces).
+        let name = rest.trim();
+        if name.is_empty() {
+            return Err(format!("line {ln}: missing image name"));
+        }
+        let name = name.to_string();
         // The next line lists the 2D points (possibly empty); not needed.
         it.next();
         out.push(Image { image_id, q, t, camera_id, name });
@@ -384,7 +393,14 @@ fn parse_images_txt(b: &[u8]) -> std::result::Result<Vec<Image>, String> {
     Ok(out)
 }
 
-fn parse_points_txt(b: &[u8]) -> std::result::Result<Vec<Point3D>, String> {
+/// The first whitespace-separated token of `s` and what follows it.
+fn split_token(s: &str) -> (&str, &str) {
+    let s = s.trim_start();
+    let end = s.find(char::is_whitespace).unwrap_or(s.len());
+    s.split_at(end)
+}
+
+pub(crate) fn parse_points_txt(b: &[u8]) -> std::result::Result<Vec<Point3D>, String> {
     let mut out = Vec::new();
     for (ln, l) in text_lines(b)? {
         if is_skip(l) {

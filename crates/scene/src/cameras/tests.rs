@@ -267,6 +267,12 @@ fn colmap_text_errors_name_the_line() {
     let (cams, imgs, pts) = model();
     let d = tempfile::tempdir().unwrap();
     write_txt(d.path(), &cams, &imgs, &pts);
+    // Extra spaces between fields and a name with a space.
+    let images = "# c\n1  1 0 0 0   0 0 1 1   my photo 01.jpg\n\n";
+    std::fs::write(d.path().join("images.txt"), images).unwrap();
+    let m = read_sparse(d.path()).unwrap();
+    assert_eq!(m.cameras[0].name, "my photo 01.jpg");
+    assert_eq!(m.cameras[0].translation, [0.0, 0.0, 1.0]);
     std::fs::write(d.path().join("cameras.txt"), "1 PINHOLE 10 10 5 5 five 5\n").unwrap();
     let e = err_of(read_sparse(d.path()));
     assert!(e.contains("cameras.txt: line 1: parameter \"five\""), "{e}");
@@ -490,4 +496,47 @@ fn load_reports_the_path_when_nothing_is_found() {
     assert!(e.starts_with(&format!("{}: no cameras found", d.path().display())), "{e}");
     let missing = d.path().join("nope");
     assert!(err_of(load(&missing)).starts_with(&missing.display().to_string()));
+}
+
+#[test]
+fn mutated_colmap_and_images_never_panic() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let (cams, imgs, pts) = model();
+    let d = tempfile::tempdir().unwrap();
+    write_bin(d.path(), &cams, &imgs, &pts);
+    write_txt(d.path(), &cams, &imgs, &pts);
+    let files: Vec<(String, Vec<u8>)> =
+        ["cameras.bin", "images.bin", "points3D.bin", "cameras.txt", "images.txt", "points3D.txt"]
+            .iter()
+            .map(|n| (n.to_string(), std::fs::read(d.path().join(n)).unwrap()))
+            .collect();
+    let imgs_bytes = [png_header(8, 8), jpeg_header(8, 8)];
+    for _ in 0..2000 {
+        for (name, good) in
+            files.iter().map(|(n, b)| (n.as_str(), b)).chain(imgs_bytes.iter().map(|b| ("img", b)))
+        {
+            let mut b = good.clone();
+            for _ in 0..rng.gen_range(1..4) {
+                if b.is_empty() {
+                    break;
+                }
+                let i = rng.gen_range(0..b.len());
+                if rng.gen_bool(0.2) {
+                    b.truncate(i)
+                } else {
+                    b[i] = rng.gen()
+                }
+            }
+            match name {
+                "cameras.bin" => drop(colmap::parse_cameras_bin(&b)),
+                "images.bin" => drop(colmap::parse_images_bin(&b)),
+                "points3D.bin" => drop(colmap::parse_points_bin(&b)),
+                "cameras.txt" => drop(colmap::parse_cameras_txt(&b)),
+                "images.txt" => drop(colmap::parse_images_txt(&b)),
+                "points3D.txt" => drop(colmap::parse_points_txt(&b)),
+                _ => drop(image_size::from_bytes(&b)),
+            }
+        }
+    }
 }

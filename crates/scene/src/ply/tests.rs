@@ -66,6 +66,25 @@ fn write_and_read_files_atomically() {
     assert_eq!(bits(&back), bits(&g));
     let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
     assert_eq!(names.len(), 1, "temporary file left behind: {names:?}");
+    let mut bad = g.clone();
+    bad.log_scales[9][2] = f32::NAN;
+    let e = write(&dir.path().join("bad.ply"), &bad).unwrap_err().to_string();
+    assert!(e.contains("bad.ply: cannot write scene: Gaussian 9 has an invalid scale"), "{e}");
+    assert!(!dir.path().join("bad.ply").exists());
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+}
+
+#[test]
+#[ignore = "timing; run with --ignored --nocapture"]
+fn timing_one_million() {
+    let g = random_scene(1_000_000, 3, 0, 1);
+    let t = std::time::Instant::now();
+    let bytes = to_bytes(&g);
+    let w = t.elapsed();
+    let t = std::time::Instant::now();
+    let back = parse(&bytes, &p()).unwrap();
+    eprintln!("1M degree-3: to_bytes {w:?}, parse {:?} ({} MB)", t.elapsed(), bytes.len() >> 20);
+    assert_eq!(back.len(), g.len());
 }
 
 #[test]
@@ -339,4 +358,29 @@ fn every_truncation_errors_without_panicking() {
 fn missing_file_names_the_file() {
     let e = read(Path::new("/nonexistent/dir/scene.ply")).unwrap_err().to_string();
     assert!(e.contains("/nonexistent/dir/scene.ply"), "{e}");
+}
+
+/// Random byte mutations of valid files never panic (a cheap stand-in until the
+/// fuzz targets exist).
+#[test]
+fn mutated_files_never_panic() {
+    let mut rng = ChaCha8Rng::seed_from_u64(99);
+    let seeds = [to_bytes(&random_scene(3, 1, 2, 1)), ASCII.as_bytes().to_vec(), big_endian_file(2, 2)];
+    for seed in &seeds {
+        for _ in 0..3000 {
+            let mut b = seed.clone();
+            for _ in 0..rng.gen_range(1..6) {
+                let i = rng.gen_range(0..b.len());
+                match rng.gen_range(0..3) {
+                    0 => b[i] = rng.gen(),
+                    1 => b[i] = b"0123456789 \n-e.x"[rng.gen_range(0..16)],
+                    _ => b.truncate(i),
+                }
+                if b.is_empty() {
+                    break;
+                }
+            }
+            let _ = parse_with(&b, &p(), &ReadOptions { drop_invalid: rng.gen() });
+        }
+    }
 }
