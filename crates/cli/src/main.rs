@@ -28,6 +28,8 @@ enum Command {
 enum BenchCommand {
     /// Unbalanced transport solver: dense and top-k, 1e5 and 1e6 sources.
     Transport(commands::uot::BenchArgs),
+    /// Rasterizer: forward, backward and splat-back on a synthetic scene.
+    Raster(commands::bench::RasterArgs),
 }
 
 fn main() {
@@ -43,6 +45,7 @@ fn main() {
     let result = match &cli.command {
         Command::Uot(a) => commands::uot::run(a),
         Command::Bench(BenchCommand::Transport(a)) => commands::uot::bench(a),
+        Command::Bench(BenchCommand::Raster(a)) => commands::bench::raster(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");

@@ -225,7 +225,8 @@ fn radix_sort(v: &mut Vec<(u32, u32)>) {
 mod tests {
     #[test]
     fn radix_sort_is_a_stable_sort() {
-        let mut v: Vec<(u32, u32)> = (0..5000u32).map(|i| ((i * 2_654_435_761) % 977 * 4_400_000, i)).collect();
+        let mut v: Vec<(u32, u32)> =
+            (0..5000u32).map(|i| ((i * 2_654_435_761) % 977 * 4_400_000, i)).collect();
         let mut want = v.clone();
         want.sort_by_key(|e| e.0);
         super::radix_sort(&mut v);

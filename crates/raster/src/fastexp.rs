@@ -13,7 +13,8 @@ pub fn exp_neg(x: f32) -> f32 {
     let n = t - MAGIC;
     let r = x - n * LN2_HI - n * LN2_LO;
     // e^r on |r| <= ln2/2 by its Taylor series to degree 6.
-    let p = 1.0 + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
+    let p = 1.0
+        + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
     let bits = (t.to_bits() as i32).wrapping_sub(MAGIC.to_bits() as i32);
     f32::from_bits(((bits + 127) << 23) as u32) * p
 }

@@ -22,18 +22,28 @@ fn rows(s: &Packed, y0: usize, y1: usize) -> (usize, usize) {
     (lo.max(y0), hi.max(lo.max(y0)))
 }
 
-/// Per-pixel output of one tile's forward pass.
+type Row = [f32; TILE];
+type Plane = [Row; TILE];
+
+/// Per-pixel output of one tile's forward pass (`[row][column]`).
 pub struct TileOut {
-    pub t: [f32; N],
-    pub rgb: [[f32; N]; 3],
-    pub depth: [f32; N],
-    pub last: [u32; N],
-    pub feat: Vec<f32>,
+    pub t: Plane,
+    pub rgb: [Plane; 3],
+    pub depth: Plane,
+    pub last: [[u32; TILE]; TILE],
+    /// `num_features` planes.
+    pub feat: Vec<Plane>,
 }
 
 impl TileOut {
     pub fn new(num_features: usize) -> Self {
-        TileOut { t: [1.0; N], rgb: [[0.0; N]; 3], depth: [0.0; N], last: [0; N], feat: vec![0.0; num_features * N] }
+        TileOut {
+            t: [[1.0; TILE]; TILE],
+            rgb: [[[0.0; TILE]; TILE]; 3],
+            depth: [[0.0; TILE]; TILE],
+            last: [[0; TILE]; TILE],
+            feat: vec![[[0.0; TILE]; TILE]; num_features],
+        }
     }
 }
 
@@ -56,24 +66,21 @@ impl Accum<'_> {
 fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&Accum, &mut [f32])>) {
     let (x0, y0, x1, y1) = b.tile_rect(tile);
     let f = b.num_features;
-    let mut active = [false; N];
-    let mut remaining = 0usize;
-    for y in 0..(y1 - y0) {
-        for x in 0..(x1 - x0) {
-            active[y * TILE + x] = true;
-            remaining += 1;
-        }
+    let mut active = [[false; TILE]; TILE];
+    for row in active.iter_mut().take(y1 - y0) {
+        row[..x1 - x0].iter_mut().for_each(|a| *a = true);
     }
-    out.t = [1.0; N];
-    out.rgb = [[0.0; N]; 3];
-    out.depth = [0.0; N];
-    out.last = [0; N];
-    out.feat.iter_mut().for_each(|v| *v = 0.0);
+    let mut remaining = (y1 - y0) * (x1 - x0);
+    out.t = [[1.0; TILE]; TILE];
+    out.rgb = [[[0.0; TILE]; TILE]; 3];
+    out.depth = [[0.0; TILE]; TILE];
+    out.last = [[0; TILE]; TILE];
+    out.feat.iter_mut().for_each(|p| *p = [[0.0; TILE]; TILE]);
     let (acc, acc_buf) = match acc {
         Some((a, buf)) => (Some(a), buf),
         None => (None, &mut [][..]),
     };
-    let px: [f32; TILE] = std::array::from_fn(|x| (x0 + x) as f32 + 0.5);
+    let px: Row = std::array::from_fn(|x| (x0 + x) as f32 + 0.5);
     for (li, &j) in b.tile_list(tile).iter().enumerate() {
         if remaining == 0 {
             break;
@@ -82,60 +89,72 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
         let (r0, r1) = rows(s, y0, y1);
         let mut stops = 0usize;
         let mut sums = [0.0f32; 3];
+        let (sx, sa, sb, sc, so) = (s.x, s.a, s.b, s.c, s.opacity);
+        let [cr, cg, cb] = s.color;
+        let sz = s.depth;
         for py in r0..r1 {
-            let row = (py - y0) * TILE;
+            let r = py - y0;
             let dy = s.y - (py as f32 + 0.5);
-            let mut wrow = [0.0f32; TILE];
-            let mut arow = [0.0f32; TILE];
-            let mut any = false;
-            for x in 0..TILE {
-                let p = row + x;
-                let dx = s.x - px[x];
-                let sigma = 0.5 * (s.a * dx * dx + s.c * dy * dy) + s.b * dx * dy;
-                let alpha = (s.opacity * exp_neg(-sigma)).min(0.999);
-                let t = out.t[p];
-                let ok = active[p] & (sigma >= 0.0) & (alpha >= ALPHA_MIN);
-                let next_t = t * (1.0 - alpha);
-                let stop = ok & (next_t <= T_MIN);
-                let blend = ok & !stop;
-                let w = if blend { alpha * t } else { 0.0 };
-                out.rgb[0][p] += w * s.color[0];
-                out.rgb[1][p] += w * s.color[1];
-                out.rgb[2][p] += w * s.color[2];
-                out.depth[p] += w * s.depth;
-                out.t[p] = if blend { next_t } else { t };
-                out.last[p] = if blend { li as u32 + 1 } else { out.last[p] };
-                active[p] &= !stop;
-                stops += stop as usize;
-                wrow[x] = w;
-                arow[x] = if blend { alpha } else { 0.0 };
-                any |= blend;
+            let mut wrow: Row = [0.0; TILE];
+            let mut arow: Row = [0.0; TILE];
+            let mut nblend = 0u32;
+            let mut nstop = 0u32;
+            {
+                let t = &mut out.t[r];
+                let [o0, o1, o2] = &mut out.rgb;
+                let (o0, o1, o2) = (&mut o0[r], &mut o1[r], &mut o2[r]);
+                let od = &mut out.depth[r];
+                let ol = &mut out.last[r];
+                let act = &mut active[r];
+                let cdy = 0.5 * sc * dy * dy;
+                let bdy = sb * dy;
+                for x in 0..TILE {
+                    let dx = sx - px[x];
+                    let sigma = 0.5 * sa * dx * dx + cdy + bdy * dx;
+                    let alpha = (so * exp_neg(-sigma)).min(0.999);
+                    let tt = t[x];
+                    let ok = act[x] & (sigma >= 0.0) & (alpha >= ALPHA_MIN);
+                    let next_t = tt * (1.0 - alpha);
+                    let stop = ok & (next_t <= T_MIN);
+                    let blend = ok & !stop;
+                    let w = if blend { alpha * tt } else { 0.0 };
+                    o0[x] += w * cr;
+                    o1[x] += w * cg;
+                    o2[x] += w * cb;
+                    od[x] += w * sz;
+                    t[x] = if blend { next_t } else { tt };
+                    ol[x] = if blend { li as u32 + 1 } else { ol[x] };
+                    act[x] &= !stop;
+                    nstop += stop as u32;
+                    nblend += blend as u32;
+                    wrow[x] = w;
+                    arow[x] = if blend { alpha } else { 0.0 };
+                }
             }
-            if !any {
+            stops += nstop as usize;
+            if nblend == 0 {
                 continue;
             }
             if f > 0 {
                 let fj = &b.feats[j as usize * f..(j as usize + 1) * f];
-                for (k, &fk) in fj.iter().enumerate() {
-                    let dst = &mut out.feat[k * N + row..k * N + row + TILE];
+                for (plane, &fk) in out.feat.iter_mut().zip(fj) {
+                    let dst = &mut plane[r];
                     for x in 0..TILE {
                         dst[x] += wrow[x] * fk;
                     }
                 }
             }
             if let Some(a) = acc {
-                let stride = a.stride();
-                let dst = &mut acc_buf[j as usize * stride..(j as usize + 1) * stride];
-                for x in 0..TILE {
-                    sums[0] += wrow[x];
-                    sums[1] += arow[x];
-                    sums[2] += if arow[x] > 0.0 { 1.0 } else { 0.0 };
-                }
+                sums[0] += wrow.iter().sum::<f32>();
+                sums[1] += arow.iter().sum::<f32>();
+                sums[2] += nblend as f32;
                 if a.channels > 0 {
+                    let stride = a.stride();
+                    let dst = &mut acc_buf[j as usize * stride + 3..(j as usize + 1) * stride];
                     for (x, &w) in wrow.iter().enumerate().take(x1 - x0) {
                         if w > 0.0 {
                             let g = &a.image[(py * b.width + x0 + x) * a.channels..][..a.channels];
-                            for (d, gv) in dst[3..].iter_mut().zip(g) {
+                            for (d, gv) in dst.iter_mut().zip(g) {
                                 *d += w * gv;
                             }
                         }
@@ -143,11 +162,12 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
                 }
             }
         }
-        if acc.is_some() && sums[2] > 0.0 {
-            let stride = acc.map_or(0, |a| a.stride());
-            let dst = &mut acc_buf[j as usize * stride..j as usize * stride + 3];
-            for k in 0..3 {
-                dst[k] += sums[k];
+        if let Some(a) = acc {
+            if sums[2] > 0.0 {
+                let dst = &mut acc_buf[j as usize * a.stride()..][..3];
+                for k in 0..3 {
+                    dst[k] += sums[k];
+                }
             }
         }
         remaining -= stops;

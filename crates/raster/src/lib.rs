@@ -15,6 +15,7 @@
 //!
 //! Work is split into 16×16 tiles processed in parallel with rayon.
 
+pub mod bench;
 pub mod bin;
 pub mod fastexp;
 pub mod kernel;
@@ -22,7 +23,7 @@ mod par;
 pub mod project;
 pub mod sh;
 
-use bin::{Binned, TILE};
+use bin::Binned;
 use kernel::{Accum, ForwardState, PixelGrads, TileOut};
 use project::{GaussianParams, Splat2dGrads, View};
 use rayon::prelude::*;
@@ -194,21 +195,21 @@ pub fn render(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Image, Fr
             let (x0, y0, x1, y1) = binned.tile_rect(tile);
             for y in y0..y1 {
                 for x in x0..x1 {
-                    let p = (y - y0) * TILE + (x - x0);
+                    let (r, c) = (y - y0, x - x0);
                     let q = y * w + x;
-                    let t = out.t[p];
+                    let t = out.t[r][c];
                     // SAFETY: every pixel belongs to exactly one tile; tiles write disjoint pixels.
                     unsafe {
-                        for c in 0..3 {
-                            *ptrs.0 .0.add(q * 3 + c) = out.rgb[c][p] + t * bg[c];
+                        for ch in 0..3 {
+                            *ptrs.0 .0.add(q * 3 + ch) = out.rgb[ch][r][c] + t * bg[ch];
                         }
                         *ptrs.1 .0.add(q) = 1.0 - t;
-                        *ptrs.2 .0.add(q) = out.depth[p];
+                        *ptrs.2 .0.add(q) = out.depth[r][c];
                         for k in 0..f {
-                            *ptrs.3 .0.add(q * f + k) = out.feat[k * TILE * TILE + p];
+                            *ptrs.3 .0.add(q * f + k) = out.feat[k][r][c];
                         }
                         *ptrs.4 .0.add(q) = t;
-                        *ptrs.5 .0.add(q) = out.last[p];
+                        *ptrs.5 .0.add(q) = out.last[r][c];
                     }
                 }
             }
@@ -262,9 +263,12 @@ pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, gr
     validate(splats, cam);
     let b = &frame.binned;
     let (w, h, f) = (b.width, b.height, b.num_features);
-    for (name, v, want) in
-        [("rgb", g.rgb, w * h * 3), ("alpha", g.alpha, w * h), ("depth", g.depth, w * h), ("features", g.features, w * h * f)]
-    {
+    for (name, v, want) in [
+        ("rgb", g.rgb, w * h * 3),
+        ("alpha", g.alpha, w * h),
+        ("depth", g.depth, w * h),
+        ("features", g.features, w * h * f),
+    ] {
         assert!(v.is_empty() || v.len() == want, "{name} gradient has {} values, expected {want}", v.len());
     }
     let stride = kernel::grad_stride(f);

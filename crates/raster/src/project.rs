@@ -125,7 +125,9 @@ fn quat_to_rotmat(q: [f32; 4]) -> ([f32; 4], f32, M3) {
 }
 
 fn matmul(a: &M3, b: &M3) -> M3 {
-    std::array::from_fn(|i| std::array::from_fn(|j| a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j]))
+    std::array::from_fn(|i| {
+        std::array::from_fn(|j| a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j])
+    })
 }
 
 fn transpose(a: &M3) -> M3 {
@@ -168,10 +170,8 @@ fn forward_internals(view: &View, p: &GaussianParams) -> Fwd {
     let clamped_y = cy_ != ry;
     let tx_c = tz * cx_;
     let ty_c = tz * cy_;
-    let j = [
-        [view.fx / tz, 0.0, -view.fx * tx_c / (tz * tz)],
-        [0.0, view.fy / tz, -view.fy * ty_c / (tz * tz)],
-    ];
+    let j =
+        [[view.fx / tz, 0.0, -view.fx * tx_c / (tz * tz)], [0.0, view.fy / tz, -view.fy * ty_c / (tz * tz)]];
     // cov2d = J cov_cam Jᵀ (symmetric 2x2: a, b, c)
     let jc: [[f32; 3]; 2] =
         std::array::from_fn(|i| std::array::from_fn(|k| (0..3).map(|l| j[i][l] * cov_cam[l][k]).sum()));
@@ -238,7 +238,10 @@ pub fn project(view: &View, p: &GaussianParams) -> Option<(Splat2d, [u32; 2])> {
         return None;
     }
     let xy = [view.fx * f.t[0] / f.t[2] + view.cx, view.fy * f.t[1] / f.t[2] + view.cy];
-    if !(xy[0] + rx > 0.0 && xy[0] - rx < view.width as f32 && xy[1] + ry > 0.0 && xy[1] - ry < view.height as f32)
+    if !(xy[0] + rx > 0.0
+        && xy[0] - rx < view.width as f32
+        && xy[1] + ry > 0.0
+        && xy[1] - ry < view.height as f32)
     {
         return None;
     }
@@ -250,7 +253,12 @@ pub fn project(view: &View, p: &GaussianParams) -> Option<(Splat2d, [u32; 2])> {
 /// Backward of [`project`] for a visible Gaussian: from the gradients on its
 /// splat to the gradients on its parameters. SH coefficient gradients are written
 /// into `v_sh` (`[coefficient][channel]`, the active coefficients only).
-pub fn project_backward(view: &View, p: &GaussianParams, g: &Splat2dGrads, v_sh: &mut [f32]) -> GaussianGrads {
+pub fn project_backward(
+    view: &View,
+    p: &GaussianParams,
+    g: &Splat2dGrads,
+    v_sh: &mut [f32],
+) -> GaussianGrads {
     let f = forward_internals(view, p);
     let [c00, c01, c11] = f.cov2d;
     let inv = 1.0 / f.det;
@@ -258,8 +266,10 @@ pub fn project_backward(view: &View, p: &GaussianParams, g: &Splat2dGrads, v_sh:
     // σ = ½ dᵀ Q d with Q = [[a, b], [b, c]]: dL/dQ = [[va, vb/2], [vb/2, vc]].
     let vq = [[g.conic[0], 0.5 * g.conic[1]], [0.5 * g.conic[1], g.conic[2]]];
     // Q = C⁻¹ ⇒ dL/dC = −Q (dL/dQ) Q.
-    let qv: [[f32; 2]; 2] = std::array::from_fn(|i| std::array::from_fn(|k| q[i][0] * vq[0][k] + q[i][1] * vq[1][k]));
-    let vc: [[f32; 2]; 2] = std::array::from_fn(|i| std::array::from_fn(|k| -(qv[i][0] * q[0][k] + qv[i][1] * q[1][k])));
+    let qv: [[f32; 2]; 2] =
+        std::array::from_fn(|i| std::array::from_fn(|k| q[i][0] * vq[0][k] + q[i][1] * vq[1][k]));
+    let vc: [[f32; 2]; 2] =
+        std::array::from_fn(|i| std::array::from_fn(|k| -(qv[i][0] * q[0][k] + qv[i][1] * q[1][k])));
 
     // C = J Σc Jᵀ: dΣc = Jᵀ dC J; dJ = dC J Σc + dCᵀ J Σcᵀ = 2 dC J Σc (dC, Σc symmetric).
     let j = &f.j;
@@ -319,7 +329,8 @@ pub fn project_backward(view: &View, p: &GaussianParams, g: &Splat2dGrads, v_sh:
     let gr: M3 = std::array::from_fn(|i| std::array::from_fn(|k| v_m[i][k] * f.scale[k]));
     let [qw, qx, qy, qz] = f.qn;
     let vqn = [
-        2.0 * (-qz * gr[0][1] + qy * gr[0][2] + qz * gr[1][0] - qx * gr[1][2] - qy * gr[2][0] + qx * gr[2][1]),
+        2.0 * (-qz * gr[0][1] + qy * gr[0][2] + qz * gr[1][0] - qx * gr[1][2] - qy * gr[2][0]
+            + qx * gr[2][1]),
         2.0 * (qy * gr[0][1] + qz * gr[0][2] + qy * gr[1][0] - 2.0 * qx * gr[1][1] - qw * gr[1][2]
             + qz * gr[2][0]
             + qw * gr[2][1]
@@ -356,5 +367,10 @@ pub fn project_backward(view: &View, p: &GaussianParams, g: &Splat2dGrads, v_sh:
     }
 
     let o = transsplat_scene::sigmoid(p.opacity_logit);
-    GaussianGrads { mean: v_mean, log_scale: v_log_scale, quat: v_quat, opacity_logit: g.opacity * o * (1.0 - o) }
+    GaussianGrads {
+        mean: v_mean,
+        log_scale: v_log_scale,
+        quat: v_quat,
+        opacity_logit: g.opacity * o * (1.0 - o),
+    }
 }

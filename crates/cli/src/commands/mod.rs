@@ -1,3 +1,4 @@
 //! One module per subcommand; each parses its own arguments and calls the libraries.
 
+pub mod bench;
 pub mod uot;
