@@ -16,6 +16,9 @@ pub mod image_size;
 pub mod inria;
 pub mod transforms;
 
+pub use colmap::{ColmapModel, Point3D};
+pub use transforms::Transforms;
+
 /// Loads cameras from `path`, detecting the format:
 ///
 /// - a `.json` file: an INRIA `cameras.json` (a list) or a `transforms.json` (an object

@@ -18,6 +18,17 @@ pub fn read(path: &Path) -> Result<Vec<Camera>> {
 /// Writes an INRIA `cameras.json` atomically. The principal point is not stored (the
 /// format assumes the image centre).
 pub fn write(path: &Path, cameras: &[Camera]) -> Result<()> {
+    let off_centre = cameras
+        .iter()
+        .filter(|c| (c.cx - c.width as f32 / 2.0).abs() > 0.5 || (c.cy - c.height as f32 / 2.0).abs() > 0.5)
+        .count();
+    if off_centre > 0 {
+        tracing::warn!(
+            "{}: {off_centre} camera(s) have a principal point away from the image centre; cameras.json \
+             cannot store it and readers will assume the centre",
+            path.display()
+        );
+    }
     let list: Vec<Value> = cameras
         .iter()
         .enumerate()
