@@ -80,6 +80,8 @@ pub struct BenchResult {
     pub width: u32,
     pub height: u32,
     pub forward: f64,
+    /// Projection, depth sort and tile binning alone (part of `forward`).
+    pub binning: f64,
     pub backward: f64,
     pub splat_back: f64,
     /// Gaussian–pixel pairs blended.
@@ -110,6 +112,8 @@ pub fn run(n: usize, width: u32, height: u32, reps: usize) -> BenchResult {
     let s = Splats::new(&g);
     let opts = RenderOptions { background: [0.0; 3] };
     let (forward, (img, frame)) = best(reps, || render(&s, &cam, &opts));
+    let view = crate::project::View::new(&cam);
+    let (binning, _) = best(reps, || crate::bin::bin(&s, &view));
     let px = (width * height) as usize;
     let v: Vec<f32> = (0..px * 3).map(|i| ((i * 7919) % 17) as f32 / 17.0 - 0.5).collect();
     let va: Vec<f32> = v[..px].to_vec();
@@ -127,6 +131,7 @@ pub fn run(n: usize, width: u32, height: u32, reps: usize) -> BenchResult {
         width,
         height,
         forward,
+        binning,
         backward: bwd,
         splat_back: splat,
         blended_pairs: stats.pixel_count.iter().map(|&c| c as u64).sum(),

@@ -23,9 +23,29 @@ pub struct Packed {
     pub opacity: f32,
     pub color: [f32; 3],
     pub depth: f32,
-    /// Box half-extents in pixels.
-    pub rx: f32,
-    pub ry: f32,
+    /// Half-extents (pixels) of the box outside which α < 1/255 for sure: the
+    /// opacity-aware bound min(3.33, √(2 ln(255 o))) · √diag Σ₂, slightly inflated.
+    pub ex: f32,
+    pub ey: f32,
+    /// σ above which α < 1/255: ln(255 o), slightly inflated.
+    pub thr: f32,
+}
+
+/// The tight support of a splat: (ex, ey, thr), or `None` if α < 1/255 everywhere.
+/// Used only to skip work: every pair it excludes has α < 1/255 and would be skipped
+/// by the compositing rule anyway.
+fn support(s: &Splat2d) -> Option<(f32, f32, f32)> {
+    let thr = (255.0 * s.opacity).ln();
+    if !(thr > 0.0) {
+        return None;
+    }
+    let thr = thr * (1.0 + 1e-4) + 1e-4;
+    let [a, b, c] = s.conic;
+    let det = a * c - b * b;
+    let ext = (2.0 * thr).sqrt().min(crate::project::EXTENT);
+    let ex = ext * (c / det).sqrt() * (1.0 + 1e-4) + 1e-3;
+    let ey = ext * (a / det).sqrt() * (1.0 + 1e-4) + 1e-3;
+    Some((ex, ey, thr))
 }
 
 /// Everything the compositing passes need for one view.
@@ -37,7 +57,7 @@ pub struct Binned {
     pub tiles_y: usize,
     /// Number of Gaussians in the scene.
     pub num_gaussians: usize,
-    /// Global id of each visible Gaussian, front to back.
+    /// Global id of each Gaussian that can blend somewhere, front to back.
     pub ids: Vec<u32>,
     /// Packed splats in the same (depth) order.
     pub splats: Vec<Packed>,
@@ -74,10 +94,10 @@ impl Binned {
 
 fn tile_span(p: &Packed, tiles_x: usize, tiles_y: usize) -> (usize, usize, usize, usize) {
     let t = TILE as f32;
-    let x0 = ((p.x - p.rx) / t).floor().max(0.0) as usize;
-    let y0 = ((p.y - p.ry) / t).floor().max(0.0) as usize;
-    let x1 = (((p.x + p.rx) / t).ceil().max(0.0) as usize).min(tiles_x);
-    let y1 = (((p.y + p.ry) / t).ceil().max(0.0) as usize).min(tiles_y);
+    let x0 = ((p.x - p.ex) / t).floor().max(0.0) as usize;
+    let y0 = ((p.y - p.ey) / t).floor().max(0.0) as usize;
+    let x1 = (((p.x + p.ex) / t).ceil().max(0.0) as usize).min(tiles_x);
+    let y1 = (((p.y + p.ey) / t).ceil().max(0.0) as usize).min(tiles_y);
     (x0, y0, x1, y1)
 }
 
@@ -99,7 +119,9 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
             means2d[i] = s.xy;
             depths[i] = s.depth;
             radii[i] = *r;
-            keys.push((s.depth.to_bits(), i as u32));
+            if support(s).is_some() {
+                keys.push((s.depth.to_bits(), i as u32));
+            }
         }
     }
     radix_sort(&mut keys);
@@ -108,7 +130,8 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
         .par_iter()
         .with_min_len(4096)
         .map(|&i| {
-            let (s, r) = projected[i as usize].expect("visible");
+            let (s, _) = projected[i as usize].expect("visible");
+            let (ex, ey, thr) = support(&s).expect("has support");
             Packed {
                 x: s.xy[0],
                 y: s.xy[1],
@@ -118,8 +141,9 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
                 opacity: s.opacity,
                 color: s.color,
                 depth: s.depth,
-                rx: r[0] as f32,
-                ry: r[1] as f32,
+                ex,
+                ey,
+                thr,
             }
         })
         .collect();

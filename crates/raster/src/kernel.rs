@@ -10,16 +10,65 @@
 use crate::bin::{Binned, Packed, TILE};
 use crate::fastexp::exp_neg;
 
-const N: usize = TILE * TILE;
 const ALPHA_MIN: f32 = 1.0 / 255.0;
 const T_MIN: f32 = 1e-4;
 
-/// Row range `[r0, r1)` of pixels inside both the tile `[y0, y1)` and the box of `s`.
+/// Lanes per vector: a tile row is processed as two halves of 8 pixels.
+const HALF: usize = 8;
+
+/// Row range `[r0, r1)` of pixels inside both the tile `[y0, y1)` and the support of `s`.
 #[inline(always)]
 fn rows(s: &Packed, y0: usize, y1: usize) -> (usize, usize) {
-    let lo = (s.y - s.ry - 0.5).ceil().max(y0 as f32) as usize;
-    let hi = ((s.y + s.ry - 0.5).floor() + 1.0).clamp(0.0, y1 as f32) as usize;
+    let lo = (s.y - s.ey - 0.5).ceil().max(y0 as f32) as usize;
+    let hi = ((s.y + s.ey - 0.5).floor() + 1.0).clamp(0.0, y1 as f32) as usize;
     (lo.max(y0), hi.max(lo.max(y0)))
+}
+
+/// The halves `[h0, h1)` of a tile row (`dy` = mean − pixel-centre y) that can hold
+/// a pixel with σ ≤ thr: the roots of ½a dx² + b dy dx + ½c dy² = thr, padded.
+#[inline(always)]
+fn halves(s: &Packed, dy: f32, x0: usize) -> (usize, usize) {
+    let disc = (s.b * s.b - s.a * s.c) * dy * dy + 2.0 * s.a * s.thr;
+    if !(disc >= 0.0) {
+        return (0, 0);
+    }
+    let r = disc.sqrt();
+    // Pixel centre px = x0 + x + 0.5 = s.x − dx with dx between the roots.
+    let lo = s.x - (-s.b * dy + r) / s.a - 0.5 - x0 as f32 - 0.05;
+    let hi = s.x - (-s.b * dy - r) / s.a - 0.5 - x0 as f32 + 0.05;
+    if hi < 0.0 || lo > (TILE - 1) as f32 {
+        return (0, 0);
+    }
+    let lo = lo.max(0.0) as usize / HALF;
+    let hi = (hi.min((TILE - 1) as f32) as usize) / HALF + 1;
+    (lo, hi)
+}
+
+/// How many list entries ahead the splat data is prefetched.
+const PREFETCH: usize = 12;
+
+/// Hints the CPU to fetch the splat at `list[i]` (the lists index a large array
+/// in depth order, so consecutive entries are far apart in memory).
+#[inline(always)]
+fn prefetch(b: &Binned, list: &[u32], i: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(&j) = list.get(i) {
+        let p = b.splats.as_ptr().wrapping_add(j as usize) as *const i8;
+        // SAFETY: prefetching is a hint; it never faults, even for a bad address.
+        unsafe { std::arch::x86_64::_mm_prefetch(p, std::arch::x86_64::_MM_HINT_T0) };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (b, list, i);
+}
+
+#[inline(always)]
+fn half<T>(row: &[T; TILE], h: usize) -> &[T; HALF] {
+    (&row[h * HALF..h * HALF + HALF]).try_into().expect("half row")
+}
+
+#[inline(always)]
+fn half_mut<T>(row: &mut [T; TILE], h: usize) -> &mut [T; HALF] {
+    (&mut row[h * HALF..h * HALF + HALF]).try_into().expect("half row")
 }
 
 type Row = [f32; TILE];
@@ -71,6 +120,13 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
         row[..x1 - x0].iter_mut().for_each(|a| *a = true);
     }
     let mut remaining = (y1 - y0) * (x1 - x0);
+    // Live pixels per half row: a half row whose pixels have all stopped is skipped.
+    let mut alive = [[0u32; 2]; TILE];
+    for row in alive.iter_mut().take(y1 - y0) {
+        for (h, a) in row.iter_mut().enumerate() {
+            *a = (x0 + h * HALF..x0 + (h + 1) * HALF).filter(|&x| x < x1).count() as u32;
+        }
+    }
     out.t = [[1.0; TILE]; TILE];
     out.rgb = [[[0.0; TILE]; TILE]; 3];
     out.depth = [[0.0; TILE]; TILE];
@@ -81,10 +137,12 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
         None => (None, &mut [][..]),
     };
     let px: Row = std::array::from_fn(|x| (x0 + x) as f32 + 0.5);
-    for (li, &j) in b.tile_list(tile).iter().enumerate() {
+    let list = b.tile_list(tile);
+    for (li, &j) in list.iter().enumerate() {
         if remaining == 0 {
             break;
         }
+        prefetch(b, list, li + PREFETCH);
         let s = &b.splats[j as usize];
         let (r0, r1) = rows(s, y0, y1);
         let mut stops = 0usize;
@@ -95,67 +153,77 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
         for py in r0..r1 {
             let r = py - y0;
             let dy = s.y - (py as f32 + 0.5);
-            let mut wrow: Row = [0.0; TILE];
-            let mut arow: Row = [0.0; TILE];
-            let mut nblend = 0u32;
-            let mut nstop = 0u32;
-            {
-                let t = &mut out.t[r];
-                let [o0, o1, o2] = &mut out.rgb;
-                let (o0, o1, o2) = (&mut o0[r], &mut o1[r], &mut o2[r]);
-                let od = &mut out.depth[r];
-                let ol = &mut out.last[r];
-                let act = &mut active[r];
-                let cdy = 0.5 * sc * dy * dy;
-                let bdy = sb * dy;
-                for x in 0..TILE {
-                    let dx = sx - px[x];
-                    let sigma = 0.5 * sa * dx * dx + cdy + bdy * dx;
-                    let alpha = (so * exp_neg(-sigma)).min(0.999);
-                    let tt = t[x];
-                    let ok = act[x] & (sigma >= 0.0) & (alpha >= ALPHA_MIN);
-                    let next_t = tt * (1.0 - alpha);
-                    let stop = ok & (next_t <= T_MIN);
-                    let blend = ok & !stop;
-                    let w = if blend { alpha * tt } else { 0.0 };
-                    o0[x] += w * cr;
-                    o1[x] += w * cg;
-                    o2[x] += w * cb;
-                    od[x] += w * sz;
-                    t[x] = if blend { next_t } else { tt };
-                    ol[x] = if blend { li as u32 + 1 } else { ol[x] };
-                    act[x] &= !stop;
-                    nstop += stop as u32;
-                    nblend += blend as u32;
-                    wrow[x] = w;
-                    arow[x] = if blend { alpha } else { 0.0 };
+            let (h0, h1) = halves(s, dy, x0);
+            let cdy = 0.5 * sc * dy * dy;
+            let bdy = sb * dy;
+            for h in h0..h1 {
+                if alive[r][h] == 0 {
+                    continue;
                 }
-            }
-            stops += nstop as usize;
-            if nblend == 0 {
-                continue;
-            }
-            if f > 0 {
-                let fj = &b.feats[j as usize * f..(j as usize + 1) * f];
-                for (plane, &fk) in out.feat.iter_mut().zip(fj) {
-                    let dst = &mut plane[r];
-                    for x in 0..TILE {
-                        dst[x] += wrow[x] * fk;
+                let mut wrow = [0.0f32; HALF];
+                let mut arow = [0.0f32; HALF];
+                let mut nblend = 0u32;
+                let mut nstop = 0u32;
+                {
+                    let t = half_mut(&mut out.t[r], h);
+                    let [o0, o1, o2] = &mut out.rgb;
+                    let (o0, o1, o2) =
+                        (half_mut(&mut o0[r], h), half_mut(&mut o1[r], h), half_mut(&mut o2[r], h));
+                    let od = half_mut(&mut out.depth[r], h);
+                    let ol = half_mut(&mut out.last[r], h);
+                    let act = half_mut(&mut active[r], h);
+                    let pxh = half(&px, h);
+                    for x in 0..HALF {
+                        let dx = sx - pxh[x];
+                        let sigma = 0.5 * sa * dx * dx + cdy + bdy * dx;
+                        let alpha = (so * exp_neg(-sigma)).min(0.999);
+                        let tt = t[x];
+                        let ok = act[x] & (sigma >= 0.0) & (alpha >= ALPHA_MIN);
+                        let next_t = tt * (1.0 - alpha);
+                        let stop = ok & (next_t <= T_MIN);
+                        let blend = ok & !stop;
+                        let w = if blend { alpha * tt } else { 0.0 };
+                        o0[x] += w * cr;
+                        o1[x] += w * cg;
+                        o2[x] += w * cb;
+                        od[x] += w * sz;
+                        t[x] = if blend { next_t } else { tt };
+                        ol[x] = if blend { li as u32 + 1 } else { ol[x] };
+                        act[x] &= !stop;
+                        nstop += stop as u32;
+                        nblend += blend as u32;
+                        wrow[x] = w;
+                        arow[x] = if blend { alpha } else { 0.0 };
                     }
                 }
-            }
-            if let Some(a) = acc {
-                sums[0] += wrow.iter().sum::<f32>();
-                sums[1] += arow.iter().sum::<f32>();
-                sums[2] += nblend as f32;
-                if a.channels > 0 {
-                    let stride = a.stride();
-                    let dst = &mut acc_buf[j as usize * stride + 3..(j as usize + 1) * stride];
-                    for (x, &w) in wrow.iter().enumerate().take(x1 - x0) {
-                        if w > 0.0 {
-                            let g = &a.image[(py * b.width + x0 + x) * a.channels..][..a.channels];
-                            for (d, gv) in dst.iter_mut().zip(g) {
-                                *d += w * gv;
+                stops += nstop as usize;
+                alive[r][h] -= nstop;
+                if nblend == 0 {
+                    continue;
+                }
+                if f > 0 {
+                    let fj = &b.feats[j as usize * f..(j as usize + 1) * f];
+                    for (plane, &fk) in out.feat.iter_mut().zip(fj) {
+                        let dst = half_mut(&mut plane[r], h);
+                        for x in 0..HALF {
+                            dst[x] += wrow[x] * fk;
+                        }
+                    }
+                }
+                if let Some(a) = acc {
+                    sums[0] += wrow.iter().sum::<f32>();
+                    sums[1] += arow.iter().sum::<f32>();
+                    sums[2] += nblend as f32;
+                    if a.channels > 0 {
+                        let stride = a.stride();
+                        let dst = &mut acc_buf[j as usize * stride + 3..(j as usize + 1) * stride];
+                        for (x, &w) in wrow.iter().enumerate() {
+                            if w > 0.0 {
+                                let col = x0 + h * HALF + x;
+                                let g = &a.image[(py * b.width + col) * a.channels..][..a.channels];
+                                for (d, gv) in dst.iter_mut().zip(g) {
+                                    *d += w * gv;
+                                }
                             }
                         }
                     }
@@ -202,138 +270,170 @@ fn backward_tile_impl(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads
     let f = b.num_features;
     let stride = grad_stride(f);
     let w = b.width;
-    let mut t = [0.0f32; N];
-    let mut last = [0u32; N];
-    let mut vrgb = [[0.0f32; N]; 3];
-    let mut vd = [0.0f32; N];
-    let mut tfv = [0.0f32; N];
-    let mut vf = vec![0.0f32; f * N];
-    let mut bf = vec![0.0f32; f * N];
-    let mut brgb = [[0.0f32; N]; 3];
-    let mut bd = [0.0f32; N];
+    let mut t: Plane = [[0.0; TILE]; TILE];
+    let mut last = [[0u32; TILE]; TILE];
+    let mut vrgb: [Plane; 3] = [[[0.0; TILE]; TILE]; 3];
+    let mut vd: Plane = [[0.0; TILE]; TILE];
+    let mut tfv: Plane = [[0.0; TILE]; TILE];
+    let mut vf: Vec<Plane> = vec![[[0.0; TILE]; TILE]; f];
+    let mut bf: Vec<Plane> = vec![[[0.0; TILE]; TILE]; f];
+    let mut brgb: [Plane; 3] = [[[0.0; TILE]; TILE]; 3];
+    let mut bd: Plane = [[0.0; TILE]; TILE];
     let mut max_last = 0u32;
     for y in 0..(y1 - y0) {
         for x in 0..(x1 - x0) {
-            let p = y * TILE + x;
             let q = (y0 + y) * w + x0 + x;
-            t[p] = st.final_t[q];
-            last[p] = st.last[q];
-            max_last = max_last.max(last[p]);
+            t[y][x] = st.final_t[q];
+            last[y][x] = st.last[q];
+            max_last = max_last.max(last[y][x]);
             let mut bgv = 0.0;
             if !g.rgb.is_empty() {
                 for c in 0..3 {
-                    vrgb[c][p] = g.rgb[q * 3 + c];
-                    bgv += st.background[c] * vrgb[c][p];
+                    vrgb[c][y][x] = g.rgb[q * 3 + c];
+                    bgv += st.background[c] * vrgb[c][y][x];
                 }
             }
             let va = if g.alpha.is_empty() { 0.0 } else { g.alpha[q] };
             // ∂(1 − T_N)/∂α_i = T_N/(1−α_i); ∂(T_N bg)/∂α_i = −T_N bg/(1−α_i).
-            tfv[p] = t[p] * (va - bgv);
+            tfv[y][x] = t[y][x] * (va - bgv);
             if !g.depth.is_empty() {
-                vd[p] = g.depth[q];
+                vd[y][x] = g.depth[q];
             }
             if !g.features.is_empty() {
-                for k in 0..f {
-                    vf[k * N + p] = g.features[q * f + k];
+                for (k, plane) in vf.iter_mut().enumerate() {
+                    plane[y][x] = g.features[q * f + k];
                 }
             }
         }
     }
-    let px: [f32; TILE] = std::array::from_fn(|x| (x0 + x) as f32 + 0.5);
+    // Highest `last` per half row: a half row is skipped while the list position is past it.
+    let mut half_last = [[0u32; 2]; TILE];
+    for (hl, row) in half_last.iter_mut().zip(&last) {
+        for (h, v) in hl.iter_mut().enumerate() {
+            *v = half(row, h).iter().copied().max().unwrap_or(0);
+        }
+    }
+    let px: Row = std::array::from_fn(|x| (x0 + x) as f32 + 0.5);
     let list = b.tile_list(tile);
     let mut gfeat = vec![0.0f32; f];
     for li in (0..max_last as usize).rev() {
+        if li >= PREFETCH {
+            prefetch(b, list, li - PREFETCH);
+        }
         let j = list[li] as usize;
         let s = &b.splats[j];
         let (r0, r1) = rows(s, y0, y1);
         if r0 >= r1 {
             continue;
         }
-        let mut gx = [0.0f32; TILE];
-        let mut gy = [0.0f32; TILE];
-        let mut ga = [0.0f32; TILE];
-        let mut gb = [0.0f32; TILE];
-        let mut gc = [0.0f32; TILE];
-        let mut go = [0.0f32; TILE];
-        let mut gcol = [[0.0f32; TILE]; 3];
-        let mut gz = [0.0f32; TILE];
+        let (sx, sa, sb, sc, so, sz) = (s.x, s.a, s.b, s.c, s.opacity, s.depth);
+        let mut gx = [0.0f32; HALF];
+        let mut gy = [0.0f32; HALF];
+        let mut ga = [0.0f32; HALF];
+        let mut gb = [0.0f32; HALF];
+        let mut gc = [0.0f32; HALF];
+        let mut go = [0.0f32; HALF];
+        let mut gcol = [[0.0f32; HALF]; 3];
+        let mut gz = [0.0f32; HALF];
         let mut touched = false;
         gfeat.iter_mut().for_each(|v| *v = 0.0);
         let fj = &b.feats[j * f..(j + 1) * f];
+        let li32 = li as u32;
         for py in r0..r1 {
-            let row = (py - y0) * TILE;
+            let r = py - y0;
             let dy = s.y - (py as f32 + 0.5);
-            let mut okr = [false; TILE];
-            let mut tbr = [0.0f32; TILE];
-            let mut rar = [0.0f32; TILE];
-            let mut facr = [0.0f32; TILE];
-            let mut val = [0.0f32; TILE];
-            let mut visr = [0.0f32; TILE];
-            let mut any = false;
-            for x in 0..TILE {
-                let p = row + x;
-                let dx = s.x - px[x];
-                let sigma = 0.5 * (s.a * dx * dx + s.c * dy * dy) + s.b * dx * dy;
-                let vis = exp_neg(-sigma);
-                let alpha = (s.opacity * vis).min(0.999);
-                let ok = ((li as u32) < last[p]) & (sigma >= 0.0) & (alpha >= ALPHA_MIN);
-                let ra = 1.0 / (1.0 - alpha);
-                let tb = t[p] * ra;
-                let fac = alpha * tb;
-                let mut v = 0.0;
-                for c in 0..3 {
-                    v += (s.color[c] * tb - brgb[c][p] * ra) * vrgb[c][p];
+            let (h0, h1) = halves(s, dy, x0);
+            for h in h0..h1 {
+                if li32 >= half_last[r][h] {
+                    continue;
                 }
-                v += (s.depth * tb - bd[p] * ra) * vd[p] + tfv[p] * ra;
-                for c in 0..3 {
-                    gcol[c][x] += if ok { fac * vrgb[c][p] } else { 0.0 };
-                    brgb[c][p] += if ok { fac * s.color[c] } else { 0.0 };
+                let mut okr = [false; HALF];
+                let mut tbr = [0.0f32; HALF];
+                let mut rar = [0.0f32; HALF];
+                let mut facr = [0.0f32; HALF];
+                let mut val = [0.0f32; HALF];
+                let mut visr = [0.0f32; HALF];
+                let mut nok = 0u32;
+                {
+                    let pxh = half(&px, h);
+                    let lst = half(&last[r], h);
+                    let tt = half_mut(&mut t[r], h);
+                    let [v0, v1, v2] = &vrgb;
+                    let (v0, v1, v2) = (half(&v0[r], h), half(&v1[r], h), half(&v2[r], h));
+                    let [b0, b1, b2] = &mut brgb;
+                    let (b0, b1, b2) =
+                        (half_mut(&mut b0[r], h), half_mut(&mut b1[r], h), half_mut(&mut b2[r], h));
+                    let vdr = half(&vd[r], h);
+                    let bdr = half_mut(&mut bd[r], h);
+                    let tf = half(&tfv[r], h);
+                    for x in 0..HALF {
+                        let dx = sx - pxh[x];
+                        let sigma = 0.5 * sa * dx * dx + 0.5 * sc * dy * dy + sb * dx * dy;
+                        let vis = exp_neg(-sigma);
+                        let alpha = (so * vis).min(0.999);
+                        let ok = (li32 < lst[x]) & (sigma >= 0.0) & (alpha >= ALPHA_MIN);
+                        let ra = 1.0 / (1.0 - alpha);
+                        let tb = tt[x] * ra;
+                        let fac = alpha * tb;
+                        let v = (s.color[0] * tb - b0[x] * ra) * v0[x]
+                            + (s.color[1] * tb - b1[x] * ra) * v1[x]
+                            + (s.color[2] * tb - b2[x] * ra) * v2[x]
+                            + (sz * tb - bdr[x] * ra) * vdr[x]
+                            + tf[x] * ra;
+                        gcol[0][x] += if ok { fac * v0[x] } else { 0.0 };
+                        gcol[1][x] += if ok { fac * v1[x] } else { 0.0 };
+                        gcol[2][x] += if ok { fac * v2[x] } else { 0.0 };
+                        b0[x] += if ok { fac * s.color[0] } else { 0.0 };
+                        b1[x] += if ok { fac * s.color[1] } else { 0.0 };
+                        b2[x] += if ok { fac * s.color[2] } else { 0.0 };
+                        gz[x] += if ok { fac * vdr[x] } else { 0.0 };
+                        bdr[x] += if ok { fac * sz } else { 0.0 };
+                        tt[x] = if ok { tb } else { tt[x] };
+                        okr[x] = ok;
+                        tbr[x] = tb;
+                        rar[x] = ra;
+                        facr[x] = fac;
+                        val[x] = v;
+                        visr[x] = vis;
+                        nok += ok as u32;
+                    }
                 }
-                gz[x] += if ok { fac * vd[p] } else { 0.0 };
-                bd[p] += if ok { fac * s.depth } else { 0.0 };
-                t[p] = if ok { tb } else { t[p] };
-                okr[x] = ok;
-                tbr[x] = tb;
-                rar[x] = ra;
-                facr[x] = fac;
-                val[x] = v;
-                visr[x] = vis;
-                any |= ok;
-            }
-            if !any {
-                continue;
-            }
-            touched = true;
-            for (k, &fk) in fj.iter().enumerate() {
-                let vfk = &vf[k * N + row..k * N + row + TILE];
-                let bfk = &mut bf[k * N + row..k * N + row + TILE];
-                let mut gk = 0.0;
-                for x in 0..TILE {
-                    let ok = okr[x];
-                    val[x] += if ok { (fk * tbr[x] - bfk[x] * rar[x]) * vfk[x] } else { 0.0 };
-                    bfk[x] += if ok { facr[x] * fk } else { 0.0 };
-                    gk += if ok { facr[x] * vfk[x] } else { 0.0 };
+                if nok == 0 {
+                    continue;
                 }
-                gfeat[k] += gk;
-            }
-            for x in 0..TILE {
-                let dx = s.x - px[x];
-                let unclamped = okr[x] & (s.opacity * visr[x] <= 0.999);
-                let va = if unclamped { val[x] } else { 0.0 };
-                let vsig = -s.opacity * visr[x] * va;
-                go[x] += visr[x] * va;
-                ga[x] += 0.5 * vsig * dx * dx;
-                gb[x] += vsig * dx * dy;
-                gc[x] += 0.5 * vsig * dy * dy;
-                gx[x] += vsig * (s.a * dx + s.b * dy);
-                gy[x] += vsig * (s.b * dx + s.c * dy);
+                touched = true;
+                for (k, &fk) in fj.iter().enumerate() {
+                    let vfk = half(&vf[k][r], h);
+                    let bfk = half_mut(&mut bf[k][r], h);
+                    let mut gk = 0.0;
+                    for x in 0..HALF {
+                        let ok = okr[x];
+                        val[x] += if ok { (fk * tbr[x] - bfk[x] * rar[x]) * vfk[x] } else { 0.0 };
+                        bfk[x] += if ok { facr[x] * fk } else { 0.0 };
+                        gk += if ok { facr[x] * vfk[x] } else { 0.0 };
+                    }
+                    gfeat[k] += gk;
+                }
+                let pxh = half(&px, h);
+                for x in 0..HALF {
+                    let dx = sx - pxh[x];
+                    let unclamped = okr[x] & (so * visr[x] <= 0.999);
+                    let va = if unclamped { val[x] } else { 0.0 };
+                    let vsig = -so * visr[x] * va;
+                    go[x] += visr[x] * va;
+                    ga[x] += 0.5 * vsig * dx * dx;
+                    gb[x] += vsig * dx * dy;
+                    gc[x] += 0.5 * vsig * dy * dy;
+                    gx[x] += vsig * (sa * dx + sb * dy);
+                    gy[x] += vsig * (sb * dx + sc * dy);
+                }
             }
         }
         if !touched {
             continue;
         }
         let dst = &mut buf[j * stride..(j + 1) * stride];
-        let sum = |a: &[f32; TILE]| a.iter().sum::<f32>();
+        let sum = |a: &[f32; HALF]| a.iter().sum::<f32>();
         dst[0] += sum(&gx);
         dst[1] += sum(&gy);
         dst[2] += sum(&ga);

@@ -21,16 +21,25 @@ pub struct RasterArgs {
 pub fn raster(args: &RasterArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.size > 0, "--size must be positive");
     println!(
-        "{:>10} {:>9} {:>10} {:>10} {:>10} {:>12} {:>10} {:>9}",
-        "gaussians", "size", "forward s", "backward s", "splat s", "Mpairs/s fwd", "saturated", "traversed"
+        "{:>10} {:>9} {:>10} {:>10} {:>10} {:>10} {:>12} {:>10} {:>9}",
+        "gaussians",
+        "size",
+        "forward s",
+        "(binning)",
+        "backward s",
+        "splat s",
+        "Mpairs/s fwd",
+        "saturated",
+        "traversed"
     );
     for &n in &args.gaussians {
         let r = bench::run(n, args.size, args.size, args.reps);
         println!(
-            "{:>10} {:>9} {:>10.4} {:>10.4} {:>10.4} {:>12.1} {:>9.1}% {:>9}",
+            "{:>10} {:>9} {:>10.4} {:>10.4} {:>10.4} {:>10.4} {:>12.1} {:>9.1}% {:>9}",
             n,
             format!("{}x{}", r.width, r.height),
             r.forward,
+            r.binning,
             r.backward,
             r.splat_back,
             r.blended_pairs as f64 / r.forward / 1e6,
@@ -41,7 +50,7 @@ pub fn raster(args: &RasterArgs) -> anyhow::Result<()> {
             "{}",
             serde_json::json!({
                 "gaussians": n, "width": r.width, "height": r.height,
-                "forward_s": r.forward, "backward_s": r.backward, "splat_back_s": r.splat_back,
+                "forward_s": r.forward, "binning_s": r.binning, "backward_s": r.backward, "splat_back_s": r.splat_back,
                 "blended_pairs": r.blended_pairs, "intersections": r.intersections,
                 "saturated_fraction": r.saturated_fraction, "median_traversed": r.median_traversed,
                 "backward_over_forward": r.backward / r.forward,
