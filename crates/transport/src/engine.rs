@@ -583,12 +583,25 @@ pub(crate) fn solve_scaling(p: &Problem<'_>, params: &Params) -> Result<Solution
 fn run<L: Layout>(l: L, p: &Problem<'_>, params: &Params) -> Result<Solution> {
     let n = p.n();
     let m = p.m();
+    let prof = std::env::var_os("TRANSSPLAT_UOT_PROFILE").is_some();
+    let t0 = std::time::Instant::now();
     let mut e = Engine::new(l, p, params);
+    if prof {
+        eprintln!("uot-profile: setup {:.2} ms", t0.elapsed().as_secs_f64() * 1e3);
+    }
     let mut iterations = 0;
     let mut converged = false;
     let mut last_change = f64::INFINITY;
     for it in 0..params.max_iters {
+        let t1 = std::time::Instant::now();
+        let rebuilding = e.rebuild;
         let out = e.pass(false);
+        if prof {
+            eprintln!(
+                "uot-profile: sweep {it} pass {:.2} ms rebuild {rebuilding}",
+                t1.elapsed().as_secs_f64() * 1e3
+            );
+        }
         let df = e.ks * e.eps * out.dq;
         let dg = e.update_cols(&out.col_log);
         iterations = it + 1;
