@@ -17,6 +17,10 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// Render every camera of a scene to PNG (and raw .npy).
+    Render(commands::render::RenderArgs),
+    /// Print a summary of a scene: count, SH degree, bounding box, opacity and scale.
+    Info(commands::info::InfoArgs),
     /// Solve one entropic unbalanced transport problem from .npy files.
     Uot(commands::uot::UotArgs),
     /// Benchmarks.
@@ -43,6 +47,8 @@ fn main() {
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level));
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
     let result = match &cli.command {
+        Command::Render(a) => commands::render::run(a),
+        Command::Info(a) => commands::info::run(a),
         Command::Uot(a) => commands::uot::run(a),
         Command::Bench(BenchCommand::Transport(a)) => commands::uot::bench(a),
         Command::Bench(BenchCommand::Raster(a)) => commands::bench::raster(a),

@@ -6,6 +6,7 @@
 //!   `cameras.json`, COLMAP `sparse/0` and nerfstudio / Blender `transforms.json`
 //!   ([`cameras`]).
 //! - [`npy`]: numpy `.npy` arrays (float32 in and out).
+//! - [`image`]: PNG and JPEG images as float RGB in [0, 1].
 //! - [`scene_paths`]: finding the scene and cameras in an INRIA 3DGS output folder.
 //! - [`atomic`]: write-to-temporary-then-rename for every output.
 //!
@@ -16,6 +17,7 @@ pub mod camera;
 pub mod cameras;
 pub mod error;
 pub mod gaussians;
+pub mod image;
 pub mod npy;
 pub mod ply;
 pub mod scene_paths;

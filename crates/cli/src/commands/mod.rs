@@ -1,4 +1,7 @@
 //! One module per subcommand; each parses its own arguments and calls the libraries.
 
 pub mod bench;
+pub mod common;
+pub mod info;
+pub mod render;
 pub mod uot;

@@ -1,0 +1,223 @@
+//! Images as float RGB in [0, 1], `H × W × 3`, row-major: PNG (8 or 16 bit; grey,
+//! grey+alpha, RGB, RGBA, palette) and baseline/progressive JPEG in, 8-bit PNG out.
+//!
+//! Values are stored as they are in the file (no gamma change): 3DGS renders in the
+//! colour space of its training images. An alpha channel is returned separately so
+//! the caller can composite over its background.
+
+use crate::{atomic, Error, Result};
+use std::path::Path;
+
+/// A float RGB image, `data.len() == width * height * 3`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RgbImage {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<f32>,
+    /// Per-pixel alpha in [0, 1] when the file had an alpha channel.
+    pub alpha: Option<Vec<f32>>,
+}
+
+impl RgbImage {
+    /// Composites the alpha channel (if any) over `background` and drops it.
+    pub fn composite(mut self, background: [f32; 3]) -> Self {
+        if let Some(alpha) = self.alpha.take() {
+            for (px, a) in self.data.chunks_exact_mut(3).zip(alpha) {
+                for (v, b) in px.iter_mut().zip(background) {
+                    *v = *v * a + b * (1.0 - a);
+                }
+            }
+        }
+        self
+    }
+}
+
+/// Largest accepted image side, to refuse absurd headers before allocating.
+const MAX_SIDE: usize = 1 << 15;
+
+/// Reads a PNG or JPEG file (by content, not extension).
+pub fn read(path: &Path) -> Result<RgbImage> {
+    let bytes = atomic::read(path)?;
+    decode(&bytes, path)
+}
+
+/// Decodes PNG or JPEG bytes; `path` is only used in messages.
+pub fn decode(bytes: &[u8], path: &Path) -> Result<RgbImage> {
+    if bytes.starts_with(b"\x89PNG\r\n\x1a\n") {
+        decode_png(bytes, path)
+    } else if bytes.starts_with(&[0xFF, 0xD8]) {
+        decode_jpeg(bytes, path)
+    } else {
+        Err(Error::format(path, "not a PNG or JPEG image"))
+    }
+}
+
+fn decode_png(bytes: &[u8], path: &Path) -> Result<RgbImage> {
+    let err = |e: png::DecodingError| Error::format(path, format!("bad PNG: {e}"));
+    let mut dec = png::Decoder::new(bytes);
+    dec.set_transformations(png::Transformations::EXPAND);
+    let mut reader = dec.read_info().map_err(err)?;
+    let (w, h) = (reader.info().width as usize, reader.info().height as usize);
+    check_size(w, h, path)?;
+    let mut buf = vec![0u8; reader.output_buffer_size()];
+    let frame = reader.next_frame(&mut buf).map_err(err)?;
+    let (ct, depth) = (frame.color_type, frame.bit_depth);
+    let channels = match ct {
+        png::ColorType::Grayscale => 1,
+        png::ColorType::GrayscaleAlpha => 2,
+        png::ColorType::Rgb => 3,
+        png::ColorType::Rgba => 4,
+        png::ColorType::Indexed => return Err(Error::format(path, "palette PNG was not expanded")),
+    };
+    let samples: Vec<f32> = match depth {
+        png::BitDepth::Sixteen => buf[..frame.buffer_size()]
+            .chunks_exact(2)
+            .map(|c| u16::from_be_bytes([c[0], c[1]]) as f32 / 65535.0)
+            .collect(),
+        png::BitDepth::Eight => buf[..frame.buffer_size()].iter().map(|&v| v as f32 / 255.0).collect(),
+        d => return Err(Error::format(path, format!("unsupported PNG bit depth {d:?}"))),
+    };
+    from_samples(w, h, channels, &samples, path)
+}
+
+fn decode_jpeg(bytes: &[u8], path: &Path) -> Result<RgbImage> {
+    let mut dec = jpeg_decoder::Decoder::new(bytes);
+    dec.read_info().map_err(|e| Error::format(path, format!("bad JPEG: {e}")))?;
+    let info = dec.info().ok_or_else(|| Error::format(path, "bad JPEG: no header"))?;
+    let (w, h) = (info.width as usize, info.height as usize);
+    check_size(w, h, path)?;
+    let px = dec.decode().map_err(|e| Error::format(path, format!("bad JPEG: {e}")))?;
+    let (channels, samples): (usize, Vec<f32>) = match info.pixel_format {
+        jpeg_decoder::PixelFormat::L8 => (1, px.iter().map(|&v| v as f32 / 255.0).collect()),
+        jpeg_decoder::PixelFormat::L16 => {
+            (1, px.chunks_exact(2).map(|c| u16::from_be_bytes([c[0], c[1]]) as f32 / 65535.0).collect())
+        }
+        jpeg_decoder::PixelFormat::RGB24 => (3, px.iter().map(|&v| v as f32 / 255.0).collect()),
+        jpeg_decoder::PixelFormat::CMYK32 => {
+            let rgb = px
+                .chunks_exact(4)
+                .flat_map(|c| {
+                    let k = 1.0 - c[3] as f32 / 255.0;
+                    [0, 1, 2].map(|i| (1.0 - c[i] as f32 / 255.0) * k)
+                })
+                .collect();
+            (3, rgb)
+        }
+    };
+    from_samples(w, h, channels, &samples, path)
+}
+
+fn check_size(w: usize, h: usize, path: &Path) -> Result<()> {
+    if w == 0 || h == 0 {
+        return Err(Error::format(path, format!("image has zero size {w}x{h}")));
+    }
+    if w > MAX_SIDE || h > MAX_SIDE {
+        return Err(Error::format(
+            path,
+            format!("image size {w}x{h} is larger than {MAX_SIDE} pixels a side"),
+        ));
+    }
+    Ok(())
+}
+
+fn from_samples(w: usize, h: usize, channels: usize, s: &[f32], path: &Path) -> Result<RgbImage> {
+    if s.len() < w * h * channels {
+        return Err(Error::format(path, "image data is truncated"));
+    }
+    let mut data = Vec::with_capacity(w * h * 3);
+    let mut alpha = (channels == 2 || channels == 4).then(|| Vec::with_capacity(w * h));
+    for px in s.chunks_exact(channels).take(w * h) {
+        match channels {
+            1 | 2 => data.extend_from_slice(&[px[0]; 3]),
+            _ => data.extend_from_slice(&px[..3]),
+        }
+        if let Some(a) = alpha.as_mut() {
+            a.push(px[channels - 1]);
+        }
+    }
+    Ok(RgbImage { width: w, height: h, data, alpha })
+}
+
+/// Quantises `[0, 1]` floats to 8 bits (clamped, rounded; NaN becomes 0).
+pub fn to_u8(v: f32) -> u8 {
+    if v.is_nan() {
+        0
+    } else {
+        (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8
+    }
+}
+
+/// Writes an 8-bit RGB PNG atomically from `H × W × 3` floats in [0, 1].
+pub fn write_png(path: &Path, width: usize, height: usize, rgb: &[f32]) -> Result<()> {
+    assert_eq!(rgb.len(), width * height * 3, "image buffer does not match its size");
+    let bytes: Vec<u8> = rgb.iter().map(|&v| to_u8(v)).collect();
+    atomic::write_with(path, |w| {
+        let mut enc = png::Encoder::new(w, width as u32, height as u32);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut writer = enc.write_header().map_err(std::io::Error::other)?;
+        writer.write_image_data(&bytes).map_err(std::io::Error::other)?;
+        writer.finish().map_err(std::io::Error::other)
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn png_bytes(w: u32, h: u32, ct: png::ColorType, depth: png::BitDepth, data: &[u8]) -> Vec<u8> {
+        let mut out = Vec::new();
+        {
+            let mut enc = png::Encoder::new(&mut out, w, h);
+            enc.set_color(ct);
+            enc.set_depth(depth);
+            let mut wr = enc.write_header().unwrap();
+            wr.write_image_data(data).unwrap();
+        }
+        out
+    }
+
+    #[test]
+    fn png_round_trip_is_exact_at_8_bits() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.png");
+        let rgb: Vec<f32> = (0..2 * 3 * 3).map(|i| (i * 15) as f32 / 255.0).collect();
+        write_png(&p, 3, 2, &rgb).unwrap();
+        let img = read(&p).unwrap();
+        assert_eq!((img.width, img.height), (3, 2));
+        for (a, b) in img.data.iter().zip(&rgb) {
+            assert!((a - b).abs() < 1e-6);
+        }
+        assert!(img.alpha.is_none());
+    }
+
+    #[test]
+    fn grey_rgba_and_16_bit_are_converted() {
+        let p = Path::new("x.png");
+        let g =
+            decode(&png_bytes(2, 1, png::ColorType::Grayscale, png::BitDepth::Eight, &[0, 255]), p).unwrap();
+        assert_eq!(g.data, vec![0.0, 0.0, 0.0, 1.0, 1.0, 1.0]);
+        let rgba = png_bytes(1, 1, png::ColorType::Rgba, png::BitDepth::Eight, &[255, 0, 0, 51]);
+        let img = decode(&rgba, p).unwrap().composite([0.0, 0.0, 1.0]);
+        let want = [0.2, 0.0, 0.8];
+        for (a, b) in img.data.iter().zip(want) {
+            assert!((a - b).abs() < 1e-6, "{:?}", img.data);
+        }
+        let s16 =
+            png_bytes(1, 1, png::ColorType::Rgb, png::BitDepth::Sixteen, &[0xFF, 0xFF, 0x80, 0x00, 0, 0]);
+        let img = decode(&s16, p).unwrap();
+        assert!((img.data[1] - 32768.0 / 65535.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn garbage_and_truncation_are_errors_naming_the_file() {
+        let p = Path::new("bad.png");
+        let e = decode(b"hello", p).unwrap_err().to_string();
+        assert!(e.contains("bad.png") && e.contains("not a PNG"), "{e}");
+        let good = png_bytes(4, 4, png::ColorType::Rgb, png::BitDepth::Eight, &[7; 48]);
+        let e = decode(&good[..good.len() - 20], p).unwrap_err().to_string();
+        assert!(e.contains("bad.png"), "{e}");
+        let e = decode(&[0xFF, 0xD8, 0xFF, 0x00], Path::new("bad.jpg")).unwrap_err().to_string();
+        assert!(e.contains("bad.jpg") && e.contains("JPEG"), "{e}");
+    }
+}
