@@ -189,14 +189,13 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
     let mut lists = vec![0u32; acc as usize];
     let out = crate::par::SharedMut(lists.as_mut_ptr());
     packed.par_chunks(chunk).zip(starts.into_par_iter()).enumerate().for_each(|(c, (ch, mut start))| {
-        let out = out;
         let base = (c * chunk) as u32;
         for (k, p) in ch.iter().enumerate() {
             let (x0, y0, x1, y1) = tile_span(p, tiles_x, tiles_y);
             for ty in y0..y1 {
                 for s in &mut start[ty * tiles_x + x0..ty * tiles_x + x1] {
                     // SAFETY: each (chunk, tile) owns the disjoint range reserved by the prefix sum.
-                    unsafe { *out.0.add(*s as usize) = base + k as u32 };
+                    unsafe { *out.get().add(*s as usize) = base + k as u32 };
                     *s += 1;
                 }
             }
@@ -230,7 +229,7 @@ fn radix_sort(v: &mut Vec<(u32, u32)>) {
         for &(k, _) in v.iter() {
             count[((k >> shift) & 0x7ff) as usize + 1] += 1;
         }
-        if count[1..].iter().any(|&c| c == v.len()) {
+        if count[1..].contains(&v.len()) {
             continue;
         }
         for i in 0..2048 {

@@ -15,6 +15,10 @@
 //!
 //! Work is split into 16×16 tiles processed in parallel with rayon.
 
+// Lane loops index several per-pixel arrays in lockstep; `!(x > 0.0)` is used on
+// purpose where NaN must take the rejecting branch.
+#![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
+
 pub mod bench;
 pub mod bin;
 pub mod fastexp;
@@ -190,7 +194,6 @@ pub fn render(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Image, Fr
     (0..num_tiles).into_par_iter().for_each_init(
         || TileOut::new(f),
         |out, tile| {
-            let ptrs = ptrs;
             kernel::forward_tile(&binned, tile, out, None);
             let (x0, y0, x1, y1) = binned.tile_rect(tile);
             for y in y0..y1 {
@@ -201,15 +204,15 @@ pub fn render(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Image, Fr
                     // SAFETY: every pixel belongs to exactly one tile; tiles write disjoint pixels.
                     unsafe {
                         for ch in 0..3 {
-                            *ptrs.0 .0.add(q * 3 + ch) = out.rgb[ch][r][c] + t * bg[ch];
+                            *ptrs.0.get().add(q * 3 + ch) = out.rgb[ch][r][c] + t * bg[ch];
                         }
-                        *ptrs.1 .0.add(q) = 1.0 - t;
-                        *ptrs.2 .0.add(q) = out.depth[r][c];
+                        *ptrs.1.get().add(q) = 1.0 - t;
+                        *ptrs.2.get().add(q) = out.depth[r][c];
                         for k in 0..f {
-                            *ptrs.3 .0.add(q * f + k) = out.feat[k][r][c];
+                            *ptrs.3.get().add(q * f + k) = out.feat[k][r][c];
                         }
-                        *ptrs.4 .0.add(q) = t;
-                        *ptrs.5 .0.add(q) = out.last[r][c];
+                        *ptrs.4.get().add(q) = t;
+                        *ptrs.5.get().add(q) = out.last[r][c];
                     }
                 }
             }

@@ -55,3 +55,10 @@ pub fn sum_into_first(mut bufs: Vec<Vec<f32>>) -> Vec<f32> {
 pub struct SharedMut<T>(pub *mut T);
 unsafe impl<T> Send for SharedMut<T> {}
 unsafe impl<T> Sync for SharedMut<T> {}
+
+impl<T> SharedMut<T> {
+    /// The pointer (a method, so closures capture the whole `Send` wrapper).
+    pub fn get(self) -> *mut T {
+        self.0
+    }
+}

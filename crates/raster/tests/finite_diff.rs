@@ -70,7 +70,7 @@ fn loss(c: &Case, g: &Gaussians, feats: &[f32]) -> f64 {
 fn assert_smooth(c: &Case) {
     let s = Splats::new(&c.g);
     let stats = transsplat_raster::gaussian_stats(&s, &c.cam, None);
-    let px = (c.cam.width * c.cam.height) as u32;
+    let px = c.cam.width * c.cam.height;
     for (i, &n) in stats.pixel_count.iter().enumerate() {
         assert_eq!(n, px, "Gaussian {i} does not cover every pixel well above the 1/255 cutoff");
     }
