@@ -115,19 +115,12 @@ impl Accum<'_> {
 fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&Accum, &mut [f32])>) {
     let (x0, y0, x1, y1) = b.tile_rect(tile);
     let f = b.num_features;
-    let mut active = [[false; TILE]; TILE];
-    for row in active.iter_mut().take(y1 - y0) {
-        row[..x1 - x0].iter_mut().for_each(|a| *a = true);
+    // A pixel is live while its T is positive; when it stops, T is stored negated
+    // (|T| is its final transmittance). Pixels outside the image start stopped.
+    out.t = [[-1.0; TILE]; TILE];
+    for row in out.t.iter_mut().take(y1 - y0) {
+        row[..x1 - x0].iter_mut().for_each(|t| *t = 1.0);
     }
-    let mut remaining = (y1 - y0) * (x1 - x0);
-    // Live pixels per half row: a half row whose pixels have all stopped is skipped.
-    let mut alive = [[0u32; 2]; TILE];
-    for row in alive.iter_mut().take(y1 - y0) {
-        for (h, a) in row.iter_mut().enumerate() {
-            *a = (x0 + h * HALF..x0 + (h + 1) * HALF).filter(|&x| x < x1).count() as u32;
-        }
-    }
-    out.t = [[1.0; TILE]; TILE];
     out.rgb = [[[0.0; TILE]; TILE]; 3];
     out.depth = [[0.0; TILE]; TILE];
     out.last = [[0; TILE]; TILE];
@@ -136,20 +129,21 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
         Some((a, buf)) => (Some(a), buf),
         None => (None, &mut [][..]),
     };
+    let need_weights = f > 0 || acc.is_some();
     let px: Row = std::array::from_fn(|x| (x0 + x) as f32 + 0.5);
     let list = b.tile_list(tile);
     for (li, &j) in list.iter().enumerate() {
-        if remaining == 0 {
+        if li % 32 == 31 && out.t.iter().flatten().all(|&t| t <= 0.0) {
             break;
         }
         prefetch(b, list, li + PREFETCH);
         let s = &b.splats[j as usize];
         let (r0, r1) = rows(s, y0, y1);
-        let mut stops = 0usize;
         let mut sums = [0.0f32; 3];
         let (sx, sa, sb, sc, so) = (s.x, s.a, s.b, s.c, s.opacity);
         let [cr, cg, cb] = s.color;
         let sz = s.depth;
+        let lnext = li as u32 + 1;
         for py in r0..r1 {
             let r = py - y0;
             let dy = s.y - (py as f32 + 0.5);
@@ -157,28 +151,25 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
             let cdy = 0.5 * sc * dy * dy;
             let bdy = sb * dy;
             for h in h0..h1 {
-                if alive[r][h] == 0 {
+                let t = half_mut(&mut out.t[r], h);
+                if t.iter().all(|&v| v <= 0.0) {
                     continue;
                 }
                 let mut wrow = [0.0f32; HALF];
                 let mut arow = [0.0f32; HALF];
-                let mut nblend = 0u32;
-                let mut nstop = 0u32;
                 {
-                    let t = half_mut(&mut out.t[r], h);
                     let [o0, o1, o2] = &mut out.rgb;
                     let (o0, o1, o2) =
                         (half_mut(&mut o0[r], h), half_mut(&mut o1[r], h), half_mut(&mut o2[r], h));
                     let od = half_mut(&mut out.depth[r], h);
                     let ol = half_mut(&mut out.last[r], h);
-                    let act = half_mut(&mut active[r], h);
                     let pxh = half(&px, h);
                     for x in 0..HALF {
                         let dx = sx - pxh[x];
                         let sigma = 0.5 * sa * dx * dx + cdy + bdy * dx;
                         let alpha = (so * exp_neg(-sigma)).min(0.999);
                         let tt = t[x];
-                        let ok = act[x] & (sigma >= 0.0) & (alpha >= ALPHA_MIN);
+                        let ok = (tt > 0.0) & (sigma >= 0.0) & (alpha >= ALPHA_MIN);
                         let next_t = tt * (1.0 - alpha);
                         let stop = ok & (next_t <= T_MIN);
                         let blend = ok & !stop;
@@ -187,18 +178,19 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
                         o1[x] += w * cg;
                         o2[x] += w * cb;
                         od[x] += w * sz;
-                        t[x] = if blend { next_t } else { tt };
-                        ol[x] = if blend { li as u32 + 1 } else { ol[x] };
-                        act[x] &= !stop;
-                        nstop += stop as u32;
-                        nblend += blend as u32;
+                        t[x] = if blend {
+                            next_t
+                        } else if stop {
+                            -tt
+                        } else {
+                            tt
+                        };
+                        ol[x] = if blend { lnext } else { ol[x] };
                         wrow[x] = w;
                         arow[x] = if blend { alpha } else { 0.0 };
                     }
                 }
-                stops += nstop as usize;
-                alive[r][h] -= nstop;
-                if nblend == 0 {
+                if !need_weights {
                     continue;
                 }
                 if f > 0 {
@@ -213,7 +205,7 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
                 if let Some(a) = acc {
                     sums[0] += wrow.iter().sum::<f32>();
                     sums[1] += arow.iter().sum::<f32>();
-                    sums[2] += nblend as f32;
+                    sums[2] += arow.iter().filter(|&&v| v > 0.0).count() as f32;
                     if a.channels > 0 {
                         let stride = a.stride();
                         let dst = &mut acc_buf[j as usize * stride + 3..(j as usize + 1) * stride];
@@ -238,7 +230,9 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
                 }
             }
         }
-        remaining -= stops;
+    }
+    for v in out.t.iter_mut().flatten() {
+        *v = v.abs();
     }
 }
 
