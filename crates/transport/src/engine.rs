@@ -41,10 +41,12 @@
 //! Flushing an entry below e^-87 relative to its row maximum loses at most
 //! e^{-87 + 30 + ln(b_max/b_min)} of that row's largest plan entry.
 
+#![allow(clippy::needless_range_loop)] // chunk loops index several parallel arrays
+
 use crate::error::{Error, Result};
 use crate::fastmath;
-use crate::layout::{split_chunks, with_layout, Layout};
-use crate::problem::Problem;
+use crate::layout::{split_chunks, with_layout, DenseFixed, Layout};
+use crate::problem::{Problem, Support};
 use crate::solution::{finish, Potentials, Raw, Solution};
 use crate::Params;
 use rayon::prelude::*;
@@ -56,14 +58,13 @@ const S_MIN: f32 = 1e-30;
 /// Rebuild the kernel when max lv - min lv over live targets exceeds this.
 const SPREAD: f64 = 30.0;
 
-#[derive(Clone, Copy, Debug)]
-struct RowState {
-    /// Row reference offset; +inf marks a row without any finite entry (f = +inf).
-    alpha: f64,
-    /// ln a_i - (1 - kappa_s) alpha_i / eps.
-    lc: f64,
-    /// f_i = kappa_s (alpha_i - eps q_i).
-    q: f64,
+/// Per-row state of a chunk (struct of arrays). alpha_i: row reference offset (+inf
+/// marks a row without any finite entry, f_i = +inf); lc_i = ln a_i - (1 - kappa_s)
+/// alpha_i / eps; q_i with f_i = kappa_s (alpha_i - eps q_i).
+struct RowsMut<'a> {
+    alpha: &'a mut [f64],
+    lc: &'a mut [f64],
+    q: &'a mut [f64],
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -90,6 +91,8 @@ struct Ctx<'c> {
     lv_shift: f64,
     rebuild: bool,
     final_pass: bool,
+    /// Track max |Δq| (only needed with a tolerance).
+    track: bool,
 }
 
 #[derive(Clone, Copy, Debug, Default)]
@@ -113,9 +116,19 @@ pub(crate) fn kappa(tau: f64, eps: f64) -> f64 {
 
 /// Rebuilds one kernel row around the current beta; keeps f_i unchanged.
 #[inline(always)]
-fn rebuild_row<L: Layout>(l: &L, ctx: &Ctx, r: usize, lo: usize, k: &mut [f32], st: &mut RowState) {
+#[allow(clippy::too_many_arguments)]
+fn rebuild_row<L: Layout>(
+    l: &L,
+    ctx: &Ctx,
+    r: usize,
+    lo: usize,
+    k: &mut [f32],
+    alpha: &mut f64,
+    lc: &mut f64,
+    q: &mut f64,
+) {
     let costs = &l.costs()[lo..lo + k.len()];
-    let f_old = ctx.ks * (st.alpha - ctx.eps * st.q);
+    let f_old = ctx.ks * (*alpha - ctx.eps * *q);
     let mut amin = f64::INFINITY;
     for (e, &c) in costs.iter().enumerate() {
         let j = l.col(lo, lo + e);
@@ -123,7 +136,7 @@ fn rebuild_row<L: Layout>(l: &L, ctx: &Ctx, r: usize, lo: usize, k: &mut [f32], 
     }
     if amin == f64::INFINITY {
         k.fill(0.0);
-        *st = RowState { alpha: f64::INFINITY, lc: f64::NEG_INFINITY, q: f64::NEG_INFINITY };
+        (*alpha, *lc, *q) = (f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
         return;
     }
     for (e, (kv, &c)) in k.iter_mut().zip(costs).enumerate() {
@@ -132,15 +145,15 @@ fn rebuild_row<L: Layout>(l: &L, ctx: &Ctx, r: usize, lo: usize, k: &mut [f32], 
     }
     fastmath::exp_slice(k);
     let a = ctx.a[l.source(r)] as f64;
-    let lc = if a > 0.0 { a.ln() - (1.0 - ctx.ks) * amin * ctx.inv_eps } else { f64::NEG_INFINITY };
-    let q = if f_old.is_finite() {
+    *lc = if a > 0.0 { a.ln() - (1.0 - ctx.ks) * amin * ctx.inv_eps } else { f64::NEG_INFINITY };
+    *q = if f_old.is_finite() {
         amin * ctx.inv_eps - f_old / (ctx.ks * ctx.eps)
     } else if f_old == f64::INFINITY {
         f64::NEG_INFINITY
     } else {
         0.0
     };
-    *st = RowState { alpha: amin, lc, q };
+    *alpha = amin;
 }
 
 /// Exact q_i = ln sum_j b_j e^{lv_j} K_ij from the costs (log-sum-exp).
@@ -160,94 +173,115 @@ fn exact_row_q<L: Layout>(l: &L, ctx: &Ctx, lo: usize, hi: usize, alpha: f64) ->
 
 /// One chunk of a sweep: (rebuild,) row products, row update, column accumulation.
 /// In the final pass the rows are not updated; the row masses and the linear cost are
-/// written instead.
+/// written instead. The common path is branch-free over the chunk; rows whose product
+/// underflows are redone exactly afterwards.
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn chunk_body<L: Layout>(
     l: &L,
     ctx: &Ctx,
     r0: usize,
     e0: usize,
     k: &mut [f32],
-    st: &mut [RowState],
+    rows: RowsMut,
     acc_out: &mut [f64],
     row_mass: &mut [f64],
 ) -> ChunkOut {
-    let m = l.m();
-    let nr = st.len();
+    let nr = rows.q.len();
     let mut out = ChunkOut { w: f64::NEG_INFINITY, ..Default::default() };
     let mut s_buf = [0f32; CH];
     let mut x_buf = [0f32; CH];
+    let mut qn = [0f64; CH];
     let mut lw = [f64::NEG_INFINITY; CH];
-    // Row products.
-    for rr in 0..nr {
-        let (lo, hi) = l.range(r0 + rr);
-        let kr = &mut k[lo - e0..hi - e0];
-        if ctx.rebuild {
-            rebuild_row(l, ctx, r0 + rr, lo, kr, &mut st[rr]);
+    if ctx.rebuild {
+        for rr in 0..nr {
+            let (lo, hi) = l.range(r0 + rr);
+            let kr = &mut k[lo - e0..hi - e0];
+            rebuild_row(l, ctx, r0 + rr, lo, kr, &mut rows.alpha[rr], &mut rows.lc[rr], &mut rows.q[rr]);
         }
-        s_buf[rr] = l.dot(lo, kr, ctx.cv);
+    }
+    // Row products and their logs: q_i = lv_shift + ln sum_j K_ij cv_j.
+    l.dots(r0, e0, k, ctx.cv, &mut s_buf[..nr]);
+    let mut any_slow = false;
+    for rr in 0..nr {
+        any_slow |= s_buf[rr].is_nan() || s_buf[rr] <= S_MIN;
         x_buf[rr] = s_buf[rr].max(S_MIN);
     }
     fastmath::ln_slice(&mut x_buf[..nr]);
     for rr in 0..nr {
-        let s = &mut st[rr];
-        if s.alpha == f64::INFINITY {
-            lw[rr] = f64::NEG_INFINITY;
-            row_mass[rr] = 0.0;
-            continue;
-        }
-        let (lo, hi) = l.range(r0 + rr);
-        let fast = s_buf[rr] > S_MIN;
-        let q_row = if fast {
-            ctx.lv_shift + x_buf[rr] as f64
-        } else {
-            out.fallbacks += 1;
-            exact_row_q(l, ctx, lo, hi, s.alpha)
-        };
-        if ctx.final_pass {
-            // T_ij = e^{lw_i} K_ij b_j e^{lv_j}: row mass e^{lw_i + q_row}.
-            let lwi = s.lc - ctx.ks * s.q;
-            lw[rr] = lwi;
-            row_mass[rr] = if lwi == f64::NEG_INFINITY || q_row == f64::NEG_INFINITY {
-                0.0
-            } else {
-                (lwi + q_row).exp()
-            };
-            if row_mass[rr] > 0.0 {
-                let kr = &k[lo - e0..hi - e0];
-                let costs = &l.costs()[lo..hi];
-                out.lin += if fast {
-                    let mut t = 0.0f64;
-                    for (e, (kv, c)) in kr.iter().zip(costs).enumerate() {
-                        if *kv != 0.0 {
-                            t += *kv as f64 * ctx.cv[l.col(lo, lo + e)] as f64 * *c as f64;
-                        }
-                    }
-                    (lwi + ctx.lv_shift).exp() * t
-                } else {
-                    let mut t = 0.0f64;
-                    for (e, c) in costs.iter().enumerate() {
-                        let j = l.col(lo, lo + e);
-                        let x = lwi + ctx.lnb_lv[j] + ((s.alpha + ctx.beta_eff[j]) - *c as f64) * ctx.inv_eps;
-                        if x > -745.0 {
-                            t += x.exp() * *c as f64;
-                        }
-                    }
-                    t
-                };
-            }
-        } else {
-            if q_row == f64::NEG_INFINITY {
-                // No live target reachable: f_i = +inf, row carries nothing.
-                *s = RowState { alpha: f64::INFINITY, lc: f64::NEG_INFINITY, q: f64::NEG_INFINITY };
-                lw[rr] = f64::NEG_INFINITY;
+        qn[rr] = ctx.lv_shift + x_buf[rr] as f64;
+    }
+    if any_slow {
+        for rr in 0..nr {
+            if s_buf[rr] > S_MIN {
                 continue;
             }
-            if s.q.is_finite() {
-                out.dq = out.dq.max((q_row - s.q).abs());
+            if rows.alpha[rr] == f64::INFINITY {
+                qn[rr] = f64::NEG_INFINITY;
+                continue;
             }
-            s.q = q_row;
-            lw[rr] = s.lc - ctx.ks * q_row;
+            let (lo, hi) = l.range(r0 + rr);
+            out.fallbacks += 1;
+            qn[rr] = exact_row_q(l, ctx, lo, hi, rows.alpha[rr]);
+            if qn[rr] == f64::NEG_INFINITY && !ctx.final_pass {
+                // No live target reachable: f_i = +inf, the row carries nothing.
+                rows.alpha[rr] = f64::INFINITY;
+                rows.lc[rr] = f64::NEG_INFINITY;
+            }
+        }
+    }
+    if ctx.final_pass {
+        for rr in 0..nr {
+            let lwi = if rows.lc[rr] == f64::NEG_INFINITY {
+                f64::NEG_INFINITY
+            } else {
+                rows.lc[rr] - ctx.ks * rows.q[rr]
+            };
+            lw[rr] = lwi;
+            let x = lwi + qn[rr];
+            row_mass[rr] = if x > -745.0 { x.exp() } else { 0.0 };
+            if row_mass[rr] == 0.0 {
+                continue;
+            }
+            // Linear cost sum_j T_ij C_ij with T_ij = e^{lw_i} K_ij b_j e^{lv_j}.
+            let (lo, hi) = l.range(r0 + rr);
+            let kr = &k[lo - e0..hi - e0];
+            let costs = &l.costs()[lo..hi];
+            out.lin += if s_buf[rr] > S_MIN {
+                let mut t = 0.0f64;
+                for (e, (kv, c)) in kr.iter().zip(costs).enumerate() {
+                    if *kv != 0.0 {
+                        t += *kv as f64 * ctx.cv[l.col(lo, lo + e)] as f64 * *c as f64;
+                    }
+                }
+                (lwi + ctx.lv_shift).exp() * t
+            } else {
+                let mut t = 0.0f64;
+                for (e, c) in costs.iter().enumerate() {
+                    let j = l.col(lo, lo + e);
+                    let x =
+                        lwi + ctx.lnb_lv[j] + ((rows.alpha[rr] + ctx.beta_eff[j]) - *c as f64) * ctx.inv_eps;
+                    if x > -745.0 {
+                        t += x.exp() * *c as f64;
+                    }
+                }
+                t
+            };
+        }
+    } else {
+        if ctx.track {
+            let mut dq = 0f64;
+            for rr in 0..nr {
+                let (a, b) = (qn[rr], rows.q[rr]);
+                let d = if a.is_finite() && b.is_finite() { (a - b).abs() } else { 0.0 };
+                dq = dq.max(d);
+            }
+            out.dq = dq;
+        }
+        for rr in 0..nr {
+            rows.q[rr] = qn[rr];
+            let lc = rows.lc[rr];
+            lw[rr] = if lc == f64::NEG_INFINITY { f64::NEG_INFINITY } else { lc - ctx.ks * qn[rr] };
         }
     }
     // Column accumulation with a chunk-local shift.
@@ -257,6 +291,7 @@ fn chunk_body<L: Layout>(
             x_buf[rr] = (lw[rr] - w) as f32;
         }
         fastmath::exp_slice(&mut x_buf[..nr]);
+        let m = l.m();
         let mut stack = [0f32; 64];
         let mut heap = Vec::new();
         let acc: &mut [f32] = if m <= 64 {
@@ -265,13 +300,7 @@ fn chunk_body<L: Layout>(
             heap.resize(m, 0f32);
             &mut heap
         };
-        for rr in 0..nr {
-            let wr = x_buf[rr];
-            if wr > 0.0 {
-                let (lo, hi) = l.range(r0 + rr);
-                l.axpy(lo, wr, &k[lo - e0..hi - e0], acc);
-            }
-        }
+        l.axpys(r0, e0, k, &x_buf[..nr], acc);
         for (o, a) in acc_out.iter_mut().zip(acc.iter()) {
             *o = *a as f64;
         }
@@ -291,11 +320,11 @@ unsafe fn chunk_avx2<L: Layout>(
     r0: usize,
     e0: usize,
     k: &mut [f32],
-    st: &mut [RowState],
+    rows: RowsMut,
     acc_out: &mut [f64],
     row_mass: &mut [f64],
 ) -> ChunkOut {
-    chunk_body(l, ctx, r0, e0, k, st, acc_out, row_mass)
+    chunk_body(l, ctx, r0, e0, k, rows, acc_out, row_mass)
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -306,17 +335,17 @@ fn chunk_dispatch<L: Layout>(
     r0: usize,
     e0: usize,
     k: &mut [f32],
-    st: &mut [RowState],
+    rows: RowsMut,
     acc_out: &mut [f64],
     row_mass: &mut [f64],
 ) -> ChunkOut {
     #[cfg(target_arch = "x86_64")]
     if avx2 {
         // SAFETY: the CPU supports AVX2 and FMA (checked at runtime by the caller).
-        return unsafe { chunk_avx2(l, ctx, r0, e0, k, st, acc_out, row_mass) };
+        return unsafe { chunk_avx2(l, ctx, r0, e0, k, rows, acc_out, row_mass) };
     }
     let _ = avx2;
-    chunk_body(l, ctx, r0, e0, k, st, acc_out, row_mass)
+    chunk_body(l, ctx, r0, e0, k, rows, acc_out, row_mass)
 }
 
 fn has_avx2() -> bool {
@@ -338,7 +367,9 @@ struct Engine<'p, L: Layout> {
     ks: f64,
     kt: f64,
     kernel: Vec<f32>,
-    st: Vec<RowState>,
+    alpha: Vec<f64>,
+    lc: Vec<f64>,
+    q: Vec<f64>,
     beta: Vec<f64>,
     lv: Vec<f64>,
     col: Vec<Col>,
@@ -346,6 +377,7 @@ struct Engine<'p, L: Layout> {
     lse_col: Vec<f64>,
     rebuild: bool,
     avx2: bool,
+    track: bool,
     rebuilds: usize,
     fallbacks: usize,
     /// Scratch: per-chunk column accumulators, row masses.
@@ -361,7 +393,7 @@ struct PassOut {
 }
 
 impl<'p, L: Layout> Engine<'p, L> {
-    fn new(l: L, p: &Problem<'p>, params: &Params) -> Self {
+    fn new(l: L, p: &Problem<'p>, params: &Params, ws: &mut Workspace) -> Self {
         let (n_rows, m) = (l.rows(), l.m());
         let nnz = if n_rows == 0 { 0 } else { l.range(n_rows - 1).1 };
         let eps = params.eps;
@@ -371,13 +403,12 @@ impl<'p, L: Layout> Engine<'p, L> {
             Some(w) => (Some(&w.f), Some(&w.g)),
             None => (None, None),
         };
-        let st: Vec<RowState> = (0..n_rows)
-            .map(|r| {
-                let f = f0.map(|f| f[l.source(r)]).unwrap_or(0.0);
-                let f = if f.is_finite() { f } else { 0.0 };
-                RowState { alpha: 0.0, lc: 0.0, q: -f / (ks * eps) }
-            })
-            .collect();
+        let mut q = take_len(&mut ws.q, n_rows);
+        q.par_iter_mut().enumerate().for_each(|(r, q)| {
+            let f = f0.map(|f| f[l.source(r)]).unwrap_or(0.0);
+            let f = if f.is_finite() { f } else { 0.0 };
+            *q = -f / (ks * eps);
+        });
         let beta: Vec<f64> = (0..m)
             .map(|j| {
                 let g = g0.map(|g| g[j]).unwrap_or(0.0);
@@ -397,18 +428,21 @@ impl<'p, L: Layout> Engine<'p, L> {
             eps,
             ks,
             kt,
-            kernel: vec![0f32; nnz],
-            st,
+            kernel: take_len(&mut ws.kernel, nnz),
+            alpha: take_len(&mut ws.alpha, n_rows),
+            lc: take_len(&mut ws.lc, n_rows),
+            q,
             beta,
             lv: vec![0.0; m],
             col,
             lse_col: vec![f64::NEG_INFINITY; m],
             rebuild: true,
             avx2: has_avx2(),
+            track: params.tol.is_some(),
             rebuilds: 0,
             fallbacks: 0,
-            acc: vec![0.0; n_chunks * m],
-            row_mass: vec![0.0; n_rows],
+            acc: take_len(&mut ws.acc, n_chunks * m),
+            row_mass: take_len(&mut ws.row_mass, n_rows),
         }
     }
 
@@ -444,6 +478,7 @@ impl<'p, L: Layout> Engine<'p, L> {
             lv_shift: if lv_shift.is_finite() { lv_shift } else { 0.0 },
             rebuild: self.rebuild,
             final_pass,
+            track: self.track,
         };
         if self.rebuild {
             self.rebuilds += 1;
@@ -451,12 +486,17 @@ impl<'p, L: Layout> Engine<'p, L> {
         self.rebuild = false;
         let avx2 = self.avx2;
         let l = &self.l;
-        let chunks = split_chunks(l, CH, &mut self.kernel, &mut self.st);
+        let chunks = split_chunks(l, CH, &mut self.kernel);
         let outs: Vec<ChunkOut> = chunks
             .into_par_iter()
+            .zip(self.alpha.par_chunks_mut(CH))
+            .zip(self.lc.par_chunks_mut(CH))
+            .zip(self.q.par_chunks_mut(CH))
             .zip(self.acc.par_chunks_mut(m.max(1)))
             .zip(self.row_mass.par_chunks_mut(CH))
-            .map(|(((r0, e0, k, st), acc), rm)| chunk_dispatch(avx2, l, &ctx, r0, e0, k, st, acc, rm))
+            .map(|((((((r0, e0, k), alpha), lc), q), acc), rm)| {
+                chunk_dispatch(avx2, l, &ctx, r0, e0, k, RowsMut { alpha, lc, q }, acc, rm)
+            })
             .collect();
         // Deterministic combination in chunk order.
         let w = outs.iter().map(|o| o.w).fold(f64::NEG_INFINITY, f64::max);
@@ -498,15 +538,14 @@ impl<'p, L: Layout> Engine<'p, L> {
         let l = &self.l;
         let inv_eps = 1.0 / self.eps;
         let x = |r: usize| -> f64 {
-            let s = &self.st[r];
-            if s.alpha == f64::INFINITY {
+            if self.alpha[r] == f64::INFINITY || self.lc[r] == f64::NEG_INFINITY {
                 return f64::NEG_INFINITY;
             }
             let (lo, hi) = l.range(r);
             match l.find(lo, hi, j) {
                 Some(e) => {
-                    let lw = s.lc - self.ks * s.q;
-                    lw + ((s.alpha + beta_eff[j]) - l.costs()[e] as f64) * inv_eps
+                    let lw = self.lc[r] - self.ks * self.q[r];
+                    lw + ((self.alpha[r] + beta_eff[j]) - l.costs()[e] as f64) * inv_eps
                 }
                 None => f64::NEG_INFINITY,
             }
@@ -576,16 +615,71 @@ impl<'p, L: Layout> Engine<'p, L> {
 }
 
 /// Solves with the stabilised-scaling engine (see the module docs).
-pub(crate) fn solve_scaling(p: &Problem<'_>, params: &Params) -> Result<Solution> {
-    with_layout!(p, l => run(l, p, params))
+/// Buffers of the stabilised-scaling solver (the kernel is n x m `f32`), kept between
+/// solves so that repeated solves (every view, every transport round) do not pay for
+/// fresh memory: first-touch page faults on a 128 MB kernel cost more than the 30
+/// sweeps themselves. One workspace per thread of concurrent solves.
+#[derive(Debug, Default)]
+pub struct Workspace {
+    kernel: Vec<f32>,
+    alpha: Vec<f64>,
+    lc: Vec<f64>,
+    q: Vec<f64>,
+    acc: Vec<f64>,
+    row_mass: Vec<f64>,
 }
 
-fn run<L: Layout>(l: L, p: &Problem<'_>, params: &Params) -> Result<Solution> {
+impl Workspace {
+    /// An empty workspace (grows on first use).
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Bytes currently held.
+    pub fn bytes(&self) -> usize {
+        self.kernel.capacity() * 4
+            + 8 * (self.alpha.capacity()
+                + self.lc.capacity()
+                + self.q.capacity()
+                + self.acc.capacity()
+                + self.row_mass.capacity())
+    }
+}
+
+/// Takes `v` out of the workspace with length `len`. Existing contents are kept (every
+/// buffer is fully written before it is read), so reuse does not touch memory.
+fn take_len<T: Copy + Default>(v: &mut Vec<T>, len: usize) -> Vec<T> {
+    let mut v = std::mem::take(v);
+    if v.len() >= len {
+        v.truncate(len);
+    } else {
+        v.resize(len, T::default());
+    }
+    v
+}
+
+pub(crate) fn solve_scaling(p: &Problem<'_>, params: &Params, ws: &mut Workspace) -> Result<Solution> {
+    if let Support::Dense(cost) = &p.support {
+        let n = p.n();
+        macro_rules! fixed {
+            ($($nb:literal)*) => {
+                match p.m() {
+                    $(m if m == 8 * $nb => return run(DenseFixed::<$nb> { cost, n, avx2: has_avx2() }, p, params, ws),)*
+                    _ => {}
+                }
+            };
+        }
+        fixed!(1 2 3 4 5 6 7 8);
+    }
+    with_layout!(p, l => run(l, p, params, ws))
+}
+
+fn run<L: Layout>(l: L, p: &Problem<'_>, params: &Params, ws: &mut Workspace) -> Result<Solution> {
     let n = p.n();
     let m = p.m();
     let prof = std::env::var_os("TRANSSPLAT_UOT_PROFILE").is_some();
     let t0 = std::time::Instant::now();
-    let mut e = Engine::new(l, p, params);
+    let mut e = Engine::new(l, p, params, ws);
     if prof {
         eprintln!("uot-profile: setup {:.2} ms", t0.elapsed().as_secs_f64() * 1e3);
     }
@@ -629,10 +723,16 @@ fn run<L: Layout>(l: L, p: &Problem<'_>, params: &Params) -> Result<Solution> {
     let mut row_mass = vec![0f64; n];
     for r in 0..e.l.rows() {
         let i = e.l.source(r);
-        let s = &e.st[r];
-        f[i] = if s.alpha == f64::INFINITY { f64::INFINITY } else { e.ks * (s.alpha - e.eps * s.q) };
+        f[i] = if e.alpha[r] == f64::INFINITY { f64::INFINITY } else { e.ks * (e.alpha[r] - e.eps * e.q[r]) };
         row_mass[i] = e.row_mass[r];
     }
+    // Hand the buffers back for the next solve.
+    ws.kernel = std::mem::take(&mut e.kernel);
+    ws.alpha = std::mem::take(&mut e.alpha);
+    ws.lc = std::mem::take(&mut e.lc);
+    ws.q = std::mem::take(&mut e.q);
+    ws.acc = std::mem::take(&mut e.acc);
+    ws.row_mass = std::mem::take(&mut e.row_mass);
     let raw = Raw {
         potentials: Potentials { f, g },
         row_mass,

@@ -60,8 +60,9 @@ pub fn ln(x: f32) -> f32 {
     e as f32 * std::f32::consts::LN_2 + s
 }
 
-/// `sum_j k[j] * v[j]` with eight independent partial sums (vectorises to one FMA
-/// per eight entries).
+/// `sum_j k[j] * v[j]` with eight independent partial sums (vectorises to one
+/// multiply-add per eight entries). No `mul_add`: without hardware FMA it would be a
+/// libm call.
 #[inline(always)]
 pub fn dot(k: &[f32], v: &[f32]) -> f32 {
     let n = k.len().min(v.len());
@@ -72,12 +73,12 @@ pub fn dot(k: &[f32], v: &[f32]) -> f32 {
     let (kr, vr) = (kc.remainder(), vc.remainder());
     for (a, b) in kc.zip(vc) {
         for l in 0..8 {
-            acc[l] = a[l].mul_add(b[l], acc[l]);
+            acc[l] += a[l] * b[l];
         }
     }
     let mut s = ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]));
     for (a, b) in kr.iter().zip(vr) {
-        s = a.mul_add(*b, s);
+        s += a * b;
     }
     s
 }
@@ -86,7 +87,7 @@ pub fn dot(k: &[f32], v: &[f32]) -> f32 {
 #[inline(always)]
 pub fn axpy(w: f32, k: &[f32], acc: &mut [f32]) {
     for (a, x) in acc.iter_mut().zip(k) {
-        *a = x.mul_add(w, *a);
+        *a += x * w;
     }
 }
 

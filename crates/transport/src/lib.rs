@@ -32,6 +32,7 @@ mod problem;
 pub mod reference;
 mod solution;
 
+pub use engine::Workspace;
 pub use error::{Error, Result};
 pub use problem::{Problem, SparseCost, Support};
 pub use solution::{Potentials, Solution, Stats};
@@ -68,7 +69,7 @@ impl Params {
             return Err(Error::BadEps(self.eps));
         }
         for (side, value) in [("s", self.tau_s), ("t", self.tau_t)] {
-            if !(value > 0.0) {
+            if value.is_nan() || value <= 0.0 {
                 return Err(Error::BadTau { side, value });
             }
         }
@@ -110,8 +111,13 @@ pub(crate) fn prepare(p: &Problem<'_>, params: &Params) -> Result<Option<Solutio
 /// hard marginals that cannot be met. A problem with no mass on one side gives an
 /// empty plan.
 pub fn solve(p: &Problem<'_>, params: &Params) -> Result<Solution> {
+    solve_with(&mut Workspace::new(), p, params)
+}
+
+/// [`solve`] reusing the buffers of `ws` (see [`Workspace`]); results are identical.
+pub fn solve_with(ws: &mut Workspace, p: &Problem<'_>, params: &Params) -> Result<Solution> {
     if let Some(s) = prepare(p, params)? {
         return Ok(s);
     }
-    engine::solve_scaling(p, params)
+    engine::solve_scaling(p, params, ws)
 }

@@ -23,6 +23,15 @@ pub struct SparseCost {
     costs: Vec<f32>,
 }
 
+/// Costs are >= 0 or +inf; NaN and negatives are rejected.
+#[inline(always)]
+fn bad_cost(c: f32) -> bool {
+    c.is_nan() || c < 0.0
+}
+
+/// Per-target candidate lists of one block of rows.
+type Candidates = Vec<Vec<(f32, u32)>>;
+
 fn check_cost(value: f32, source_index: usize, target: usize) -> Result<()> {
     if value >= 0.0 {
         Ok(())
@@ -105,7 +114,7 @@ impl SparseCost {
         }
         let threads = rayon::current_num_threads().max(1);
         let block = n.div_ceil(threads * 4).max(4096);
-        let blocks: Vec<Result<Vec<Vec<(f32, u32)>>>> = cost
+        let blocks: Vec<Result<Candidates>> = cost
             .par_chunks(block * m)
             .enumerate()
             .map(|(bi, chunk)| select_block(chunk, bi * block, m, k))
@@ -172,20 +181,21 @@ fn keep_smallest(c: &mut Vec<(f32, u32)>, k: usize) {
 }
 
 /// Streaming per-column top-k over a block of rows starting at row `row0`.
-fn select_block(chunk: &[f32], row0: usize, m: usize, k: usize) -> Result<Vec<Vec<(f32, u32)>>> {
+fn select_block(chunk: &[f32], row0: usize, m: usize, k: usize) -> Result<Candidates> {
     let cap = 4 * k;
     let mut buf: Vec<Vec<(f32, u32)>> = (0..m).map(|_| Vec::with_capacity(cap)).collect();
     let mut thr = vec![f32::INFINITY; m];
-    // Before a column's buffer first fills, everything finite is a candidate.
+    // Until a column's buffer first fills, its threshold is +inf: every finite cost is
+    // a candidate.
     for (r, row) in chunk.chunks_exact(m).enumerate() {
         let mut any = false;
         let mut bad = false;
         for (c, t) in row.iter().zip(&thr) {
             any |= *c < *t;
-            bad |= !(*c >= 0.0);
+            bad |= bad_cost(*c);
         }
         if bad {
-            let j = row.iter().position(|c| !(*c >= 0.0)).unwrap_or(0);
+            let j = row.iter().position(|c| bad_cost(*c)).unwrap_or(0);
             check_cost(row[j], row0 + r, j)?;
         }
         if !any {
@@ -251,12 +261,12 @@ impl<'a> Problem<'a> {
             let bad = cost.par_chunks(4096 * m).enumerate().find_map_first(|(ci, ch)| {
                 let mut bad = false;
                 for c in ch {
-                    bad |= !(*c >= 0.0);
+                    bad |= bad_cost(*c);
                 }
                 if !bad {
                     return None;
                 }
-                let p = ch.iter().position(|c| !(*c >= 0.0))?;
+                let p = ch.iter().position(|c| bad_cost(*c))?;
                 let flat = ci * 4096 * m + p;
                 Some((flat / m, flat % m, ch[p]))
             });
