@@ -321,6 +321,7 @@ fn backward_tile_impl(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads
             continue;
         }
         let (sx, sa, sb, sc, so, sz) = (s.x, s.a, s.b, s.c, s.opacity, s.depth);
+        let [cr, cg, cb] = s.color;
         let mut gx = [0.0f32; HALF];
         let mut gy = [0.0f32; HALF];
         let mut ga = [0.0f32; HALF];
@@ -341,13 +342,12 @@ fn backward_tile_impl(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads
                 if li32 >= half_last[r][h] {
                     continue;
                 }
-                let mut okr = [false; HALF];
-                let mut tbr = [0.0f32; HALF];
-                let mut rar = [0.0f32; HALF];
-                let mut facr = [0.0f32; HALF];
-                let mut val = [0.0f32; HALF];
+                // Masked per-lane values (0 where the pair was not blended).
+                let mut tbm = [0.0f32; HALF];
+                let mut ram = [0.0f32; HALF];
+                let mut facm = [0.0f32; HALF];
+                let mut okm = [0.0f32; HALF];
                 let mut visr = [0.0f32; HALF];
-                let mut nok = 0u32;
                 {
                     let pxh = half(&px, h);
                     let lst = half(&last[r], h);
@@ -366,53 +366,60 @@ fn backward_tile_impl(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads
                         let vis = exp_neg(-sigma);
                         let alpha = (so * vis).min(0.999);
                         let ok = (li32 < lst[x]) & (sigma >= 0.0) & (alpha >= ALPHA_MIN);
-                        let ra = 1.0 / (1.0 - alpha);
+                        let ra = if ok { 1.0 / (1.0 - alpha) } else { 0.0 };
                         let tb = tt[x] * ra;
                         let fac = alpha * tb;
-                        let v = (s.color[0] * tb - b0[x] * ra) * v0[x]
-                            + (s.color[1] * tb - b1[x] * ra) * v1[x]
-                            + (s.color[2] * tb - b2[x] * ra) * v2[x]
+                        // ∂L/∂α_i without the feature channels (added below).
+                        let v = (cr * tb - b0[x] * ra) * v0[x]
+                            + (cg * tb - b1[x] * ra) * v1[x]
+                            + (cb * tb - b2[x] * ra) * v2[x]
                             + (sz * tb - bdr[x] * ra) * vdr[x]
                             + tf[x] * ra;
-                        gcol[0][x] += if ok { fac * v0[x] } else { 0.0 };
-                        gcol[1][x] += if ok { fac * v1[x] } else { 0.0 };
-                        gcol[2][x] += if ok { fac * v2[x] } else { 0.0 };
-                        b0[x] += if ok { fac * s.color[0] } else { 0.0 };
-                        b1[x] += if ok { fac * s.color[1] } else { 0.0 };
-                        b2[x] += if ok { fac * s.color[2] } else { 0.0 };
-                        gz[x] += if ok { fac * vdr[x] } else { 0.0 };
-                        bdr[x] += if ok { fac * sz } else { 0.0 };
+                        gcol[0][x] += fac * v0[x];
+                        gcol[1][x] += fac * v1[x];
+                        gcol[2][x] += fac * v2[x];
+                        b0[x] += fac * cr;
+                        b1[x] += fac * cg;
+                        b2[x] += fac * cb;
+                        gz[x] += fac * vdr[x];
+                        bdr[x] += fac * sz;
                         tt[x] = if ok { tb } else { tt[x] };
-                        okr[x] = ok;
-                        tbr[x] = tb;
-                        rar[x] = ra;
-                        facr[x] = fac;
-                        val[x] = v;
+                        // α = min(0.999, o e^{−σ}) has no gradient where it is clamped.
+                        let va = if so * vis <= 0.999 { v } else { 0.0 };
+                        let vsig = -so * vis * va;
+                        go[x] += vis * va;
+                        ga[x] += 0.5 * vsig * dx * dx;
+                        gb[x] += vsig * dx * dy;
+                        gc[x] += 0.5 * vsig * dy * dy;
+                        gx[x] += vsig * (sa * dx + sb * dy);
+                        gy[x] += vsig * (sb * dx + sc * dy);
+                        tbm[x] = tb;
+                        ram[x] = ra;
+                        facm[x] = fac;
+                        okm[x] = if ok { 1.0 } else { 0.0 };
                         visr[x] = vis;
-                        nok += ok as u32;
                     }
                 }
-                if nok == 0 {
+                touched = true;
+                if f == 0 {
                     continue;
                 }
-                touched = true;
+                let mut vfa = [0.0f32; HALF];
                 for (k, &fk) in fj.iter().enumerate() {
                     let vfk = half(&vf[k][r], h);
                     let bfk = half_mut(&mut bf[k][r], h);
                     let mut gk = 0.0;
                     for x in 0..HALF {
-                        let ok = okr[x];
-                        val[x] += if ok { (fk * tbr[x] - bfk[x] * rar[x]) * vfk[x] } else { 0.0 };
-                        bfk[x] += if ok { facr[x] * fk } else { 0.0 };
-                        gk += if ok { facr[x] * vfk[x] } else { 0.0 };
+                        vfa[x] += (fk * tbm[x] - bfk[x] * ram[x]) * vfk[x];
+                        bfk[x] += facm[x] * fk;
+                        gk += facm[x] * vfk[x];
                     }
                     gfeat[k] += gk;
                 }
                 let pxh = half(&px, h);
                 for x in 0..HALF {
                     let dx = sx - pxh[x];
-                    let unclamped = okr[x] & (so * visr[x] <= 0.999);
-                    let va = if unclamped { val[x] } else { 0.0 };
+                    let va = if so * visr[x] <= 0.999 { vfa[x] * okm[x] } else { 0.0 };
                     let vsig = -so * visr[x] * va;
                     go[x] += visr[x] * va;
                     ga[x] += 0.5 * vsig * dx * dx;
