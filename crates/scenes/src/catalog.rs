@@ -1,0 +1,460 @@
+//! The built-in scenes and their description.
+//!
+//! - `tabletop`: a ball, a crate, a vase and a cone on a wood-grain table in front of
+//!   a striped wallpaper backdrop, on a tiled floor. Suggested target: the ball.
+//! - `occluded`: a ball half hidden behind a crate, and a thin stem (a 2.4 cm thick
+//!   pole with a small knob). Suggested target: the ball (partly occluded); the stem is
+//!   the thin-structure target.
+//!
+//! World frame: z up, the table top at z = 0, the floor at z = −0.75, the backdrop at
+//! y = +1.3; metres. Label 0 is the background (floor, wall, table), objects are 1...
+
+use crate::build::Builder;
+use crate::rig::{is_test, Rig};
+use crate::texture::{checker, fbm, mix_rgb, shade, stripes, wood_grain};
+use crate::Error;
+use transsplat_scene::{Camera, Extra, Gaussians};
+
+/// Names accepted by [`build`].
+pub const SCENE_NAMES: &[&str] = &["tabletop", "occluded"];
+
+/// Name of the per-Gaussian label property in the written PLY.
+pub const LABEL_PROPERTY: &str = "label";
+
+/// How a scene is generated.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneConfig {
+    /// Seed of the sampling jitter, SH noise and texture noise.
+    pub seed: u64,
+    /// Multiplies the number of Gaussians (1 = default density, ~40k Gaussians for
+    /// `tabletop`; 0.1 gives a ~5k scene for tests). Clamped to [0.01, 16].
+    pub detail: f32,
+    pub width: u32,
+    pub height: u32,
+    /// Number of cameras.
+    pub views: usize,
+}
+
+impl Default for SceneConfig {
+    fn default() -> Self {
+        SceneConfig { seed: 0, detail: 1.0, width: 256, height: 192, views: 32 }
+    }
+}
+
+impl SceneConfig {
+    /// A small variant for tests and `--quick`: ~5k Gaussians, 16 views of 128×96.
+    pub fn quick() -> Self {
+        SceneConfig { seed: 0, detail: 0.12, width: 128, height: 96, views: 16 }
+    }
+
+    fn check(&self) -> Result<(), Error> {
+        if !(self.detail.is_finite() && self.detail > 0.0) {
+            return Err(Error::Invalid(format!("detail must be a positive number, got {}", self.detail)));
+        }
+        if self.width == 0 || self.height == 0 || self.width > 8192 || self.height > 8192 {
+            return Err(Error::Invalid(format!(
+                "image size {}x{} is not in 1..=8192 a side",
+                self.width, self.height
+            )));
+        }
+        if self.views == 0 || self.views > 1000 {
+            return Err(Error::Invalid(format!("views must be in 1..=1000, got {}", self.views)));
+        }
+        Ok(())
+    }
+}
+
+/// One labelled object of a scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneObject {
+    /// Name used in instructions ("ball").
+    pub name: String,
+    /// Label id (1..); 0 is the background.
+    pub label: u32,
+    /// Base colour in words ("red").
+    pub colour: String,
+    /// Base colour as linear RGB in [0, 1] (before texture).
+    pub base_rgb: [f32; 3],
+    /// Shape in words ("sphere", "box", "surface of revolution").
+    pub shape: String,
+    /// Centre of the object's bounding box.
+    pub centre: [f32; 3],
+}
+
+/// A built-in scene: Gaussians with a label each, the labelled objects and cameras.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Scene {
+    pub name: String,
+    pub description: String,
+    /// The Gaussians (no extra properties; see [`Scene::gaussians_with_labels`]).
+    pub gaussians: Gaussians,
+    /// Per-Gaussian label: 0 background, otherwise an object's `label`.
+    pub labels: Vec<u32>,
+    /// Objects in label order (labels 1, 2, ...).
+    pub objects: Vec<SceneObject>,
+    pub cameras: Vec<Camera>,
+    /// The object a demo edit should target.
+    pub target: String,
+    /// Background colour of the renders.
+    pub background: [f32; 3],
+    pub config: SceneConfig,
+}
+
+impl Scene {
+    /// Number of labels including the background (max label + 1).
+    pub fn num_labels(&self) -> usize {
+        self.objects.iter().map(|o| o.label as usize).max().unwrap_or(0) + 1
+    }
+
+    /// Label names indexed by label id ("background" for 0).
+    pub fn label_names(&self) -> Vec<String> {
+        let mut names = vec![String::new(); self.num_labels()];
+        names[0] = "background".into();
+        for o in &self.objects {
+            names[o.label as usize] = o.name.clone();
+        }
+        names
+    }
+
+    /// The object called `name` (case-insensitive).
+    pub fn object(&self, name: &str) -> Option<&SceneObject> {
+        self.objects.iter().find(|o| o.name.eq_ignore_ascii_case(name.trim()))
+    }
+
+    /// The object with label `label`.
+    pub fn object_by_label(&self, label: u32) -> Option<&SceneObject> {
+        self.objects.iter().find(|o| o.label == label)
+    }
+
+    /// The label of `name`, or an error listing the objects.
+    pub fn label_of(&self, name: &str) -> Result<u32, Error> {
+        self.object(name)
+            .map(|o| o.label)
+            .ok_or_else(|| Error::UnknownObject { name: name.to_string(), objects: self.object_list() })
+    }
+
+    pub(crate) fn object_list(&self) -> String {
+        self.objects.iter().map(|o| o.name.as_str()).collect::<Vec<_>>().join(", ")
+    }
+
+    /// Number of Gaussians per label (index = label id).
+    pub fn label_counts(&self) -> Vec<usize> {
+        let mut c = vec![0usize; self.num_labels()];
+        for &l in &self.labels {
+            if let Some(v) = c.get_mut(l as usize) {
+                *v += 1;
+            }
+        }
+        c
+    }
+
+    /// Indices of the test views (every 8th camera).
+    pub fn test_views(&self) -> Vec<usize> {
+        (0..self.cameras.len()).filter(|&i| is_test(i)).collect()
+    }
+
+    /// Indices of the training views.
+    pub fn train_views(&self) -> Vec<usize> {
+        (0..self.cameras.len()).filter(|&i| !is_test(i)).collect()
+    }
+
+    /// The Gaussians with the label as an extra property `label` (for the PLY).
+    pub fn gaussians_with_labels(&self) -> Gaussians {
+        with_labels(&self.gaussians, &self.labels)
+    }
+}
+
+/// A copy of `g` with `labels` appended as the extra property [`LABEL_PROPERTY`]
+/// (replacing an existing one).
+pub fn with_labels(g: &Gaussians, labels: &[u32]) -> Gaussians {
+    let mut out = g.clone();
+    let w = g.extra.width();
+    let keep: Vec<usize> = (0..w).filter(|&k| g.extra.names[k] != LABEL_PROPERTY).collect();
+    let mut names: Vec<String> = keep.iter().map(|&k| g.extra.names[k].clone()).collect();
+    names.push(LABEL_PROPERTY.into());
+    let mut values = Vec::with_capacity(g.len() * names.len());
+    for (i, &l) in labels.iter().enumerate().take(g.len()) {
+        values.extend(keep.iter().map(|&k| g.extra.values[i * w + k]));
+        values.push(l as f32);
+    }
+    out.extra = Extra { names, values };
+    out
+}
+
+/// Reads the per-Gaussian labels back from the `label` extra property, if present.
+pub fn labels_from_extra(g: &Gaussians) -> Option<Vec<u32>> {
+    let w = g.extra.width();
+    let k = g.extra.names.iter().position(|n| n == LABEL_PROPERTY)?;
+    (0..g.len())
+        .map(|i| {
+            let v = g.extra.values[i * w + k];
+            (v.is_finite() && v >= 0.0 && v.fract() == 0.0 && v < 65536.0).then_some(v as u32)
+        })
+        .collect()
+}
+
+/// Builds the scene `name` (one of [`SCENE_NAMES`]); an unknown name is an error that
+/// lists the available ones.
+pub fn build(name: &str, config: &SceneConfig) -> Result<Scene, Error> {
+    config.check()?;
+    match name.trim().to_ascii_lowercase().as_str() {
+        "tabletop" => Ok(tabletop(config)),
+        "occluded" => Ok(occluded(config)),
+        _ => Err(Error::UnknownScene {
+            name: name.to_string(),
+            available: SCENE_NAMES.iter().map(|s| s.to_string()).collect(),
+        }),
+    }
+}
+
+/// Sample spacings (metres) at detail 1.
+struct Spacing {
+    background: f32,
+    table: f32,
+    object: f32,
+}
+
+impl Spacing {
+    fn new(detail: f32) -> Self {
+        let k = 1.0 / detail.clamp(0.01, 16.0).sqrt();
+        Spacing { background: 0.045 * k, table: 0.018 * k, object: 0.0105 * k }
+    }
+}
+
+const TABLE_HALF: [f32; 2] = [0.8, 0.5];
+const TABLE_THICK: f32 = 0.04;
+const FLOOR_Z: f32 = -0.75;
+const WALL_Y: f32 = 1.3;
+
+/// Floor, backdrop wall and table (label 0).
+fn background(b: &mut Builder, sp: &Spacing, seed: u64) {
+    let floor = move |p: [f32; 3]| {
+        let tile = checker([p[0], p[1], 0.0], 0.5);
+        let base = mix_rgb([0.36, 0.36, 0.38], [0.5, 0.49, 0.47], tile);
+        shade(base, 0.85 + 0.3 * fbm(seed ^ 1, [p[0] * 4.0, p[1] * 4.0, 0.0], 3))
+    };
+    let wall = move |p: [f32; 3]| {
+        let band = stripes([0.0, 0.0, p[0]], 0.3);
+        let base = mix_rgb([0.78, 0.72, 0.6], [0.62, 0.68, 0.72], band);
+        shade(base, 0.88 + 0.2 * fbm(seed ^ 2, [p[0] * 3.0, 0.0, p[2] * 3.0], 4))
+    };
+    let top = move |p: [f32; 3]| shade([0.58, 0.37, 0.2], wood_grain(seed ^ 3, p, 0.05));
+    let leg = move |p: [f32; 3]| shade([0.4, 0.25, 0.13], wood_grain(seed ^ 4, [p[2], p[1], p[0]], 0.03));
+    let old_opacity = b.opacity;
+    b.view_dependence = 0.015;
+    b.rect([-2.6, -2.4, FLOOR_Z], [5.2, 0.0, 0.0], [0.0, 2.4 + WALL_Y, 0.0], sp.background, &floor, 0);
+    b.rect([-2.6, WALL_Y, FLOOR_Z], [0.0, 0.0, 3.0], [5.2, 0.0, 0.0], sp.background, &wall, 0);
+    // side walls, so that the oblique views see a backdrop everywhere
+    let side = 1.2 + WALL_Y;
+    b.rect([2.6, WALL_Y - side, FLOOR_Z], [0.0, 0.0, 3.0], [0.0, side, 0.0], sp.background, &wall, 0);
+    b.rect([-2.6, WALL_Y - side, FLOOR_Z], [0.0, side, 0.0], [0.0, 0.0, 3.0], sp.background, &wall, 0);
+    b.view_dependence = 0.03;
+    let [hx, hy] = TABLE_HALF;
+    b.cuboid([0.0, 0.0, -TABLE_THICK / 2.0], [hx, hy, TABLE_THICK / 2.0], sp.table, &top, 0, false);
+    let leg_h = (-TABLE_THICK - FLOOR_Z) / 2.0;
+    for (sx, sy) in [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)] {
+        let c = [sx * (hx - 0.07), sy * (hy - 0.07), FLOOR_Z + leg_h];
+        b.cuboid(c, [0.035, 0.035, leg_h], sp.table, &leg, 0, true);
+    }
+    b.opacity = old_opacity;
+}
+
+fn object(
+    name: &str,
+    label: u32,
+    colour: &str,
+    base_rgb: [f32; 3],
+    shape: &str,
+    centre: [f32; 3],
+) -> SceneObject {
+    SceneObject { name: name.into(), label, colour: colour.into(), base_rgb, shape: shape.into(), centre }
+}
+
+fn finish(
+    name: &str,
+    description: &str,
+    target: &str,
+    b: Builder,
+    mut objects: Vec<SceneObject>,
+    config: &SceneConfig,
+    rig: Rig,
+) -> Scene {
+    // centres from the Gaussians themselves (bounding-box centre per label)
+    for o in objects.iter_mut() {
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for (p, &l) in b.g.means.iter().zip(&b.labels) {
+            if l == o.label {
+                for k in 0..3 {
+                    lo[k] = lo[k].min(p[k]);
+                    hi[k] = hi[k].max(p[k]);
+                }
+            }
+        }
+        if lo[0].is_finite() {
+            o.centre = std::array::from_fn(|k| 0.5 * (lo[k] + hi[k]));
+        }
+    }
+    Scene {
+        name: name.into(),
+        description: description.into(),
+        gaussians: b.g,
+        labels: b.labels,
+        objects,
+        cameras: rig.cameras(config.views, config.width, config.height),
+        target: target.into(),
+        background: [0.0; 3],
+        config: config.clone(),
+    }
+}
+
+fn default_rig() -> Rig {
+    Rig {
+        target: [0.0, 0.0, 0.1],
+        distance: 2.3,
+        elevations_deg: vec![20.0, 32.0, 45.0],
+        azimuth_span_deg: 120.0,
+        fov_x_deg: 50.0,
+    }
+}
+
+fn lum_noise(seed: u64, p: [f32; 3], freq: f32, amount: f32) -> f32 {
+    1.0 - amount + 2.0 * amount * fbm(seed, p.map(|v| v * freq), 3)
+}
+
+/// Textures of the objects, shared by the scenes.
+struct Looks;
+
+impl Looks {
+    fn ball(seed: u64, centre: [f32; 3], rgb: [f32; 3]) -> impl Fn([f32; 3]) -> [f32; 3] {
+        move |p| {
+            // speckles plus two darker seams (a tennis-ball-like curve)
+            let d = crate::build::normalize(crate::build::sub(p, centre));
+            let seam = ((d[0] * 3.0).sin() * 0.4 - d[2]).abs() < 0.06;
+            let f = lum_noise(seed, p, 30.0, 0.15) * if seam { 0.7 } else { 1.0 };
+            shade(rgb, f)
+        }
+    }
+    fn crate_(seed: u64, centre: [f32; 3], half: f32, rgb: [f32; 3]) -> impl Fn([f32; 3]) -> [f32; 3] {
+        move |p| {
+            // planks: dark gaps every quarter of the height, grain along them
+            let rel = (p[2] - (centre[2] - half)) / (2.0 * half);
+            let gap = (rel * 4.0).fract();
+            let g = if !(0.06..=0.94).contains(&gap) { 0.6 } else { 1.0 };
+            shade(rgb, g * wood_grain(seed, [p[2] * 0.2, p[0], p[1]], 0.02))
+        }
+    }
+    fn vase(seed: u64, rgb: [f32; 3]) -> impl Fn([f32; 3]) -> [f32; 3] {
+        move |p| {
+            let band = 0.8 + 0.3 * (p[2] * 60.0).sin().max(0.0);
+            shade(rgb, band * lum_noise(seed, p, 25.0, 0.08))
+        }
+    }
+    fn cone(seed: u64, centre: [f32; 3], rgb: [f32; 3]) -> impl Fn([f32; 3]) -> [f32; 3] {
+        move |p| {
+            let phi = (p[1] - centre[1]).atan2(p[0] - centre[0]);
+            let spiral = ((phi * 3.0 + p[2] * 40.0).sin() > 0.0) as i32 as f32;
+            shade(rgb, (0.78 + 0.35 * spiral) * lum_noise(seed, p, 20.0, 0.06))
+        }
+    }
+    fn stem(seed: u64, rgb: [f32; 3]) -> impl Fn([f32; 3]) -> [f32; 3] {
+        move |p| shade(rgb, lum_noise(seed, [p[0], p[1], p[2] * 4.0], 20.0, 0.2))
+    }
+}
+
+/// `tabletop`: ball, crate, vase, cone.
+fn tabletop(config: &SceneConfig) -> Scene {
+    let seed = config.seed;
+    let sp = Spacing::new(config.detail);
+    let mut b = Builder::new(seed);
+    background(&mut b, &sp, seed);
+
+    let ball_c = [-0.42, 0.05, 0.15];
+    let ball_rgb = [0.85, 0.16, 0.12];
+    b.sphere(ball_c, 0.15, sp.object, &Looks::ball(seed ^ 11, ball_c, ball_rgb), 1);
+
+    let crate_half = 0.13;
+    let crate_c = [0.02, 0.2, crate_half];
+    let crate_rgb = [0.76, 0.58, 0.33];
+    let tex = Looks::crate_(seed ^ 12, crate_c, crate_half, crate_rgb);
+    b.cuboid(crate_c, [crate_half; 3], sp.object, &tex, 2, true);
+
+    let vase_base = [0.44, -0.02, 0.0];
+    let vase_rgb = [0.16, 0.32, 0.82];
+    let profile = [
+        (0.07, 0.0),
+        (0.11, 0.06),
+        (0.12, 0.13),
+        (0.09, 0.22),
+        (0.05, 0.3),
+        (0.055, 0.36),
+        (0.065, 0.38),
+        (0.0, 0.372),
+    ];
+    let tex = Looks::vase(seed ^ 13, vase_rgb);
+    b.revolution(vase_base, &profile, sp.object, &tex, 3);
+
+    let cone_base = [0.02, -0.28, 0.0];
+    let cone_rgb = [0.22, 0.66, 0.25];
+    let tex = Looks::cone(seed ^ 14, cone_base, cone_rgb);
+    b.revolution(cone_base, &[(0.09, 0.0), (0.0, 0.24)], sp.object, &tex, 4);
+
+    let objects = vec![
+        object("ball", 1, "red", ball_rgb, "sphere", ball_c),
+        object("crate", 2, "light wood brown", crate_rgb, "box", crate_c),
+        object("vase", 3, "blue", vase_rgb, "surface of revolution", vase_base),
+        object("cone", 4, "green", cone_rgb, "cone", cone_base),
+    ];
+    finish(
+        "tabletop",
+        "a red ball, a wooden crate, a blue vase and a green cone on a wood-grain table in front of a \
+         striped wallpaper backdrop, on a tiled floor",
+        "ball",
+        b,
+        objects,
+        config,
+        default_rig(),
+    )
+}
+
+/// `occluded`: a crate in front of a partly hidden ball, and a thin stem.
+fn occluded(config: &SceneConfig) -> Scene {
+    let seed = config.seed.wrapping_add(0x0CC1);
+    let sp = Spacing::new(config.detail);
+    let mut b = Builder::new(seed);
+    background(&mut b, &sp, seed);
+
+    let crate_half = 0.14;
+    let crate_c = [-0.05, -0.08, crate_half];
+    let crate_rgb = [0.7, 0.52, 0.3];
+    let tex = Looks::crate_(seed ^ 21, crate_c, crate_half, crate_rgb);
+    b.cuboid(crate_c, [crate_half; 3], sp.object, &tex, 1, true);
+
+    let ball_c = [0.1, 0.26, 0.14];
+    let ball_rgb = [0.88, 0.2, 0.14];
+    b.sphere(ball_c, 0.14, sp.object, &Looks::ball(seed ^ 22, ball_c, ball_rgb), 2);
+
+    // thin stem: radius 12 mm, finer sampling so it stays a closed tube
+    let stem_base = [0.42, 0.0, 0.0];
+    let stem_rgb = [0.85, 0.75, 0.15];
+    let tex = Looks::stem(seed ^ 23, stem_rgb);
+    let fine = (sp.object * 0.6).min(0.012);
+    b.revolution(stem_base, &[(0.012, 0.0), (0.012, 0.5), (0.0, 0.5)], fine, &tex, 3);
+    b.sphere([stem_base[0], stem_base[1], 0.52], 0.03, fine, &tex, 3);
+
+    let objects = vec![
+        object("crate", 1, "light wood brown", crate_rgb, "box", crate_c),
+        object("ball", 2, "red", ball_rgb, "sphere", ball_c),
+        object("stem", 3, "yellow", stem_rgb, "thin pole", stem_base),
+    ];
+    finish(
+        "occluded",
+        "a red ball half hidden behind a wooden crate, and a thin yellow stem, on a wood-grain table in \
+         front of a striped wallpaper backdrop",
+        "ball",
+        b,
+        objects,
+        config,
+        default_rig(),
+    )
+}

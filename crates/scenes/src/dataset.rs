@@ -1,0 +1,276 @@
+//! Writing a built-in scene as a dataset that 3DGS tools can train on.
+//!
+//! Layout of `DIR`:
+//!
+//! ```text
+//! point_cloud/iteration_0/point_cloud.ply  the scene: INRIA 3DGS PLY (binary float32,
+//!                                          SH degree 1) plus the extra float property
+//!                                          `label` (per-Gaussian label id)
+//! cameras.json                             INRIA cameras (img_name = view_NNN)
+//! images/view_NNN.png                      8-bit RGB renders of every camera
+//! masks/view_NNN.png                       8-bit greyscale: pixel value = label id
+//!                                          (0 = background / nothing), see masks module
+//! sparse/0/{cameras,images,points3D}.txt   the same cameras as a COLMAP text model
+//!                                          (PINHOLE), points3D = every k-th Gaussian
+//!                                          centre (≤ 5000) with its colour
+//! labels.json                              objects, label ids, test views, metadata
+//! ```
+//!
+//! Every 8th view (index % 8 == 0) is a test view (`labels.json`: `"test"`).
+//!
+//! Atomicity: the dataset is written into a hidden temporary folder beside `DIR`
+//! (`.NAME.partial-PID`) and renamed onto `DIR` when complete, so an interrupted run
+//! leaves no half-written dataset. `DIR` may be missing or an empty folder; a
+//! non-empty `DIR` is refused unless `force`, in which case the files are written into
+//! it in place (each file atomically; nothing else in it is touched or deleted).
+
+use crate::build::quat_from_matrix;
+use crate::catalog::{Scene, LABEL_PROPERTY};
+use crate::edit::dc_colour;
+use crate::rig::{is_test, LLFF_HOLD};
+use crate::Error;
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use transsplat_scene::{atomic, cameras, image, ply};
+
+/// Options of [`write_dataset`].
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct WriteOptions {
+    /// Write into a non-empty existing folder (overwriting the dataset's files).
+    pub force: bool,
+}
+
+/// What [`write_dataset`] wrote.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DatasetSummary {
+    pub dir: PathBuf,
+    pub gaussians: usize,
+    pub views: usize,
+    pub test_views: usize,
+    /// Per object (label order): number of views where it covers at least one pixel.
+    pub views_visible: Vec<usize>,
+}
+
+/// Relative path of the scene PLY inside a dataset.
+pub const PLY_PATH: &str = "point_cloud/iteration_0/point_cloud.ply";
+
+/// Most points written to `sparse/0/points3D.txt`.
+const MAX_SPARSE_POINTS: usize = 5000;
+
+fn out_err(path: &Path, msg: impl std::fmt::Display) -> Error {
+    Error::Output { path: path.to_path_buf(), msg: msg.to_string() }
+}
+
+/// Writes `scene` to `dir` (layout in the module docs). `progress(done, total)` is
+/// called after each view.
+pub fn write_dataset(
+    scene: &Scene,
+    dir: &Path,
+    opts: &WriteOptions,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<DatasetSummary, Error> {
+    if scene.labels.iter().any(|&l| l > 255) {
+        return Err(Error::Invalid("labels above 255 do not fit 8-bit masks".into()));
+    }
+    let exists = dir.exists();
+    if exists && !dir.is_dir() {
+        return Err(out_err(dir, "exists and is not a folder"));
+    }
+    let non_empty = exists && std::fs::read_dir(dir).map_err(|e| out_err(dir, e))?.next().is_some();
+    if non_empty && !opts.force {
+        return Err(out_err(dir, "output folder exists and is not empty (use --force to write into it)"));
+    }
+    if non_empty {
+        let summary = write_into(scene, dir, progress)?;
+        return Ok(summary);
+    }
+    let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "dataset".into());
+    let parent = match dir.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&parent).map_err(|e| out_err(&parent, format!("cannot create folder: {e}")))?;
+    let tmp = parent.join(format!(".{name}.partial-{}", std::process::id()));
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).map_err(|e| out_err(&tmp, e))?;
+    }
+    let result = write_into(scene, &tmp, progress).and_then(|mut s| {
+        if exists {
+            std::fs::remove_dir(dir).map_err(|e| out_err(dir, e))?;
+        }
+        std::fs::rename(&tmp, dir)
+            .map_err(|e| out_err(dir, format!("cannot move the dataset into place: {e}")))?;
+        s.dir = dir.to_path_buf();
+        Ok(s)
+    });
+    if result.is_err() {
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    result
+}
+
+fn mkdir(p: &Path) -> Result<(), Error> {
+    std::fs::create_dir_all(p).map_err(|e| out_err(p, format!("cannot create folder: {e}")))
+}
+
+/// Writes an 8-bit greyscale PNG atomically.
+pub fn write_grey_png(path: &Path, width: usize, height: usize, values: &[u8]) -> Result<(), Error> {
+    if values.len() != width * height {
+        return Err(Error::Invalid(format!(
+            "{}: mask has {} values for {width}x{height}",
+            path.display(),
+            values.len()
+        )));
+    }
+    atomic::write_with(path, |w| {
+        let mut enc = png::Encoder::new(w, width as u32, height as u32);
+        enc.set_color(png::ColorType::Grayscale);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut writer = enc.write_header().map_err(std::io::Error::other)?;
+        writer.write_image_data(values).map_err(std::io::Error::other)?;
+        writer.finish().map_err(std::io::Error::other)
+    })?;
+    Ok(())
+}
+
+fn write_into(
+    scene: &Scene,
+    dir: &Path,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<DatasetSummary, Error> {
+    let ply_path = dir.join(PLY_PATH);
+    mkdir(ply_path.parent().unwrap_or(dir))?;
+    mkdir(&dir.join("images"))?;
+    mkdir(&dir.join("masks"))?;
+    mkdir(&dir.join("sparse/0"))?;
+    ply::write(&ply_path, &scene.gaussians_with_labels())?;
+    cameras::inria::write(&dir.join("cameras.json"), &scene.cameras)?;
+    write_colmap(scene, &dir.join("sparse/0"))?;
+
+    let names = scene.label_names();
+    let mut views_visible = vec![0usize; scene.objects.len()];
+    let mut views = Vec::with_capacity(scene.cameras.len());
+    let total = scene.cameras.len();
+    for (i, cam) in scene.cameras.iter().enumerate() {
+        let r = scene.render_view(i).ok_or_else(|| Error::Invalid(format!("no camera {i}")))?;
+        let stem = cam.stem();
+        image::write_png(&dir.join("images").join(format!("{stem}.png")), r.width, r.height, &r.rgb)?;
+        let grey: Vec<u8> = r.labels.iter().map(|&l| l.min(255) as u8).collect();
+        write_grey_png(&dir.join("masks").join(format!("{stem}.png")), r.width, r.height, &grey)?;
+        let mut pixels = serde_json::Map::new();
+        for (k, o) in scene.objects.iter().enumerate() {
+            let a = r.area(o.label);
+            if a > 0 {
+                views_visible[k] += 1;
+            }
+            pixels.insert(o.name.clone(), json!(a));
+        }
+        views.push(json!({
+            "index": i,
+            "name": stem,
+            "image": format!("images/{stem}.png"),
+            "mask": format!("masks/{stem}.png"),
+            "test": is_test(i),
+            "object_pixels": Value::Object(pixels),
+        }));
+        progress(i + 1, total);
+    }
+
+    let counts = scene.label_counts();
+    let labels: Vec<Value> = names
+        .iter()
+        .enumerate()
+        .map(|(id, n)| json!({"id": id, "name": n, "gaussians": counts.get(id).copied().unwrap_or(0)}))
+        .collect();
+    let objects: Vec<Value> = scene
+        .objects
+        .iter()
+        .map(|o| {
+            json!({
+                "name": o.name,
+                "label": o.label,
+                "colour": o.colour,
+                "base_rgb": o.base_rgb,
+                "shape": o.shape,
+                "centre": o.centre,
+                "gaussians": counts.get(o.label as usize).copied().unwrap_or(0),
+            })
+        })
+        .collect();
+    let stems: Vec<String> = scene.cameras.iter().map(|c| c.stem()).collect();
+    let doc = json!({
+        "scene": scene.name,
+        "description": scene.description,
+        "target": scene.target,
+        "seed": scene.config.seed,
+        "detail": scene.config.detail,
+        "width": scene.config.width,
+        "height": scene.config.height,
+        "num_gaussians": scene.gaussians.len(),
+        "sh_degree": scene.gaussians.sh_degree,
+        "background": scene.background,
+        "ply": PLY_PATH,
+        "label_property": LABEL_PROPERTY,
+        "mask_encoding": "8-bit greyscale PNG; pixel value = label id (0 = background or nothing); \
+                          a pixel is labelled where the rendered alpha > 0.5, by the label with the \
+                          largest blend weight",
+        "llffhold": LLFF_HOLD,
+        "labels": labels,
+        "objects": objects,
+        "test_views": stems.iter().enumerate().filter(|(i, _)| is_test(*i)).map(|(_, s)| s).collect::<Vec<_>>(),
+        "train_views": stems.iter().enumerate().filter(|(i, _)| !is_test(*i)).map(|(_, s)| s).collect::<Vec<_>>(),
+        "views": views,
+    });
+    let text = serde_json::to_string_pretty(&doc).map_err(|e| out_err(&dir.join("labels.json"), e))?;
+    atomic::write_bytes(&dir.join("labels.json"), text.as_bytes())?;
+    Ok(DatasetSummary {
+        dir: dir.to_path_buf(),
+        gaussians: scene.gaussians.len(),
+        views: total,
+        test_views: scene.test_views().len(),
+        views_visible,
+    })
+}
+
+/// The cameras as a COLMAP text model (one PINHOLE camera per view; image names
+/// `view_NNN.png` inside `images/`) and a subsample of the Gaussian centres as points.
+fn write_colmap(scene: &Scene, dir: &Path) -> Result<(), Error> {
+    let mut cams = String::from(
+        "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n",
+    );
+    let mut imgs = String::from(
+        "# Image list with two lines of data per image:\n#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n#   POINTS2D[] as (X, Y, POINT3D_ID)\n",
+    );
+    for (i, c) in scene.cameras.iter().enumerate() {
+        let id = i + 1;
+        cams.push_str(&format!(
+            "{id} PINHOLE {} {} {} {} {} {}\n",
+            c.width, c.height, c.fx, c.fy, c.cx, c.cy
+        ));
+        let q = quat_from_matrix(c.rotation);
+        let t = c.translation;
+        imgs.push_str(&format!(
+            "{id} {} {} {} {} {} {} {} {id} {}.png\n\n",
+            q[0],
+            q[1],
+            q[2],
+            q[3],
+            t[0],
+            t[1],
+            t[2],
+            c.stem()
+        ));
+    }
+    let g = &scene.gaussians;
+    let step = g.len().div_ceil(MAX_SPARSE_POINTS).max(1);
+    let mut pts = String::from("# 3D point list with one line of data per point:\n#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n");
+    for (k, i) in (0..g.len()).step_by(step).enumerate() {
+        let p = g.means[i];
+        let c = dc_colour(g, i).map(image::to_u8);
+        pts.push_str(&format!("{} {} {} {} {} {} {} 0\n", k + 1, p[0], p[1], p[2], c[0], c[1], c[2]));
+    }
+    atomic::write_bytes(&dir.join("cameras.txt"), cams.as_bytes())?;
+    atomic::write_bytes(&dir.join("images.txt"), imgs.as_bytes())?;
+    atomic::write_bytes(&dir.join("points3D.txt"), pts.as_bytes())?;
+    Ok(())
+}

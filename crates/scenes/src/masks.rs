@@ -1,0 +1,132 @@
+//! Ground-truth object masks: the per-Gaussian labels rendered as one-hot feature
+//! channels with the rasterizer, in the same pass as the colour image.
+//!
+//! A pixel's label is the channel with the largest blend weight where the rendered
+//! alpha exceeds 0.5, and 0 (background) elsewhere. The per-label soft mask is that
+//! label's blend weight divided by the alpha. Pixels where a label has exactly zero
+//! weight receive no contribution at all from its Gaussians.
+
+use crate::catalog::Scene;
+use transsplat_raster::{render, RenderOptions, Splats};
+use transsplat_scene::{Camera, Gaussians};
+
+/// Alpha above which a pixel gets a label.
+pub const ALPHA_THRESHOLD: f32 = 0.5;
+
+/// One view rendered with its label channels.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LabelRender {
+    pub width: usize,
+    pub height: usize,
+    /// `H × W × 3` colour, including the background.
+    pub rgb: Vec<f32>,
+    /// `H × W` alpha.
+    pub alpha: Vec<f32>,
+    /// `H × W × num_labels`: blend weight of each label (sums to alpha).
+    pub weights: Vec<f32>,
+    pub num_labels: usize,
+    /// `H × W` label per pixel (argmax of `weights` where alpha > 0.5, else 0).
+    pub labels: Vec<u32>,
+}
+
+impl LabelRender {
+    /// Binary mask of `label`.
+    pub fn mask(&self, label: u32) -> Vec<bool> {
+        self.labels.iter().map(|&l| l == label).collect()
+    }
+
+    /// Number of pixels labelled `label`.
+    pub fn area(&self, label: u32) -> usize {
+        self.labels.iter().filter(|&&l| l == label).count()
+    }
+
+    /// Raw blend weight of `label` per pixel (0 where its Gaussians contribute nothing).
+    pub fn weight(&self, label: u32) -> Vec<f32> {
+        let l = label as usize;
+        if l >= self.num_labels {
+            return vec![0.0; self.width * self.height];
+        }
+        self.weights.chunks_exact(self.num_labels).map(|w| w[l]).collect()
+    }
+
+    /// Soft mask of `label`: its share of the pixel's opacity (weight / alpha).
+    pub fn soft(&self, label: u32) -> Vec<f32> {
+        self.weight(label)
+            .iter()
+            .zip(&self.alpha)
+            .map(|(&w, &a)| if a > 1e-6 { (w / a).min(1.0) } else { 0.0 })
+            .collect()
+    }
+}
+
+/// One-hot encoding of `labels` with `num_labels` channels (labels ≥ `num_labels`
+/// get no channel).
+pub fn one_hot(labels: &[u32], num_labels: usize) -> Vec<f32> {
+    let mut f = vec![0.0f32; labels.len() * num_labels];
+    for (i, &l) in labels.iter().enumerate() {
+        if (l as usize) < num_labels {
+            f[i * num_labels + l as usize] = 1.0;
+        }
+    }
+    f
+}
+
+/// Renders `g` from `cam` with the label channels. `labels.len()` must equal `g.len()`
+/// (checked: a mismatch renders no label channel rather than panicking).
+pub fn render_labels(
+    g: &Gaussians,
+    labels: &[u32],
+    num_labels: usize,
+    cam: &Camera,
+    background: [f32; 3],
+) -> LabelRender {
+    let num_labels = if labels.len() == g.len() { num_labels.max(1) } else { 1 };
+    let feats = if labels.len() == g.len() { one_hot(labels, num_labels) } else { vec![0.0; g.len()] };
+    let splats = Splats::new(g).with_features(&feats, num_labels);
+    let (img, _) = render(&splats, cam, &RenderOptions { background });
+    let labels_px = img
+        .features
+        .chunks_exact(num_labels)
+        .zip(&img.alpha)
+        .map(|(w, &a)| {
+            if a <= ALPHA_THRESHOLD {
+                return 0;
+            }
+            let mut best = 0;
+            for (k, &v) in w.iter().enumerate() {
+                if v > w[best] {
+                    best = k;
+                }
+            }
+            best as u32
+        })
+        .collect();
+    LabelRender {
+        width: img.width,
+        height: img.height,
+        rgb: img.rgb,
+        alpha: img.alpha,
+        weights: img.features,
+        num_labels,
+        labels: labels_px,
+    }
+}
+
+impl Scene {
+    /// Renders view `index` of the scene with its label channels.
+    pub fn render_view(&self, index: usize) -> Option<LabelRender> {
+        let cam = self.cameras.get(index)?;
+        Some(render_labels(&self.gaussians, &self.labels, self.num_labels(), cam, self.background))
+    }
+
+    /// Renders other Gaussians (e.g. an edited copy) with this scene's labels and camera.
+    pub fn render_edited(&self, g: &Gaussians, index: usize) -> Option<LabelRender> {
+        let cam = self.cameras.get(index)?;
+        Some(render_labels(g, &self.labels, self.num_labels(), cam, self.background))
+    }
+
+    /// Ground-truth label mask of every view.
+    pub fn masks(&self) -> Vec<Vec<u32>> {
+        (0..self.cameras.len()).filter_map(|i| self.render_view(i)).map(|r| r.labels).collect()
+    }
+}
