@@ -1,0 +1,357 @@
+//! Adam per parameter group with the INRIA 3DGS learning rates.
+//!
+//! The update is PyTorch's `torch.optim.Adam` (which INRIA uses, with eps 1e-15):
+//! `m ← β₁m + (1−β₁)g`, `v ← β₂v + (1−β₂)g²`,
+//! `p ← p − lr/(1−β₁ᵗ) · m / (√v/√(1−β₂ᵗ) + eps)`, with one step counter per group.
+//! Every Gaussian is updated every step (dense Adam, as INRIA: a Gaussian unseen
+//! this step still moves by its decaying momentum). A group whose learning rate is 0
+//! is skipped entirely — parameters, moments and step counter stay as they are — so
+//! the edit stage can freeze geometry.
+//!
+//! The position learning rate follows INRIA's `get_expon_lr_func` (without the
+//! delay, which INRIA's defaults disable): log-linear from `1.6e-4 · extent` to
+//! `1.6e-6 · extent` over `max_steps`, constant after.
+
+use crate::model::Model;
+use rayon::prelude::*;
+use transsplat_raster::Grads;
+
+/// The parameter groups, one learning rate and one Adam state each.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Group {
+    Position,
+    ShDc,
+    ShRest,
+    Opacity,
+    Scaling,
+    Rotation,
+    Features,
+}
+
+impl Group {
+    /// Every group, in state order.
+    pub const ALL: [Group; 7] = [
+        Group::Position,
+        Group::ShDc,
+        Group::ShRest,
+        Group::Opacity,
+        Group::Scaling,
+        Group::Rotation,
+        Group::Features,
+    ];
+
+    /// Index into [`Adam::groups`].
+    pub fn index(self) -> usize {
+        self as usize
+    }
+
+    /// Human-readable name (for messages).
+    pub fn name(self) -> &'static str {
+        match self {
+            Group::Position => "position",
+            Group::ShDc => "SH DC colour",
+            Group::ShRest => "higher SH colour",
+            Group::Opacity => "opacity",
+            Group::Scaling => "scaling",
+            Group::Rotation => "rotation",
+            Group::Features => "features",
+        }
+    }
+
+    /// Values per Gaussian in this group for a model.
+    pub fn width(self, model: &Model) -> usize {
+        match self {
+            Group::Position | Group::Scaling | Group::ShDc => 3,
+            Group::ShRest => model.gaussians.sh_coeffs().saturating_sub(1) * 3,
+            Group::Opacity => 1,
+            Group::Rotation => 4,
+            Group::Features => model.num_features,
+        }
+    }
+}
+
+/// Learning rates (INRIA 3DGS defaults). The position rates are multiplied by the
+/// scene extent.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LearningRates {
+    /// Position learning rate at step 0, in units of the scene extent.
+    pub position_init: f32,
+    /// Position learning rate at `position_max_steps`, in units of the scene extent.
+    pub position_final: f32,
+    /// Length of the exponential decay; `None` = the length of the run.
+    pub position_max_steps: Option<u64>,
+    pub sh_dc: f32,
+    pub sh_rest: f32,
+    pub opacity: f32,
+    pub scaling: f32,
+    pub rotation: f32,
+    pub features: f32,
+}
+
+impl Default for LearningRates {
+    fn default() -> Self {
+        LearningRates {
+            position_init: 1.6e-4,
+            position_final: 1.6e-6,
+            position_max_steps: None,
+            sh_dc: 2.5e-3,
+            sh_rest: 2.5e-3 / 20.0,
+            opacity: 0.025,
+            scaling: 5e-3,
+            rotation: 1e-3,
+            features: 2.5e-3,
+        }
+    }
+}
+
+impl LearningRates {
+    /// Every learning rate zero except colour (SH) and features: the edit stage's
+    /// "appearance only" setting.
+    pub fn colour_only(&self) -> Self {
+        LearningRates {
+            position_init: 0.0,
+            position_final: 0.0,
+            opacity: 0.0,
+            scaling: 0.0,
+            rotation: 0.0,
+            ..self.clone()
+        }
+    }
+
+    /// The learning rate of each group at `step` (1-based, as INRIA's iteration) for a
+    /// run of `total_steps` and a scene of size `extent`, indexed by [`Group::index`].
+    pub fn at(&self, step: u64, total_steps: u64, extent: f32) -> [f32; 7] {
+        let max_steps = self.position_max_steps.unwrap_or(total_steps).max(1);
+        let pos = expon_lr(step, self.position_init * extent, self.position_final * extent, max_steps);
+        [pos, self.sh_dc, self.sh_rest, self.opacity, self.scaling, self.rotation, self.features]
+    }
+}
+
+/// INRIA's `get_expon_lr_func` without delay: `exp(lerp(ln init, ln final, t))`,
+/// `t = clamp(step / max_steps, 0, 1)`; 0 when both rates are 0.
+pub fn expon_lr(step: u64, init: f32, final_: f32, max_steps: u64) -> f32 {
+    if init == 0.0 && final_ == 0.0 {
+        return 0.0;
+    }
+    let t = (step as f64 / max_steps.max(1) as f64).clamp(0.0, 1.0);
+    let (a, b) = ((init as f64).max(1e-30).ln(), (final_ as f64).max(1e-30).ln());
+    (a * (1.0 - t) + b * t).exp() as f32
+}
+
+/// Adam state of one group: moments with `width` values per Gaussian (allocated at
+/// the group's first step) and the step counter.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GroupState {
+    pub width: usize,
+    pub m: Vec<f32>,
+    pub v: Vec<f32>,
+    pub step: u64,
+}
+
+/// Adam over the seven groups.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Adam {
+    /// Indexed by [`Group::index`].
+    pub groups: [GroupState; 7],
+    pub betas: (f32, f32),
+    pub eps: f32,
+}
+
+impl Adam {
+    /// Fresh state for `model` (β = (0.9, 0.999), eps = 1e-15 as INRIA).
+    pub fn new(model: &Model) -> Self {
+        Adam {
+            groups: Group::ALL.map(|g| GroupState { width: g.width(model), ..Default::default() }),
+            betas: (0.9, 0.999),
+            eps: 1e-15,
+        }
+    }
+
+    /// Zeroes the moments of `group` for the Gaussians where `which` is true (all
+    /// when `None`), as INRIA's `replace_tensor_to_optimizer` after an opacity reset.
+    pub fn zero_moments(&mut self, group: Group, which: Option<&[bool]>) {
+        let g = &mut self.groups[group.index()];
+        let w = g.width;
+        match which {
+            None => {
+                g.m.fill(0.0);
+                g.v.fill(0.0);
+            }
+            Some(sel) if !g.m.is_empty() => {
+                for (i, _) in sel.iter().enumerate().filter(|(_, &s)| s) {
+                    g.m[i * w..(i + 1) * w].fill(0.0);
+                    g.v[i * w..(i + 1) * w].fill(0.0);
+                }
+            }
+            Some(_) => {}
+        }
+    }
+
+    /// One Adam step of every group with a non-zero learning rate. `lr` is indexed by
+    /// [`Group::index`]. Panics if `grads` does not match the model (a programming error).
+    pub fn step(&mut self, model: &mut Model, grads: &Grads, lr: &[f32; 7]) {
+        let n = model.len();
+        let kc = model.gaussians.sh_coeffs() * 3;
+        let f = model.num_features;
+        assert!(
+            grads.means.len() == n
+                && grads.log_scales.len() == n
+                && grads.rotations.len() == n
+                && grads.opacity_logits.len() == n
+                && grads.sh.len() == n * kc
+                && grads.features.len() == n * f,
+            "gradients do not match the model ({n} Gaussians, {kc} SH values, {f} features each)"
+        );
+        let (b1, b2, eps) = (self.betas.0, self.betas.1, self.eps);
+        for group in Group::ALL {
+            let rate = lr[group.index()];
+            let st = &mut self.groups[group.index()];
+            if rate == 0.0 || st.width == 0 || n == 0 {
+                continue;
+            }
+            if st.m.len() != n * st.width {
+                assert!(st.m.is_empty(), "Adam moments of {} are out of step with the model", group.name());
+                st.m = vec![0.0; n * st.width];
+                st.v = vec![0.0; n * st.width];
+            }
+            st.step += 1;
+            let t = st.step as i32;
+            let h = Hyper {
+                b1,
+                b2,
+                eps,
+                step_size: rate / (1.0 - b1.powi(t)),
+                sqrt_bc2: (1.0 - b2.powi(t)).sqrt(),
+            };
+            let gs = &mut model.gaussians;
+            let (params, grad, row, off): (&mut [f32], &[f32], usize, usize) = match group {
+                Group::Position => (gs.means.as_flattened_mut(), grads.means.as_flattened(), 3, 0),
+                Group::ShDc => (&mut gs.sh, &grads.sh, kc, 0),
+                Group::ShRest => (&mut gs.sh, &grads.sh, kc, 3),
+                Group::Opacity => (&mut gs.opacity_logits, &grads.opacity_logits, 1, 0),
+                Group::Scaling => (gs.log_scales.as_flattened_mut(), grads.log_scales.as_flattened(), 3, 0),
+                Group::Rotation => (gs.rotations.as_flattened_mut(), grads.rotations.as_flattened(), 4, 0),
+                Group::Features => (&mut model.features, &grads.features, f, 0),
+            };
+            update_block(params, grad, &mut st.m, &mut st.v, row, off, st.width, &h);
+        }
+    }
+}
+
+#[derive(Clone, Copy)]
+struct Hyper {
+    b1: f32,
+    b2: f32,
+    eps: f32,
+    step_size: f32,
+    sqrt_bc2: f32,
+}
+
+/// Updates columns `off..off + w` of a row-major array with rows of `row` values.
+#[allow(clippy::too_many_arguments)]
+fn update_block(
+    p: &mut [f32],
+    g: &[f32],
+    m: &mut [f32],
+    v: &mut [f32],
+    row: usize,
+    off: usize,
+    w: usize,
+    h: &Hyper,
+) {
+    const ROWS: usize = 2048;
+    p.par_chunks_mut(row * ROWS)
+        .zip(g.par_chunks(row * ROWS))
+        .zip(m.par_chunks_mut(w * ROWS).zip(v.par_chunks_mut(w * ROWS)))
+        .for_each(|((p, g), (m, v))| {
+            for ((pr, gr), (mr, vr)) in p
+                .chunks_exact_mut(row)
+                .zip(g.chunks_exact(row))
+                .zip(m.chunks_exact_mut(w).zip(v.chunks_exact_mut(w)))
+            {
+                for k in 0..w {
+                    let gk = gr[off + k];
+                    let mk = h.b1 * mr[k] + (1.0 - h.b1) * gk;
+                    let vk = h.b2 * vr[k] + (1.0 - h.b2) * gk * gk;
+                    mr[k] = mk;
+                    vr[k] = vk;
+                    pr[off + k] -= h.step_size * mk / (vk.sqrt() / h.sqrt_bc2 + h.eps);
+                }
+            }
+        });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use transsplat_scene::Gaussians;
+
+    fn one_gaussian() -> Model {
+        let g = Gaussians {
+            means: vec![[1.0, 2.0, 3.0]],
+            log_scales: vec![[0.0; 3]],
+            rotations: vec![[1.0, 0.0, 0.0, 0.0]],
+            opacity_logits: vec![0.5],
+            sh_degree: 1,
+            sh: vec![0.1; 12],
+            ..Default::default()
+        };
+        Model::new(g, 2)
+    }
+
+    #[test]
+    fn adam_matches_hand_computed_steps() {
+        let mut model = one_gaussian();
+        let mut adam = Adam::new(&model);
+        let mut grads = Grads::zeros(1, 1, 2);
+        grads.means[0] = [0.5, -2.0, 0.0];
+        grads.opacity_logits[0] = 0.25;
+        grads.sh[0] = 1.0; // DC red
+        grads.sh[3] = -1.0; // first rest coefficient, red
+        grads.features[1] = 3.0;
+        let lr = [0.1, 0.01, 0.001, 0.05, 0.0, 0.0, 0.2];
+        adam.step(&mut model, &grads, &lr);
+        // Step 1: m = 0.1 g, v = 0.001 g², m̂ = g, v̂ = g² -> p -= lr · sign(g) (eps negligible).
+        let g = &model.gaussians;
+        assert!((g.means[0][0] - (1.0 - 0.1)).abs() < 1e-6);
+        assert!((g.means[0][1] - (2.0 + 0.1)).abs() < 1e-6);
+        assert_eq!(g.means[0][2], 3.0, "zero gradient: no move at step 1");
+        assert!((g.opacity_logits[0] - (0.5 - 0.05)).abs() < 1e-6);
+        assert!((g.sh[0] - (0.1 - 0.01)).abs() < 1e-6);
+        assert!((g.sh[3] - (0.1 + 0.001)).abs() < 1e-6);
+        assert!((model.features[1] - (-0.2)).abs() < 1e-6);
+        assert_eq!(g.log_scales[0], [0.0; 3], "lr 0 freezes the group");
+        assert!(adam.groups[Group::Scaling.index()].m.is_empty());
+        // Step 2 with gradient g2 = -1 on x: hand computation.
+        grads.means[0] = [-1.0, 0.0, 0.0];
+        adam.step(&mut model, &grads, &lr);
+        let (b1, b2) = (0.9f64, 0.999f64);
+        let m = b1 * (0.1 * 0.5) - 0.1;
+        let v = b2 * (0.001 * 0.25) + 0.001 * 1.0;
+        let upd = 0.1 / (1.0 - b1 * b1) * m / (v.sqrt() / (1.0 - b2 * b2).sqrt() + 1e-15);
+        let want = 0.9 - upd;
+        assert!(
+            (model.gaussians.means[0][0] as f64 - want).abs() < 1e-6,
+            "{} vs {want}",
+            model.gaussians.means[0][0]
+        );
+        // y had gradient -2 then 0: moves on by momentum.
+        let m = b1 * (0.1 * -2.0);
+        let v = b2 * (0.001 * 4.0);
+        let want = 2.1 - 0.1 / (1.0 - b1 * b1) * m / (v.sqrt() / (1.0 - b2 * b2).sqrt());
+        assert!((model.gaussians.means[0][1] as f64 - want).abs() < 1e-6);
+        assert_eq!(adam.groups[Group::Position.index()].step, 2);
+    }
+
+    #[test]
+    fn exponential_position_schedule() {
+        assert!((expon_lr(0, 1.6e-4, 1.6e-6, 100) - 1.6e-4).abs() < 1e-10);
+        assert!((expon_lr(100, 1.6e-4, 1.6e-6, 100) - 1.6e-6).abs() < 1e-12);
+        assert!((expon_lr(50, 1.6e-4, 1.6e-6, 100) - 1.6e-5).abs() < 1e-10);
+        assert!((expon_lr(500, 1.6e-4, 1.6e-6, 100) - 1.6e-6).abs() < 1e-12);
+        assert_eq!(expon_lr(5, 0.0, 0.0, 100), 0.0);
+        let lr = LearningRates::default().at(0, 100, 2.0);
+        assert!((lr[0] - 3.2e-4).abs() < 1e-9);
+        assert!((lr[Group::ShRest.index()] - 1.25e-4).abs() < 1e-10);
+    }
+}

@@ -1,0 +1,363 @@
+//! Adaptive density control as in INRIA 3DGS (`GaussianModel.densify_and_prune`,
+//! `train.py`): statistics, clone, split, prune, opacity reset.
+//!
+//! **Gradient units.** INRIA thresholds the mean norm of the gradient with respect
+//! to the projected mean in normalised device coordinates (NDC, −1..1 across the
+//! image): its rasterizer multiplies the pixel-space gradient by
+//! `∂pixel/∂ndc = W/2` (x) and `H/2` (y) (`ddelx_dx = 0.5 * W` in
+//! `backward.cu`), because `pixel = ((ndc + 1) W − 1) / 2`. Our rasterizer's
+//! `Grads::means2d` is ∂L/∂pixel, so [`DensifyStats::record`] accumulates
+//! `‖(gx · W/2, gy · H/2)‖` per view in which the Gaussian is visible (radius > 0)
+//! and the threshold 2e-4 means what it means in INRIA (gsplat's default strategy
+//! does the same conversion). The loss must be a mean over pixels, as INRIA's is.
+//!
+//! **Clone / split.** A Gaussian whose mean accumulated gradient reaches the
+//! threshold is cloned (an identical copy is appended) when its largest scale is
+//! ≤ `percent_dense · extent`, and split otherwise: it is replaced by two Gaussians
+//! whose means are drawn from 𝒩(μ, R diag(s²) Rᵀ) and whose scales are s / 1.6,
+//! other parameters copied.
+//!
+//! **Prune.** After clone/split: opacity < `min_opacity`; after the first opacity
+//! reset also (as INRIA) world scale above `max_world_scale · extent` and screen
+//! radius above `max_screen_radius` px. INRIA's code zeroes `max_radii2D` just before this
+//! test, which disables the screen-size rule in practice; we apply it as the paper
+//! describes, using the largest radius (max of our per-axis radii) seen since the
+//! last densification. New Gaussians have no radius recorded yet.
+//!
+//! Every function takes an optional per-Gaussian mask: only Gaussians with
+//! `mask[i] == true` may be cloned, split, pruned or reset (their new copies inherit
+//! the permission).
+
+use crate::model::Reindex;
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use transsplat_scene::{sigmoid, Gaussians};
+
+/// The densification schedule and thresholds (INRIA defaults).
+#[derive(Clone, Debug, PartialEq)]
+pub struct DensifyConfig {
+    /// Densify at steps `> from_step` (INRIA `densify_from_iter`)...
+    pub from_step: u64,
+    /// ... and `< until_step` (`densify_until_iter`); statistics are recorded until then.
+    pub until_step: u64,
+    /// ... every `interval` steps (`densification_interval`).
+    pub interval: u64,
+    /// Mean NDC-space positional gradient norm that triggers clone/split.
+    pub grad_threshold: f32,
+    /// Clone when the largest scale is ≤ this × extent, split otherwise.
+    pub percent_dense: f32,
+    /// Number of Gaussians a split one becomes.
+    pub split_count: usize,
+    /// Prune opacity below this.
+    pub min_opacity: f32,
+    /// Reset opacities every this many steps (0 = never), while densifying.
+    pub opacity_reset_interval: u64,
+    /// Opacity after a reset is min(current, this).
+    pub opacity_reset_value: f32,
+    /// Prune screen radius above this many pixels (after the first reset); `None` = never.
+    pub max_screen_radius: Option<f32>,
+    /// Prune largest world scale above this × extent (after the first reset).
+    pub max_world_scale: f32,
+    /// Raise the active SH degree every this many steps (0 = start at the maximum).
+    pub sh_degree_interval: u64,
+}
+
+impl Default for DensifyConfig {
+    fn default() -> Self {
+        DensifyConfig {
+            from_step: 500,
+            until_step: 15_000,
+            interval: 100,
+            grad_threshold: 2e-4,
+            percent_dense: 0.01,
+            split_count: 2,
+            min_opacity: 0.005,
+            opacity_reset_interval: 3000,
+            opacity_reset_value: 0.01,
+            max_screen_radius: Some(20.0),
+            max_world_scale: 0.1,
+            sh_degree_interval: 1000,
+        }
+    }
+}
+
+impl DensifyConfig {
+    /// No densification, pruning or opacity reset at all.
+    pub fn disabled() -> Self {
+        DensifyConfig { from_step: u64::MAX, until_step: 0, opacity_reset_interval: 0, ..Default::default() }
+    }
+
+    /// Whether statistics are recorded after `step` (1-based).
+    pub fn records(&self, step: u64) -> bool {
+        step < self.until_step
+    }
+
+    /// Whether to densify and prune after `step`.
+    pub fn densifies(&self, step: u64) -> bool {
+        step < self.until_step
+            && step > self.from_step
+            && self.interval > 0
+            && step.is_multiple_of(self.interval)
+    }
+
+    /// Whether to reset opacities after `step`.
+    pub fn resets_opacity(&self, step: u64) -> bool {
+        step < self.until_step
+            && self.opacity_reset_interval > 0
+            && step.is_multiple_of(self.opacity_reset_interval)
+    }
+
+    /// Whether the size-based pruning applies at `step` (after the first reset).
+    pub fn prunes_large(&self, step: u64) -> bool {
+        self.opacity_reset_interval > 0 && step > self.opacity_reset_interval
+    }
+}
+
+/// Per-Gaussian densification statistics since the last densification.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DensifyStats {
+    /// Σ over views of ‖∂L/∂(NDC mean)‖.
+    pub grad_accum: Vec<f32>,
+    /// Number of views in which the Gaussian was visible.
+    pub denom: Vec<u32>,
+    /// Largest screen radius (pixels) seen.
+    pub max_radii: Vec<f32>,
+}
+
+impl DensifyStats {
+    /// Zero statistics for `n` Gaussians.
+    pub fn new(n: usize) -> Self {
+        DensifyStats { grad_accum: vec![0.0; n], denom: vec![0; n], max_radii: vec![0.0; n] }
+    }
+
+    /// Adds one view: `means2d_grad` is ∂L/∂(pixel mean) from the rasterizer's
+    /// backward pass, `radii` the view's per-axis radii (0 = not visible).
+    pub fn record(&mut self, means2d_grad: &[[f32; 2]], radii: &[[u32; 2]], width: u32, height: u32) {
+        let (sx, sy) = (0.5 * width as f32, 0.5 * height as f32);
+        assert!(
+            means2d_grad.len() == self.denom.len() && radii.len() == self.denom.len(),
+            "densification statistics do not match the view"
+        );
+        for (i, (g, r)) in means2d_grad.iter().zip(radii).enumerate() {
+            let rad = r[0].max(r[1]);
+            if rad == 0 {
+                continue;
+            }
+            let (gx, gy) = (g[0] * sx, g[1] * sy);
+            self.grad_accum[i] += (gx * gx + gy * gy).sqrt();
+            self.denom[i] += 1;
+            self.max_radii[i] = self.max_radii[i].max(rad as f32);
+        }
+    }
+
+    /// Mean gradient norm per Gaussian (0 where never visible).
+    pub fn mean_grad(&self) -> Vec<f32> {
+        self.grad_accum
+            .iter()
+            .zip(&self.denom)
+            .map(|(&a, &d)| if d > 0 { a / d as f32 } else { 0.0 })
+            .collect()
+    }
+
+    /// Clears the statistics (INRIA resets them after every densification).
+    pub fn clear(&mut self) {
+        self.grad_accum.fill(0.0);
+        self.denom.fill(0);
+        self.max_radii.fill(0.0);
+    }
+}
+
+/// What one densification did.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct DensifyCounts {
+    pub cloned: usize,
+    pub split: usize,
+    pub pruned: usize,
+}
+
+/// A densification plan: the rearrangement plus the new means and log-scales of the
+/// split samples (rows `first_split..` of the new arrangement).
+#[derive(Clone, Debug, Default)]
+pub struct DensifyPlan {
+    pub reindex: Reindex,
+    pub split_means: Vec<[f32; 3]>,
+    pub split_log_scales: Vec<[f32; 3]>,
+    /// Row (in the new arrangement) of the first split sample.
+    pub first_split: usize,
+    pub counts: DensifyCounts,
+}
+
+fn allowed(mask: Option<&[bool]>, i: usize) -> bool {
+    mask.is_none_or(|m| m[i])
+}
+
+fn max_scale(ls: &[f32; 3]) -> f32 {
+    ls[0].max(ls[1]).max(ls[2]).exp()
+}
+
+/// Rotation matrix of a (w, x, y, z) quaternion, normalised (identity if zero).
+pub fn quat_matrix(q: [f32; 4]) -> [[f32; 3]; 3] {
+    let n = (q.iter().map(|v| v * v).sum::<f32>()).sqrt();
+    let [w, x, y, z] = if n > 0.0 && n.is_finite() { q.map(|v| v / n) } else { [1.0, 0.0, 0.0, 0.0] };
+    [
+        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
+        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
+        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+    ]
+}
+
+/// Standard normal sample (Box–Muller).
+pub(crate) fn normal(rng: &mut ChaCha8Rng) -> f32 {
+    let u: f32 = rng.gen_range(f32::EPSILON..1.0);
+    let v: f32 = rng.gen();
+    (-2.0 * u.ln()).sqrt() * (std::f32::consts::TAU * v).cos()
+}
+
+/// Whether Gaussian parameters fail the prune test.
+struct PruneTest {
+    min_opacity: f32,
+    large: Option<(f32, Option<f32>)>, // (max world scale, max screen radius)
+}
+
+impl PruneTest {
+    fn new(cfg: &DensifyConfig, extent: f32, step: u64) -> Self {
+        let large = cfg.prunes_large(step).then_some((cfg.max_world_scale * extent, cfg.max_screen_radius));
+        PruneTest { min_opacity: cfg.min_opacity, large }
+    }
+    fn prunes(&self, opacity_logit: f32, log_scale: &[f32; 3], radius: f32) -> bool {
+        if !(sigmoid(opacity_logit) >= self.min_opacity) {
+            return true;
+        }
+        match self.large {
+            Some((ws, ss)) => max_scale(log_scale) > ws || ss.is_some_and(|s| radius > s),
+            None => false,
+        }
+    }
+}
+
+/// Plans INRIA's `densify_and_prune` at `step`: clone, split, then prune.
+pub fn plan_densify(
+    g: &Gaussians,
+    stats: &DensifyStats,
+    cfg: &DensifyConfig,
+    extent: f32,
+    step: u64,
+    mask: Option<&[bool]>,
+    rng: &mut ChaCha8Rng,
+) -> DensifyPlan {
+    let n = g.len();
+    assert!(mask.is_none_or(|m| m.len() == n), "densification mask does not match the Gaussians");
+    let grads = stats.mean_grad();
+    let dense = cfg.percent_dense * extent;
+    let mut clone = Vec::new();
+    let mut split = Vec::new();
+    for i in 0..n {
+        if !(grads[i] >= cfg.grad_threshold) || !allowed(mask, i) {
+            continue;
+        }
+        if max_scale(&g.log_scales[i]) <= dense {
+            clone.push(i);
+        } else {
+            split.push(i);
+        }
+    }
+    let k = cfg.split_count.max(1);
+    let shrink = (0.8 * k as f32).ln();
+    let mut split_means = Vec::with_capacity(split.len() * k);
+    let mut split_log_scales = Vec::with_capacity(split.len() * k);
+    for &i in &split {
+        let r = quat_matrix(g.rotations[i]);
+        let s = g.log_scales[i].map(f32::exp);
+        for _ in 0..k {
+            let z = [normal(rng) * s[0], normal(rng) * s[1], normal(rng) * s[2]];
+            let m = g.means[i];
+            split_means
+                .push(std::array::from_fn(|a| m[a] + r[a][0] * z[0] + r[a][1] * z[1] + r[a][2] * z[2]));
+            split_log_scales.push(g.log_scales[i].map(|v| v - shrink));
+        }
+    }
+    // Candidate rows: originals that were not split, clones, split samples.
+    let is_split = {
+        let mut v = vec![false; n];
+        split.iter().for_each(|&i| v[i] = true);
+        v
+    };
+    let test = PruneTest::new(cfg, extent, step);
+    let mut src: Vec<u32> = Vec::with_capacity(n + clone.len() + split_means.len());
+    let mut pruned = 0;
+    for i in 0..n {
+        if is_split[i] {
+            continue;
+        }
+        if allowed(mask, i) && test.prunes(g.opacity_logits[i], &g.log_scales[i], stats.max_radii[i]) {
+            pruned += 1;
+        } else {
+            src.push(i as u32);
+        }
+    }
+    let fresh_from = src.len();
+    for &i in &clone {
+        // Clones are copies: same prune test, but no screen radius recorded yet.
+        if test.prunes(g.opacity_logits[i], &g.log_scales[i], 0.0) {
+            pruned += 1;
+        } else {
+            src.push(i as u32);
+        }
+    }
+    let first_split = src.len();
+    let mut kept_means = Vec::new();
+    let mut kept_scales = Vec::new();
+    for (j, &i) in split.iter().enumerate() {
+        for s in 0..k {
+            let (m, ls) = (split_means[j * k + s], split_log_scales[j * k + s]);
+            if test.prunes(g.opacity_logits[i], &ls, 0.0) {
+                pruned += 1;
+            } else {
+                src.push(i as u32);
+                kept_means.push(m);
+                kept_scales.push(ls);
+            }
+        }
+    }
+    DensifyPlan {
+        reindex: Reindex { src, fresh_from, old_len: n },
+        split_means: kept_means,
+        split_log_scales: kept_scales,
+        first_split,
+        counts: DensifyCounts { cloned: clone.len(), split: split.len(), pruned },
+    }
+}
+
+/// Plans pruning alone (opacity, and size when `step` is after the first reset).
+pub fn plan_prune(
+    g: &Gaussians,
+    stats: &DensifyStats,
+    cfg: &DensifyConfig,
+    extent: f32,
+    step: u64,
+    mask: Option<&[bool]>,
+) -> Reindex {
+    assert!(mask.is_none_or(|m| m.len() == g.len()), "prune mask does not match the Gaussians");
+    let test = PruneTest::new(cfg, extent, step);
+    let keep: Vec<bool> = (0..g.len())
+        .map(|i| {
+            !(allowed(mask, i) && test.prunes(g.opacity_logits[i], &g.log_scales[i], stats.max_radii[i]))
+        })
+        .collect();
+    Reindex::keep(&keep)
+}
+
+/// INRIA's `reset_opacity`: opacity ← min(opacity, `value`) (as a logit) for the
+/// allowed Gaussians. Returns which were touched (the caller zeroes their opacity
+/// moments, as INRIA replaces the optimiser state).
+pub fn reset_opacity(g: &mut Gaussians, value: f32, mask: Option<&[bool]>) -> Vec<bool> {
+    let cap = (value / (1.0 - value)).ln();
+    let mut touched = vec![false; g.len()];
+    for (i, o) in g.opacity_logits.iter_mut().enumerate() {
+        if allowed(mask, i) {
+            *o = o.min(cap);
+            touched[i] = true;
+        }
+    }
+    touched
+}

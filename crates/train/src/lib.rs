@@ -1,0 +1,32 @@
+//! 3D Gaussian Splatting training on a CPU, following INRIA 3DGS
+//! (Kerbl et al. 2023, `graphdeco-inria/gaussian-splatting`) where it is specified.
+//!
+//! - [`model`]: the trainable [`Model`] (Gaussians, carried extras, learnable
+//!   feature channels) and [`Reindex`], the one rearrangement that keeps every
+//!   per-Gaussian array, Adam moment and statistic aligned.
+//! - [`adam`]: Adam per parameter group with INRIA's learning rates and the
+//!   exponential position schedule.
+//! - [`loss`]: `0.8 L1 + 0.2 D-SSIM` with its exact image gradient; PSNR.
+//! - [`densify`]: clone / split / prune / opacity reset on INRIA's schedule, with
+//!   an optional per-Gaussian mask.
+//! - [`trainer`]: [`Trainer`], one optimisation step as a library call, split into
+//!   `begin_step` / `forward_backward` / `finish_step` so other crates can add
+//!   their own gradient terms before the Adam step.
+//!
+//! Everything random is seeded (ChaCha8).
+
+// Per-Gaussian loops index several arrays in lockstep; `!(x >= t)` is used on
+// purpose where NaN must take the rejecting branch.
+#![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
+
+pub mod adam;
+pub mod densify;
+pub mod loss;
+pub mod model;
+pub mod trainer;
+
+pub use adam::{Adam, Group, LearningRates};
+pub use densify::{DensifyConfig, DensifyCounts, DensifyStats};
+pub use loss::{image_loss, psnr, ssim, ImageLoss};
+pub use model::{apply_reindex, Model, Reindex};
+pub use trainer::{scene_extent, StepReport, TrainConfig, TrainError, Trainer, ViewPass};

@@ -1,0 +1,375 @@
+//! One optimisation step, usable by other crates.
+//!
+//! [`Trainer::step`] does what one INRIA `train.py` iteration does: raise the SH
+//! degree on schedule, render, loss, backward, Adam, densification statistics,
+//! densify/prune, opacity reset. Callers that add their own loss terms (the edit
+//! engine) split it up:
+//!
+//! ```text
+//! let step = trainer.begin_step();                    // schedule: SH degree, learning rates
+//! let mut pass = trainer.forward_backward(&cam, &target, weights);  // image loss + grads
+//! // ... add their own terms into pass.grads (sh, features, ...), or render and
+//! // call trainer.backward(...) with their own image gradients ...
+//! let report = trainer.finish_step(&pass.grads, &pass.frame, densify_mask)?;
+//! // report.reindex: apply it to any per-Gaussian array kept outside the model
+//! ```
+//!
+//! Order within a step: INRIA densifies after the backward pass and before the
+//! optimiser step (so the Adam update of that iteration is lost for the tensors it
+//! replaces); we take the Adam step first, then densify. Gaussians added or removed
+//! are applied to the model, the Adam moments and the statistics by
+//! [`crate::model::apply_reindex`].
+
+use crate::adam::{Adam, Group, LearningRates};
+use crate::densify::{self, DensifyConfig, DensifyCounts, DensifyStats};
+use crate::loss::{image_loss, ImageLoss};
+use crate::model::{apply_reindex, Model, Reindex};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use transsplat_raster::{backward, render, Frame, Grads, Image, ImageGrads, RenderOptions, Splats};
+use transsplat_scene::Camera;
+
+/// Everything that shapes a training run.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrainConfig {
+    /// Length of the run (sets the position learning-rate decay unless
+    /// `lr.position_max_steps` is given).
+    pub iterations: u64,
+    pub lr: LearningRates,
+    pub densify: DensifyConfig,
+    /// Weight λ of D-SSIM in `(1 − λ) L1 + λ D-SSIM`.
+    pub lambda_dssim: f32,
+    /// Background colour behind the Gaussians.
+    pub background: [f32; 3],
+    /// Seed of every random choice (split samples, view order).
+    pub seed: u64,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        TrainConfig {
+            iterations: 30_000,
+            lr: LearningRates::default(),
+            densify: DensifyConfig::default(),
+            lambda_dssim: 0.2,
+            background: [0.0; 3],
+            seed: 0,
+        }
+    }
+}
+
+/// Errors of an optimisation step.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    /// A loss or gradient became NaN or infinite.
+    #[error("step {step}: the {what} became NaN or infinite; lower the learning rates or check the inputs")]
+    NonFinite { step: u64, what: String },
+    /// Inputs that do not fit together (sizes, lengths).
+    #[error("{0}")]
+    Mismatch(String),
+}
+
+/// Rendering, loss and gradients of one view.
+#[derive(Clone, Debug)]
+pub struct ViewPass {
+    pub image: Image,
+    pub frame: Frame,
+    pub loss: ImageLoss,
+    /// Gradients of the image loss with respect to every parameter.
+    pub grads: Grads,
+}
+
+/// What a step did.
+#[derive(Clone, Debug, Default)]
+pub struct StepReport {
+    /// The step number (1-based, as INRIA's iteration).
+    pub step: u64,
+    /// Image loss of the step (0 when the caller computed its own loss).
+    pub loss: f32,
+    /// Set when Gaussians were added or removed: apply it to outside arrays.
+    pub reindex: Option<Reindex>,
+    pub densified: Option<DensifyCounts>,
+    pub opacity_reset: bool,
+    /// Number of Gaussians after the step.
+    pub gaussians: usize,
+}
+
+/// The model with its optimiser state and schedule.
+#[derive(Clone, Debug)]
+pub struct Trainer {
+    pub model: Model,
+    pub adam: Adam,
+    pub stats: DensifyStats,
+    pub config: TrainConfig,
+    /// Scene extent (INRIA `cameras_extent`): scales position learning rates and
+    /// the clone/split and prune thresholds.
+    pub extent: f32,
+    /// Steps begun so far (the current step number once [`Trainer::begin_step`] ran).
+    pub step: u64,
+    pub active_sh_degree: u32,
+    pub rng: ChaCha8Rng,
+}
+
+/// INRIA's `getNerfppNorm` radius: 1.1 × the largest distance of a camera centre
+/// from their mean (1 when degenerate).
+pub fn scene_extent(cameras: &[Camera]) -> f32 {
+    if cameras.is_empty() {
+        return 1.0;
+    }
+    let n = cameras.len() as f32;
+    let centres: Vec<[f32; 3]> = cameras.iter().map(Camera::centre).collect();
+    let mean: [f32; 3] = std::array::from_fn(|k| centres.iter().map(|c| c[k]).sum::<f32>() / n);
+    let diag = centres
+        .iter()
+        .map(|c| ((c[0] - mean[0]).powi(2) + (c[1] - mean[1]).powi(2) + (c[2] - mean[2]).powi(2)).sqrt())
+        .fold(0.0f32, f32::max);
+    let r = 1.1 * diag;
+    if r.is_finite() && r > 1e-6 {
+        r
+    } else {
+        1.0
+    }
+}
+
+impl Trainer {
+    /// Starts training `model` in a scene of size `extent`.
+    pub fn new(model: Model, extent: f32, config: TrainConfig) -> Result<Self, TrainError> {
+        model.validate().map_err(TrainError::Mismatch)?;
+        if !(extent.is_finite() && extent > 0.0) {
+            return Err(TrainError::Mismatch(format!("scene extent {extent} is not positive")));
+        }
+        let adam = Adam::new(&model);
+        let stats = DensifyStats::new(model.len());
+        let active_sh_degree =
+            if config.densify.sh_degree_interval == 0 { model.gaussians.sh_degree } else { 0 };
+        let rng = ChaCha8Rng::seed_from_u64(config.seed);
+        Ok(Trainer { model, adam, stats, config, extent, step: 0, active_sh_degree, rng })
+    }
+
+    /// The rasterizer's view of the model at the active SH degree.
+    pub fn splats(&self) -> Splats<'_> {
+        self.model.splats(self.active_sh_degree)
+    }
+
+    /// Render options (the configured background).
+    pub fn render_options(&self) -> RenderOptions {
+        RenderOptions { background: self.config.background }
+    }
+
+    /// Renders a view with the current model.
+    pub fn render(&self, cam: &Camera) -> (Image, Frame) {
+        render(&self.splats(), cam, &self.render_options())
+    }
+
+    /// All-zero gradients shaped like the model.
+    pub fn zero_grads(&self) -> Grads {
+        Grads::zeros(self.model.len(), self.model.gaussians.sh_degree, self.model.num_features)
+    }
+
+    /// Learning rate of each group at the current step ([`Group::index`] order).
+    pub fn learning_rates(&self) -> [f32; 7] {
+        self.config.lr.at(self.step, self.config.iterations, self.extent)
+    }
+
+    /// Begins a step: advances the counter and raises the SH degree every
+    /// `sh_degree_interval` steps (INRIA `oneupSHdegree`). Returns the step number.
+    pub fn begin_step(&mut self) -> u64 {
+        self.step += 1;
+        let every = self.config.densify.sh_degree_interval;
+        if every > 0 && self.step.is_multiple_of(every) {
+            self.active_sh_degree = (self.active_sh_degree + 1).min(self.model.gaussians.sh_degree);
+        }
+        self.step
+    }
+
+    /// Renders `cam`, computes the image loss against `target` (`H × W × 3`, optional
+    /// per-pixel `weights`) and backpropagates it to every parameter.
+    pub fn forward_backward(
+        &self,
+        cam: &Camera,
+        target: &[f32],
+        weights: Option<&[f32]>,
+    ) -> Result<ViewPass, TrainError> {
+        let px = cam.width as usize * cam.height as usize;
+        if target.len() != px * 3 || weights.is_some_and(|w| w.len() != px) {
+            return Err(TrainError::Mismatch(format!(
+                "target image for camera {:?} does not match its size {}x{}",
+                cam.name, cam.width, cam.height
+            )));
+        }
+        let (image, frame) = self.render(cam);
+        let loss =
+            image_loss(&image.rgb, target, image.width, image.height, weights, self.config.lambda_dssim);
+        let mut grads = self.zero_grads();
+        self.backward(cam, &frame, &ImageGrads { rgb: &loss.grad, ..Default::default() }, &mut grads);
+        Ok(ViewPass { image, frame, loss, grads })
+    }
+
+    /// Backward pass of a render of `cam` with caller-supplied image gradients
+    /// (RGB, alpha, depth, features), accumulated into `grads`.
+    pub fn backward(&self, cam: &Camera, frame: &Frame, image_grads: &ImageGrads, grads: &mut Grads) {
+        backward(&self.splats(), cam, frame, image_grads, grads);
+    }
+
+    /// Finishes a step begun with [`Trainer::begin_step`]: records densification
+    /// statistics from `grads.means2d` and `frame`, takes the Adam step, then
+    /// densifies / prunes / resets opacity on schedule. `densify_mask` restricts
+    /// which Gaussians may be cloned, split, pruned or reset.
+    pub fn finish_step(
+        &mut self,
+        grads: &Grads,
+        frame: &Frame,
+        densify_mask: Option<&[bool]>,
+    ) -> Result<StepReport, TrainError> {
+        let n = self.model.len();
+        if grads.means.len() != n || grads.means2d.len() != n || frame.radii().len() != n {
+            return Err(TrainError::Mismatch(format!(
+                "gradients or frame were made for a different number of Gaussians than the model's {n}"
+            )));
+        }
+        if densify_mask.is_some_and(|m| m.len() != n) {
+            return Err(TrainError::Mismatch(format!("densification mask does not have {n} entries")));
+        }
+        let step = self.step;
+        let lr = self.learning_rates();
+        if let Some(group) = first_non_finite(grads, &lr) {
+            return Err(TrainError::NonFinite { step, what: format!("{} gradient", group.name()) });
+        }
+        let d = self.config.densify.clone();
+        if d.records(step) {
+            self.stats.record(
+                &grads.means2d,
+                frame.radii(),
+                frame.binned.width as u32,
+                frame.binned.height as u32,
+            );
+        }
+        self.adam.step(&mut self.model, grads, &lr);
+        let mut report = StepReport { step, ..Default::default() };
+        if d.densifies(step) {
+            let (r, counts) = self.densify_and_prune(densify_mask);
+            report.reindex = Some(r);
+            report.densified = Some(counts);
+        }
+        if d.resets_opacity(step) {
+            // The mask refers to the rows before densification.
+            let mask = match (&report.reindex, densify_mask) {
+                (Some(r), Some(m)) => Some(r.src.iter().map(|&s| m[s as usize]).collect::<Vec<bool>>()),
+                (_, m) => m.map(<[bool]>::to_vec),
+            };
+            self.reset_opacity(mask.as_deref());
+            report.opacity_reset = true;
+        }
+        report.gaussians = self.model.len();
+        Ok(report)
+    }
+
+    /// One full training step on one view: returns the report with the loss.
+    pub fn step(
+        &mut self,
+        cam: &Camera,
+        target: &[f32],
+        weights: Option<&[f32]>,
+    ) -> Result<StepReport, TrainError> {
+        self.begin_step();
+        let pass = self.forward_backward(cam, target, weights)?;
+        if !pass.loss.loss.is_finite() {
+            return Err(TrainError::NonFinite { step: self.step, what: "image loss".into() });
+        }
+        let mut report = self.finish_step(&pass.grads, &pass.frame, None)?;
+        report.loss = pass.loss.loss;
+        Ok(report)
+    }
+
+    /// Applies a rearrangement to the model, Adam moments and statistics.
+    pub fn apply(&mut self, r: &Reindex) {
+        apply_reindex(&mut self.model, &mut self.adam, &mut self.stats, r);
+    }
+
+    /// INRIA `densify_and_prune` now (clone, split, prune), then clears the
+    /// statistics. Returns the rearrangement and the counts.
+    pub fn densify_and_prune(&mut self, mask: Option<&[bool]>) -> (Reindex, DensifyCounts) {
+        let plan = densify::plan_densify(
+            &self.model.gaussians,
+            &self.stats,
+            &self.config.densify,
+            self.extent,
+            self.step,
+            mask,
+            &mut self.rng,
+        );
+        self.apply(&plan.reindex);
+        let g = &mut self.model.gaussians;
+        for (k, (m, s)) in plan.split_means.iter().zip(&plan.split_log_scales).enumerate() {
+            g.means[plan.first_split + k] = *m;
+            g.log_scales[plan.first_split + k] = *s;
+        }
+        self.stats.clear();
+        tracing::debug!(
+            "step {}: cloned {}, split {}, pruned {} -> {} Gaussians",
+            self.step,
+            plan.counts.cloned,
+            plan.counts.split,
+            plan.counts.pruned,
+            self.model.len()
+        );
+        (plan.reindex, plan.counts)
+    }
+
+    /// Prunes (low opacity; size after the first reset) among the allowed Gaussians.
+    pub fn prune(&mut self, mask: Option<&[bool]>) -> Reindex {
+        let r = densify::plan_prune(
+            &self.model.gaussians,
+            &self.stats,
+            &self.config.densify,
+            self.extent,
+            self.step,
+            mask,
+        );
+        self.apply(&r);
+        r
+    }
+
+    /// Removes the Gaussians where `keep[i]` is false.
+    pub fn remove(&mut self, keep: &[bool]) -> Result<Reindex, TrainError> {
+        if keep.len() != self.model.len() {
+            return Err(TrainError::Mismatch(format!(
+                "keep mask has {} entries, model {}",
+                keep.len(),
+                self.model.len()
+            )));
+        }
+        let r = Reindex::keep(keep);
+        self.apply(&r);
+        Ok(r)
+    }
+
+    /// INRIA `reset_opacity` among the allowed Gaussians; zeroes their opacity moments.
+    pub fn reset_opacity(&mut self, mask: Option<&[bool]>) {
+        let touched =
+            densify::reset_opacity(&mut self.model.gaussians, self.config.densify.opacity_reset_value, mask);
+        self.adam.zero_moments(Group::Opacity, Some(&touched));
+    }
+}
+
+/// The first parameter group (with a non-zero learning rate) whose gradient has a
+/// NaN or infinite value.
+fn first_non_finite(grads: &Grads, lr: &[f32; 7]) -> Option<Group> {
+    let bad = |v: &[f32]| v.par_iter().with_min_len(1 << 14).any(|x| !x.is_finite());
+    let checks: [(Group, &[f32]); 6] = [
+        (Group::Position, grads.means.as_flattened()),
+        (Group::ShDc, &grads.sh),
+        (Group::Opacity, &grads.opacity_logits),
+        (Group::Scaling, grads.log_scales.as_flattened()),
+        (Group::Rotation, grads.rotations.as_flattened()),
+        (Group::Features, &grads.features),
+    ];
+    checks
+        .into_iter()
+        .find(|(g, v)| {
+            let on = lr[g.index()] != 0.0 || (*g == Group::ShDc && lr[Group::ShRest.index()] != 0.0);
+            on && bad(v)
+        })
+        .map(|(g, _)| g)
+}
