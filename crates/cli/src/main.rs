@@ -23,6 +23,8 @@ enum Command {
     Info(commands::info::InfoArgs),
     /// Solve one entropic unbalanced transport problem from .npy files.
     Uot(commands::uot::UotArgs),
+    /// Write a built-in benchmark scene (tabletop, occluded) as a dataset with labels and masks.
+    Scene(commands::scene::BuiltinSceneArgs),
     /// Benchmarks.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -50,6 +52,7 @@ fn main() {
         Command::Render(a) => commands::render::run(a),
         Command::Info(a) => commands::info::run(a),
         Command::Uot(a) => commands::uot::run(a),
+        Command::Scene(a) => commands::scene::run(a),
         Command::Bench(BenchCommand::Transport(a)) => commands::uot::bench(a),
         Command::Bench(BenchCommand::Raster(a)) => commands::bench::raster(a),
     };

@@ -4,4 +4,5 @@ pub mod bench;
 pub mod common;
 pub mod info;
 pub mod render;
+pub mod scene;
 pub mod uot;
