@@ -1,0 +1,287 @@
+//! Every hyperparameter of an edit in one struct, with the paper's defaults
+//! (appendix B: M = 32 prototypes, d = 16 semantic channels, 30 Sinkhorn
+//! iterations, top-k 128), overridable from a TOML file and command-line flags.
+
+use crate::prototypes::PrototypeConfig;
+use crate::view::TransportConfig;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Which method runs in the edit loop: the full method or a baseline / ablation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Method {
+    /// The full TransSplat method.
+    Transsplat,
+    /// Image loss only, every Gaussian free (Instruct-GS2GS / IN2N style).
+    Naive,
+    /// GaussianEditor style: the 2D mask lifted by splat-back and a threshold;
+    /// gradients masked outside; no transport.
+    Masklift,
+    /// TransSplat without leakage suppression (λ_leak = 0, no gated densification).
+    NoLeaksup,
+    /// Pixel-level transport on a subsample of the support pixels (no prototypes).
+    NoPrototype,
+    /// Geometric cost only (λ_sem = λ_app = 0).
+    Geometric,
+}
+
+impl Method {
+    /// All methods, in report order.
+    pub const ALL: [Method; 6] = [
+        Method::Transsplat,
+        Method::Naive,
+        Method::Masklift,
+        Method::NoLeaksup,
+        Method::NoPrototype,
+        Method::Geometric,
+    ];
+
+    /// The name used in files and flags.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Transsplat => "transsplat",
+            Method::Naive => "naive",
+            Method::Masklift => "masklift",
+            Method::NoLeaksup => "no_leaksup",
+            Method::NoPrototype => "no_prototype",
+            Method::Geometric => "geometric",
+        }
+    }
+
+    /// Parses a method name.
+    pub fn parse(s: &str) -> Option<Method> {
+        Method::ALL.into_iter().find(|m| m.name() == s)
+    }
+
+    /// True for the methods that run the transport rounds.
+    pub fn uses_transport(self) -> bool {
+        !matches!(self, Method::Naive | Method::Masklift)
+    }
+}
+
+/// Canonical fusion settings (Theorem 1 and the EMA across rounds).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FusionConfig {
+    /// ρ: anchor to the current latent.
+    pub rho: f32,
+    /// μ: EMA factor across transport rounds.
+    pub ema: f32,
+    /// A view supports Gaussian i when w_i > min_support · a_i.
+    pub min_support: f32,
+    /// τ_r: gate temperature on the relative residual.
+    pub tau_r: f32,
+}
+
+impl Default for FusionConfig {
+    fn default() -> Self {
+        FusionConfig { rho: 0.1, ema: 0.5, min_support: 1e-3, tau_r: 0.25 }
+    }
+}
+
+/// Loss weights.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LossConfig {
+    /// λ_img on the photometric loss.
+    pub img: f32,
+    /// Weight of D-SSIM inside L_img (0 = pure L1).
+    pub dssim: f32,
+    /// λ_sem.
+    pub sem: f32,
+    /// λ_uot.
+    pub uot: f32,
+    /// λ_leak.
+    pub leak: f32,
+}
+
+impl Default for LossConfig {
+    fn default() -> Self {
+        LossConfig { img: 1.0, dssim: 0.0, sem: 1.0, uot: 0.1, leak: 0.05 }
+    }
+}
+
+/// The edit loop's schedule (EditSplat / Instruct-GS2GS style; SPEC Method 9).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ScheduleConfig {
+    /// Optimisation steps (one view per step).
+    pub steps: usize,
+    /// A transport round every this many steps.
+    pub transport_every: usize,
+    /// Re-edit the views from the current render every this many steps (0 = never).
+    pub reedit_every: usize,
+    /// Densify (within the gated region) every this many steps (0 = never).
+    pub densify_every: usize,
+    /// Gaussians with γ ≥ this may be densified.
+    pub densify_gate: f32,
+}
+
+impl Default for ScheduleConfig {
+    fn default() -> Self {
+        ScheduleConfig {
+            steps: 600,
+            transport_every: 100,
+            reedit_every: 0,
+            densify_every: 0,
+            densify_gate: 0.5,
+        }
+    }
+}
+
+/// Learning rates of the edit stage (mostly colour).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LearningRates {
+    pub position: f32,
+    pub sh_dc: f32,
+    pub sh_rest: f32,
+    pub opacity: f32,
+    pub scale: f32,
+    pub rotation: f32,
+    pub semantic: f32,
+}
+
+impl Default for LearningRates {
+    fn default() -> Self {
+        LearningRates {
+            position: 0.0,
+            sh_dc: 0.01,
+            sh_rest: 0.0005,
+            opacity: 0.0,
+            scale: 0.0,
+            rotation: 0.0,
+            semantic: 0.01,
+        }
+    }
+}
+
+/// Every setting of an edit.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EditConfig {
+    pub method: Method,
+    /// Semantic latent size d.
+    pub semantic_dim: usize,
+    pub prototypes: PrototypeConfig,
+    pub transport: TransportConfig,
+    pub fusion: FusionConfig,
+    pub loss: LossConfig,
+    pub schedule: ScheduleConfig,
+    pub lr: LearningRates,
+    /// Pixels sampled per view by the `no_prototype` ablation.
+    pub pixel_samples: usize,
+    /// masklift: splat-back mask threshold.
+    pub masklift_threshold: f32,
+    pub seed: u64,
+}
+
+impl Default for EditConfig {
+    fn default() -> Self {
+        EditConfig {
+            method: Method::Transsplat,
+            semantic_dim: 16,
+            prototypes: PrototypeConfig::default(),
+            transport: TransportConfig::default(),
+            fusion: FusionConfig::default(),
+            loss: LossConfig::default(),
+            schedule: ScheduleConfig::default(),
+            lr: LearningRates::default(),
+            pixel_samples: 512,
+            masklift_threshold: 0.5,
+            seed: 0,
+        }
+    }
+}
+
+impl EditConfig {
+    /// Reads a TOML file of overrides (unknown keys are errors naming the file).
+    pub fn from_toml_file(path: &Path) -> Result<Self, String> {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        Self::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()))
+    }
+
+    /// Parses TOML overrides on top of the defaults and validates them.
+    pub fn from_toml(text: &str) -> Result<Self, String> {
+        let c: EditConfig = toml::from_str(text).map_err(|e| e.to_string())?;
+        c.validate()?;
+        Ok(c)
+    }
+
+    /// The settings as TOML (for reports and for `--config` round trips).
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).expect("config serialises")
+    }
+
+    /// Applies this config's method to the settings it implies (ablations).
+    pub fn for_method(&self, method: Method) -> Self {
+        let mut c = self.clone();
+        c.method = method;
+        match method {
+            Method::NoLeaksup => c.loss.leak = 0.0,
+            Method::Geometric => {
+                c.transport.lambda_sem = 0.0;
+                c.transport.lambda_app = 0.0;
+            }
+            _ => {}
+        }
+        c
+    }
+
+    /// Checks ranges; the message names the offending key.
+    pub fn validate(&self) -> Result<(), String> {
+        let t = &self.transport;
+        let checks: [(&str, bool); 12] = [
+            ("semantic_dim", self.semantic_dim > 0 && self.semantic_dim <= 256),
+            ("prototypes.count", self.prototypes.count > 0),
+            ("prototypes.threshold", (0.0..=1.0).contains(&self.prototypes.threshold)),
+            ("transport.eps", t.eps.is_finite() && t.eps > 0.0),
+            ("transport.tau_s", t.tau_s > 0.0),
+            ("transport.tau_t", t.tau_t > 0.0),
+            ("transport.iters", t.iters > 0),
+            ("fusion.rho", self.fusion.rho >= 0.0),
+            ("fusion.ema", (0.0..1.0).contains(&self.fusion.ema)),
+            ("fusion.tau_r", self.fusion.tau_r > 0.0),
+            ("schedule.steps", self.schedule.steps > 0),
+            ("schedule.transport_every", self.schedule.transport_every > 0),
+        ];
+        for (k, ok) in checks {
+            if !ok {
+                return Err(format!("config value {k} is out of range"));
+            }
+        }
+        for (k, v) in
+            [("lambda_geo", t.lambda_geo), ("lambda_sem", t.lambda_sem), ("lambda_app", t.lambda_app)]
+        {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("config value transport.{k} must be finite and >= 0"));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn paper_defaults_and_toml_overrides() {
+        let c = EditConfig::default();
+        assert_eq!(
+            (c.prototypes.count, c.semantic_dim, c.transport.iters, c.transport.top_k),
+            (32, 16, 30, 128)
+        );
+        let c = EditConfig::from_toml("[transport]\ntop_k = 0\neps = 0.1\n[loss]\nleak = 2.0\n").unwrap();
+        assert_eq!(c.transport.top_k, 0);
+        assert_eq!(c.loss.leak, 2.0);
+        assert_eq!(c.prototypes.count, 32);
+        let back = EditConfig::from_toml(&c.to_toml()).unwrap();
+        assert_eq!(back, c);
+        assert!(EditConfig::from_toml("[transport]\nepsilon = 1\n").unwrap_err().contains("epsilon"));
+        assert!(EditConfig::from_toml("[transport]\neps = -1.0\n").unwrap_err().contains("transport.eps"));
+        assert_eq!(Method::parse("no_prototype"), Some(Method::NoPrototype));
+        assert_eq!(c.for_method(Method::Geometric).transport.lambda_sem, 0.0);
+    }
+}

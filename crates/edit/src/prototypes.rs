@@ -1,0 +1,344 @@
+//! Prompt-aware prototype extraction (paper Sec. 3.2 and appendix A.1).
+//!
+//! Ā = A / (max A + ε_a); support Ω = {Ā ≥ δ_a} ∩ mask with connected components below
+//! a minimum area dropped; weighted k-means on pixel coordinates (k-means++ seeding,
+//! then Lloyd) with weights Ā partitions Ω into M regions; each region gives a
+//! prototype (u_m, e_m, ψ_m, b_m).
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// Settings of prototype extraction.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PrototypeConfig {
+    /// Number of prototypes per view (M).
+    pub count: usize,
+    /// Support threshold δ_a on the normalised attention.
+    pub threshold: f32,
+    /// Connected components smaller than this fraction of the image are dropped.
+    pub min_area_fraction: f32,
+    /// Lloyd iterations after k-means++ seeding.
+    pub lloyd_iters: usize,
+}
+
+impl Default for PrototypeConfig {
+    fn default() -> Self {
+        PrototypeConfig { count: 32, threshold: 0.3, min_area_fraction: 2e-4, lloyd_iters: 10 }
+    }
+}
+
+/// The prototypes of one view; `m = b.len()`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Prototypes {
+    /// Attention-weighted centroids u_m in pixels (appendix eq. for u_m^v).
+    pub u: Vec<[f32; 2]>,
+    /// L2-normalised semantic descriptors e_m, `m × d` (eq. for e_m^v).
+    pub e: Vec<f32>,
+    pub d: usize,
+    /// L2-normalised appearance descriptors ψ_m, `m × d_a` (eq. for ψ_m^v).
+    pub psi: Vec<f32>,
+    pub d_app: usize,
+    /// Mass shares b_m, summing to 1 (eq. for b_m^v).
+    pub b: Vec<f32>,
+}
+
+impl Prototypes {
+    /// Number of prototypes.
+    pub fn len(&self) -> usize {
+        self.b.len()
+    }
+    /// True when the view carries no evidence.
+    pub fn is_empty(&self) -> bool {
+        self.b.is_empty()
+    }
+}
+
+/// Per-view inputs to prototype extraction (row-major `H × W` planes).
+#[derive(Clone, Copy, Debug)]
+pub struct ViewEvidence<'a> {
+    pub width: usize,
+    pub height: usize,
+    /// Text-relevant attention A_v, `H × W`, ≥ 0.
+    pub attention: &'a [f32],
+    /// Optional target mask in [0, 1], `H × W` (> 0.5 is inside).
+    pub mask: Option<&'a [f32]>,
+    /// Semantic features E_v, `H × W × d`.
+    pub semantic: &'a [f32],
+    pub d: usize,
+    /// Appearance features Φ_v, `H × W × d_a`.
+    pub appearance: &'a [f32],
+    pub d_app: usize,
+}
+
+/// The support Ω as a boolean plane: thresholded normalised attention inside the
+/// mask, with connected components (4-neighbour) smaller than `min_area` removed.
+/// Returns the support and the normalised attention Ā.
+pub fn support(ev: &ViewEvidence, threshold: f32, min_area: usize) -> (Vec<bool>, Vec<f32>) {
+    let (w, h) = (ev.width, ev.height);
+    let max = ev.attention.iter().fold(0.0f32, |m, &v| if v.is_finite() { m.max(v) } else { m });
+    let abar: Vec<f32> =
+        ev.attention.iter().map(|&v| if v.is_finite() && v > 0.0 { v / (max + 1e-8) } else { 0.0 }).collect();
+    let mut omega: Vec<bool> = abar
+        .iter()
+        .enumerate()
+        .map(|(p, &a)| a >= threshold && a > 0.0 && ev.mask.is_none_or(|m| m[p] > 0.5))
+        .collect();
+    // Connected components by flood fill; small ones are removed.
+    let mut seen = vec![false; w * h];
+    let mut stack = Vec::new();
+    let mut comp = Vec::new();
+    for start in 0..w * h {
+        if !omega[start] || seen[start] {
+            continue;
+        }
+        comp.clear();
+        stack.push(start);
+        seen[start] = true;
+        while let Some(p) = stack.pop() {
+            comp.push(p);
+            let (x, y) = (p % w, p / w);
+            let mut visit = |q: usize| {
+                if omega[q] && !seen[q] {
+                    seen[q] = true;
+                    stack.push(q);
+                }
+            };
+            if x > 0 {
+                visit(p - 1);
+            }
+            if x + 1 < w {
+                visit(p + 1);
+            }
+            if y > 0 {
+                visit(p - w);
+            }
+            if y + 1 < h {
+                visit(p + w);
+            }
+        }
+        if comp.len() < min_area {
+            for &p in &comp {
+                omega[p] = false;
+            }
+        }
+    }
+    (omega, abar)
+}
+
+/// Weighted k-means of 2D points: k-means++ seeding then `iters` Lloyd steps.
+/// Returns the cluster of each point (clusters may end up empty).
+pub fn weighted_kmeans(pts: &[[f32; 2]], wts: &[f32], k: usize, iters: usize, seed: u64) -> Vec<usize> {
+    let n = pts.len();
+    if n == 0 || k == 0 {
+        return vec![0; n];
+    }
+    let k = k.min(n);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let d2 = |a: [f32; 2], b: [f32; 2]| (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2);
+    let total: f64 = wts.iter().map(|&w| w as f64).sum();
+    // First centre: drawn proportionally to the weights.
+    let pick = |rng: &mut ChaCha8Rng, score: &dyn Fn(usize) -> f64, sum: f64| -> usize {
+        let mut r = rng.gen::<f64>() * sum;
+        for i in 0..n {
+            r -= score(i);
+            if r <= 0.0 {
+                return i;
+            }
+        }
+        n - 1
+    };
+    let mut centres = vec![pts[pick(&mut rng, &|i| wts[i] as f64, total)]];
+    let mut best: Vec<f32> = pts.iter().map(|&p| d2(p, centres[0])).collect();
+    while centres.len() < k {
+        let sum: f64 = (0..n).map(|i| wts[i] as f64 * best[i] as f64).sum();
+        if sum <= 0.0 {
+            break;
+        }
+        let c = pts[pick(&mut rng, &|i| wts[i] as f64 * best[i] as f64, sum)];
+        centres.push(c);
+        for (b, &p) in best.iter_mut().zip(pts) {
+            *b = b.min(d2(p, c));
+        }
+    }
+    let mut assign = vec![0usize; n];
+    for it in 0..=iters {
+        let mut changed = false;
+        for (i, &p) in pts.iter().enumerate() {
+            let (mut bi, mut bd) = (0, f32::INFINITY);
+            for (c, &q) in centres.iter().enumerate() {
+                let d = d2(p, q);
+                if d < bd {
+                    bd = d;
+                    bi = c;
+                }
+            }
+            changed |= assign[i] != bi;
+            assign[i] = bi;
+        }
+        if it == iters || (!changed && it > 0) {
+            break;
+        }
+        let mut acc = vec![[0.0f64; 3]; centres.len()];
+        for (i, &p) in pts.iter().enumerate() {
+            let a = &mut acc[assign[i]];
+            a[0] += wts[i] as f64 * p[0] as f64;
+            a[1] += wts[i] as f64 * p[1] as f64;
+            a[2] += wts[i] as f64;
+        }
+        for (c, a) in centres.iter_mut().zip(&acc) {
+            if a[2] > 0.0 {
+                *c = [(a[0] / a[2]) as f32, (a[1] / a[2]) as f32];
+            }
+        }
+    }
+    assign
+}
+
+/// Extracts the prototypes of one view (appendix A.1). An empty result means the
+/// view carries no editing evidence.
+pub fn extract(ev: &ViewEvidence, cfg: &PrototypeConfig, seed: u64) -> Prototypes {
+    let (w, h, d, da) = (ev.width, ev.height, ev.d, ev.d_app);
+    let min_area = ((cfg.min_area_fraction * (w * h) as f32).ceil() as usize).max(1);
+    let (omega, abar) = support(ev, cfg.threshold, min_area);
+    let idx: Vec<usize> = (0..w * h).filter(|&p| omega[p]).collect();
+    if idx.is_empty() {
+        return Prototypes { d, d_app: da, ..Default::default() };
+    }
+    let pts: Vec<[f32; 2]> = idx.iter().map(|&p| [(p % w) as f32 + 0.5, (p / w) as f32 + 0.5]).collect();
+    let wts: Vec<f32> = idx.iter().map(|&p| abar[p]).collect();
+    let assign = weighted_kmeans(&pts, &wts, cfg.count, cfg.lloyd_iters, seed);
+    let k = assign.iter().max().map_or(0, |&m| m + 1);
+    let mut kappa = vec![0.0f64; k];
+    let mut u = vec![[0.0f64; 2]; k];
+    let mut e = vec![0.0f64; k * d];
+    let mut psi = vec![0.0f64; k * da];
+    for (n, &p) in idx.iter().enumerate() {
+        let (c, a) = (assign[n], wts[n] as f64);
+        kappa[c] += a;
+        u[c][0] += a * pts[n][0] as f64;
+        u[c][1] += a * pts[n][1] as f64;
+        for j in 0..d {
+            e[c * d + j] += a * ev.semantic[p * d + j] as f64;
+        }
+        for j in 0..da {
+            psi[c * da + j] += a * ev.appearance[p * da + j] as f64;
+        }
+    }
+    let total: f64 = kappa.iter().sum();
+    let mut out = Prototypes { d, d_app: da, ..Default::default() };
+    for c in 0..k {
+        if kappa[c] <= 0.0 {
+            continue;
+        }
+        out.u.push([(u[c][0] / kappa[c]) as f32, (u[c][1] / kappa[c]) as f32]);
+        let mut ec: Vec<f32> = (0..d).map(|j| (e[c * d + j] / kappa[c]) as f32).collect();
+        crate::normalize(&mut ec, 1e-8);
+        out.e.extend(ec);
+        let mut pc: Vec<f32> = (0..da).map(|j| (psi[c * da + j] / kappa[c]) as f32).collect();
+        crate::normalize(&mut pc, 1e-8);
+        out.psi.extend(pc);
+        out.b.push((kappa[c] / total) as f32);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn evidence<'a>(w: usize, h: usize, att: &'a [f32], sem: &'a [f32], app: &'a [f32]) -> ViewEvidence<'a> {
+        ViewEvidence {
+            width: w,
+            height: h,
+            attention: att,
+            mask: None,
+            semantic: sem,
+            d: 2,
+            appearance: app,
+            d_app: 1,
+        }
+    }
+
+    #[test]
+    fn two_blobs_give_two_prototypes_with_hand_computed_statistics() {
+        // 10x4 image: blob A = 2x2 pixels at x 1..3, y 1..3 with attention 1 and semantic
+        // (1, 0); blob B = 2x2 pixels at x 7..9 with attention 0.5 and semantic (0, 2).
+        let (w, h) = (10, 4);
+        let mut att = vec![0.0f32; w * h];
+        let mut sem = vec![0.0f32; w * h * 2];
+        let app = vec![1.0f32; w * h];
+        for y in 1..3 {
+            for x in 1..3 {
+                att[y * w + x] = 1.0;
+                sem[(y * w + x) * 2] = 1.0;
+            }
+            for x in 7..9 {
+                att[y * w + x] = 0.5;
+                sem[(y * w + x) * 2 + 1] = 2.0;
+            }
+        }
+        let cfg = PrototypeConfig { count: 2, threshold: 0.1, min_area_fraction: 0.0, lloyd_iters: 5 };
+        let p = extract(&evidence(w, h, &att, &sem, &app), &cfg, 3);
+        assert_eq!(p.len(), 2);
+        let (a, b) = if p.u[0][0] < p.u[1][0] { (0, 1) } else { (1, 0) };
+        assert!((p.u[a][0] - 2.0).abs() < 1e-5 && (p.u[a][1] - 2.0).abs() < 1e-5, "{:?}", p.u);
+        assert!((p.u[b][0] - 8.0).abs() < 1e-5 && (p.u[b][1] - 2.0).abs() < 1e-5);
+        // Masses: Ā = 1 and 0.5 over 4 pixels each → 4/6 and 2/6.
+        assert!((p.b[a] - 4.0 / 6.0).abs() < 1e-4 && (p.b[b] - 2.0 / 6.0).abs() < 1e-4, "{:?}", p.b);
+        // Normalised semantic descriptors.
+        assert!((p.e[a * 2] - 1.0).abs() < 1e-4 && p.e[a * 2 + 1].abs() < 1e-6);
+        assert!((p.e[b * 2 + 1] - 1.0).abs() < 1e-4);
+        assert!((p.psi[0] - 1.0).abs() < 1e-4);
+    }
+
+    #[test]
+    fn small_components_and_masked_pixels_are_dropped() {
+        let (w, h) = (8, 8);
+        let mut att = vec![0.0f32; w * h];
+        att[0] = 1.0; // an isolated pixel
+        for y in 4..8 {
+            for x in 4..8 {
+                att[y * w + x] = 1.0;
+            }
+        }
+        let sem = vec![1.0f32; w * h * 2];
+        let app = vec![1.0f32; w * h];
+        let ev = evidence(w, h, &att, &sem, &app);
+        let (omega, _) = support(&ev, 0.5, 2);
+        assert!(!omega[0], "isolated pixel kept");
+        assert_eq!(omega.iter().filter(|&&o| o).count(), 16);
+        let mut mask = vec![0.0f32; w * h];
+        mask[4 * w + 4] = 1.0;
+        mask[4 * w + 5] = 1.0;
+        let ev = ViewEvidence { mask: Some(&mask), ..ev };
+        let (omega, _) = support(&ev, 0.5, 1);
+        assert_eq!(omega.iter().filter(|&&o| o).count(), 2);
+    }
+
+    #[test]
+    fn no_attention_means_no_evidence() {
+        let z = vec![0.0f32; 16];
+        let sem = vec![0.0f32; 32];
+        let p = extract(&evidence(4, 4, &z, &sem, &z), &PrototypeConfig::default(), 0);
+        assert!(p.is_empty());
+    }
+
+    #[test]
+    fn kmeans_separates_well_separated_clusters() {
+        let mut pts = Vec::new();
+        for i in 0..50 {
+            let t = i as f32 * 0.1;
+            pts.push([t.sin(), t.cos()]);
+            pts.push([100.0 + t.cos(), 50.0 + t.sin()]);
+            pts.push([-80.0 + t.sin(), 90.0]);
+        }
+        let w = vec![1.0; pts.len()];
+        let a = weighted_kmeans(&pts, &w, 3, 10, 1);
+        for c in 0..3 {
+            let first = a[c];
+            assert!((0..50).all(|i| a[i * 3 + c] == first));
+        }
+        assert!(a[0] != a[1] && a[1] != a[2] && a[0] != a[2]);
+    }
+}
