@@ -144,8 +144,9 @@ fn rebuild_row<L: Layout>(
         *kv = (((amin + ctx.beta_eff[j]) - c as f64) * ctx.inv_eps) as f32;
     }
     fastmath::exp_slice(k);
-    let a = ctx.a[l.source(r)] as f64;
-    *lc = if a > 0.0 { a.ln() - (1.0 - ctx.ks) * amin * ctx.inv_eps } else { f64::NEG_INFINITY };
+    let a = ctx.a[l.source(r)];
+    let ln_a = if a > 1e-30 { fastmath::ln(a) as f64 } else { (a as f64).ln() };
+    *lc = if a > 0.0 { ln_a - (1.0 - ctx.ks) * amin * ctx.inv_eps } else { f64::NEG_INFINITY };
     *q = if f_old.is_finite() {
         amin * ctx.inv_eps - f_old / (ctx.ks * ctx.eps)
     } else if f_old == f64::INFINITY {
@@ -248,13 +249,13 @@ fn chunk_body<L: Layout>(
             let kr = &k[lo - e0..hi - e0];
             let costs = &l.costs()[lo..hi];
             out.lin += if s_buf[rr] > S_MIN {
-                let mut t = 0.0f64;
+                let mut t = 0.0f32;
                 for (e, (kv, c)) in kr.iter().zip(costs).enumerate() {
-                    if *kv != 0.0 {
-                        t += *kv as f64 * ctx.cv[l.col(lo, lo + e)] as f64 * *c as f64;
-                    }
+                    // Select, not branch (vectorises); K = 0 where C = +inf.
+                    let x = *kv * ctx.cv[l.col(lo, lo + e)] * *c;
+                    t += if *kv != 0.0 { x } else { 0.0 };
                 }
-                (lwi + ctx.lv_shift).exp() * t
+                (lwi + ctx.lv_shift).exp() * t as f64
             } else {
                 let mut t = 0.0f64;
                 for (e, c) in costs.iter().enumerate() {

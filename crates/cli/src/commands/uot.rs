@@ -68,7 +68,7 @@ pub struct UotArgs {
 }
 
 fn read_npy(path: &Path, what: &str, dims: usize) -> Result<npy::Array> {
-    let arr = npy::read(path).with_context(|| format!("reading {what} {}", path.display()))?;
+    let arr = npy::read(path).with_context(|| format!("reading {what}"))?;
     if arr.shape.len() != dims {
         bail!("{what} {} has shape {:?}, expected {dims} dimension(s)", path.display(), arr.shape);
     }
