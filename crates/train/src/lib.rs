@@ -12,6 +12,11 @@
 //! - [`trainer`]: [`Trainer`], one optimisation step as a library call, split into
 //!   `begin_step` / `forward_backward` / `finish_step` so other crates can add
 //!   their own gradient terms before the Adam step.
+//! - [`dataset`], [`points`], [`init`], [`fit`]: COLMAP / transforms.json / INRIA
+//!   folders at a chosen downscale, point-cloud initialisation (k-d tree nearest
+//!   neighbours) or random points in the cameras' view, the training loop with test
+//!   PSNR, and the INRIA output folder.
+//! - [`bench`]: time per training step against forward + backward alone.
 //!
 //! Everything random is seeded (ChaCha8).
 
@@ -20,13 +25,21 @@
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod adam;
+pub mod bench;
+pub mod dataset;
 pub mod densify;
+pub mod fit;
+pub mod init;
 pub mod loss;
 pub mod model;
+pub mod points;
 pub mod trainer;
 
 pub use adam::{Adam, Group, LearningRates};
+pub use dataset::{Dataset, LoadOptions, View};
 pub use densify::{DensifyConfig, DensifyCounts, DensifyStats};
+pub use fit::{evaluate, fit, initial_model, write_output, Eval, FitOptions, InitSource, Progress};
 pub use loss::{image_loss, psnr, ssim, ImageLoss};
 pub use model::{apply_reindex, Model, Reindex};
+pub use points::PointCloud;
 pub use trainer::{scene_extent, StepReport, TrainConfig, TrainError, Trainer, ViewPass};

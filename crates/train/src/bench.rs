@@ -1,0 +1,1 @@
+//! Benchmark: time per training step (placeholder, filled below).

@@ -1,0 +1,142 @@
+//! A whole training run on a [`Dataset`]: initialisation, the INRIA loop (one
+//! random training view per step, drawn without replacement per epoch), periodic
+//! test PSNR, and the INRIA output folder.
+
+use crate::dataset::{Dataset, View};
+use crate::init::{gaussians_from_points, random_points};
+use crate::loss::psnr;
+use crate::model::Model;
+use crate::trainer::{scene_extent, StepReport, TrainConfig, TrainError, Trainer};
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use std::path::{Path, PathBuf};
+use transsplat_scene::{cameras::inria, ply, Camera, Error};
+
+/// Options of a run beyond the optimiser's [`TrainConfig`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct FitOptions {
+    pub config: TrainConfig,
+    /// Highest SH degree (INRIA `sh_degree`, 3).
+    pub max_sh_degree: u32,
+    /// Number of random points when the dataset has no point cloud (INRIA uses
+    /// 100k for synthetic scenes).
+    pub random_points: usize,
+    /// Evaluate the test PSNR every this many steps (0 = only at the end).
+    pub eval_every: u64,
+}
+
+impl Default for FitOptions {
+    fn default() -> Self {
+        FitOptions {
+            config: TrainConfig::default(),
+            max_sh_degree: 3,
+            random_points: 100_000,
+            eval_every: 1000,
+        }
+    }
+}
+
+/// Where the initial Gaussians came from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum InitSource {
+    Points { count: usize },
+    Random { count: usize },
+}
+
+/// The initial model for a dataset (see [`crate::init`]).
+pub fn initial_model(ds: &Dataset, opts: &FitOptions) -> (Model, InitSource) {
+    let extent = scene_extent(&ds.cameras);
+    let (cloud, source) = match &ds.points {
+        Some(p) if !p.is_empty() => (p.clone(), InitSource::Points { count: p.len() }),
+        _ => {
+            let mut rng = ChaCha8Rng::seed_from_u64(opts.config.seed ^ 0x1417);
+            let cams: Vec<Camera> = ds.train.iter().chain(&ds.test).map(|v| v.camera.clone()).collect();
+            let p = random_points(&cams, opts.random_points, &mut rng);
+            let n = p.len();
+            (p, InitSource::Random { count: n })
+        }
+    };
+    let g = gaussians_from_points(&cloud, opts.max_sh_degree, 0.01 * extent);
+    (Model::new(g, 0), source)
+}
+
+/// Mean test metrics.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Eval {
+    pub psnr: f32,
+    pub views: usize,
+}
+
+/// Mean PSNR of the current model over `views` (mask-weighted where masks exist).
+pub fn evaluate(trainer: &Trainer, views: &[View]) -> Eval {
+    if views.is_empty() {
+        return Eval::default();
+    }
+    let total: f32 = views
+        .iter()
+        .map(|v| {
+            let (img, _) = trainer.render(&v.camera);
+            psnr(&img.rgb, &v.image, v.weights.as_deref())
+        })
+        .sum();
+    Eval { psnr: total / views.len() as f32, views: views.len() }
+}
+
+/// Progress of a run, for a progress bar.
+#[derive(Clone, Debug, Default)]
+pub struct Progress {
+    pub step: u64,
+    pub iterations: u64,
+    /// Exponential moving average of the loss (INRIA's `ema_loss_for_log`).
+    pub ema_loss: f32,
+    /// Latest test evaluation, if any.
+    pub test: Option<Eval>,
+    pub gaussians: usize,
+    pub last: StepReport,
+}
+
+/// Trains `trainer` on `ds` for `config.iterations` steps from its current step,
+/// calling `on_progress` after every step. Returns the final test evaluation.
+pub fn fit(
+    ds: &Dataset,
+    trainer: &mut Trainer,
+    eval_every: u64,
+    mut on_progress: impl FnMut(&Progress),
+) -> Result<Eval, TrainError> {
+    if ds.train.is_empty() {
+        return Err(TrainError::Mismatch("the dataset has no training views".into()));
+    }
+    let mut order_rng = ChaCha8Rng::seed_from_u64(trainer.config.seed ^ 0x0DE5);
+    let mut stack: Vec<usize> = Vec::new();
+    let mut progress = Progress { iterations: trainer.config.iterations, ..Default::default() };
+    while trainer.step < trainer.config.iterations {
+        if stack.is_empty() {
+            stack = (0..ds.train.len()).collect();
+            stack.shuffle(&mut order_rng);
+        }
+        let v = &ds.train[stack.pop().expect("refilled")];
+        let report = trainer.step(&v.camera, &v.image, v.weights.as_deref())?;
+        progress.ema_loss =
+            if progress.step == 0 { report.loss } else { 0.4 * report.loss + 0.6 * progress.ema_loss };
+        progress.step = report.step;
+        progress.gaussians = report.gaussians;
+        if eval_every > 0 && report.step % eval_every == 0 && !ds.test.is_empty() {
+            progress.test = Some(evaluate(trainer, &ds.test));
+        }
+        progress.last = report;
+        on_progress(&progress);
+    }
+    Ok(evaluate(trainer, &ds.test))
+}
+
+/// Writes the INRIA output layout: `out/point_cloud/iteration_N/point_cloud.ply`
+/// and `out/cameras.json`, each file atomically. Returns the PLY path.
+pub fn write_output(out: &Path, trainer: &Trainer, cameras: &[Camera]) -> transsplat_scene::Result<PathBuf> {
+    let dir = out.join("point_cloud").join(format!("iteration_{}", trainer.step));
+    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+    let ply_path = dir.join("point_cloud.ply");
+    ply::write(&ply_path, &trainer.model.gaussians)?;
+    inria::write(&out.join("cameras.json"), cameras)?;
+    Ok(ply_path)
+}

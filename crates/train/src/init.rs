@@ -1,0 +1,310 @@
+//! Initial Gaussians from a point cloud, as INRIA's `create_from_pcd`: one Gaussian
+//! per point, isotropic scale √(mean squared distance to the 3 nearest neighbours)
+//! (INRIA `distCUDA2`, clamped at 1e-7 squared), identity rotation, opacity 0.1,
+//! SH DC from the point colour (`(c − 0.5) / C0`), higher SH zero.
+//!
+//! The nearest neighbours come from a k-d tree (O(n log n)). Without a point cloud,
+//! [`random_points`] samples points inside the cameras' common view.
+
+use crate::densify::normal;
+use crate::points::{PointCloud, SH_C0};
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use transsplat_scene::{sh_coeffs, Camera, Gaussians};
+
+/// Mean squared distance from each point to its `k` nearest other points (fewer
+/// when there are fewer points; `fallback` when alone).
+pub fn knn_mean_sq_dist(points: &[[f32; 3]], k: usize, fallback: f32) -> Vec<f32> {
+    let tree = KdTree::build(points);
+    (0..points.len())
+        .into_par_iter()
+        .with_min_len(256)
+        .map(|i| {
+            let best = tree.nearest(i, k);
+            if best.is_empty() {
+                fallback
+            } else {
+                best.iter().sum::<f32>() / best.len() as f32
+            }
+        })
+        .collect()
+}
+
+/// An implicit k-d tree: the median of each range is its node, split on the axis of
+/// largest extent.
+struct KdTree<'a> {
+    pts: &'a [[f32; 3]],
+    idx: Vec<u32>,
+    axis: Vec<u8>,
+}
+
+impl<'a> KdTree<'a> {
+    fn build(pts: &'a [[f32; 3]]) -> Self {
+        let mut idx: Vec<u32> = (0..pts.len() as u32).collect();
+        let mut axis = vec![0u8; pts.len()];
+        Self::split(pts, &mut idx, &mut axis);
+        KdTree { pts, idx, axis }
+    }
+
+    fn split(pts: &[[f32; 3]], idx: &mut [u32], axis: &mut [u8]) {
+        if idx.len() <= 1 {
+            return;
+        }
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for &i in idx.iter() {
+            for a in 0..3 {
+                lo[a] = lo[a].min(pts[i as usize][a]);
+                hi[a] = hi[a].max(pts[i as usize][a]);
+            }
+        }
+        let a = (0..3).max_by(|&x, &y| (hi[x] - lo[x]).total_cmp(&(hi[y] - lo[y]))).unwrap_or(0);
+        let mid = idx.len() / 2;
+        idx.select_nth_unstable_by(mid, |&p, &q| pts[p as usize][a].total_cmp(&pts[q as usize][a]));
+        axis[mid] = a as u8;
+        let (l, r) = idx.split_at_mut(mid);
+        let (la, ra) = axis.split_at_mut(mid);
+        if l.len() + r.len() > 4096 {
+            rayon::join(|| Self::split(pts, l, la), || Self::split(pts, &mut r[1..], &mut ra[1..]));
+        } else {
+            Self::split(pts, l, la);
+            Self::split(pts, &mut r[1..], &mut ra[1..]);
+        }
+    }
+
+    /// Squared distances to the `k` nearest points other than `query` itself.
+    fn nearest(&self, query: usize, k: usize) -> Vec<f32> {
+        let mut best: Vec<f32> = Vec::with_capacity(k + 1);
+        self.visit(0, self.idx.len(), query, k, &mut best);
+        best
+    }
+
+    fn visit(&self, lo: usize, hi: usize, query: usize, k: usize, best: &mut Vec<f32>) {
+        if lo >= hi || k == 0 {
+            return;
+        }
+        let mid = lo + (hi - lo) / 2;
+        let q = self.pts[query];
+        let id = self.idx[mid] as usize;
+        let p = self.pts[id];
+        if id != query {
+            let d = (0..3).map(|a| (p[a] - q[a]).powi(2)).sum::<f32>();
+            if best.len() < k || d < best[best.len() - 1] {
+                let at = best.partition_point(|&b| b <= d);
+                best.insert(at, d);
+                best.truncate(k);
+            }
+        }
+        let a = self.axis[mid] as usize;
+        let diff = q[a] - p[a];
+        let (near, far) = if diff < 0.0 { ((lo, mid), (mid + 1, hi)) } else { ((mid + 1, hi), (lo, mid)) };
+        self.visit(near.0, near.1, query, k, best);
+        if best.len() < k || diff * diff < best[best.len() - 1] {
+            self.visit(far.0, far.1, query, k, best);
+        }
+    }
+}
+
+/// INRIA `inverse_sigmoid`.
+pub fn logit(p: f32) -> f32 {
+    (p / (1.0 - p)).ln()
+}
+
+/// Gaussians from a point cloud (see the module docs). `fallback_scale` is used for
+/// a lone point.
+pub fn gaussians_from_points(cloud: &PointCloud, max_sh_degree: u32, fallback_scale: f32) -> Gaussians {
+    let n = cloud.len();
+    let d2 = knn_mean_sq_dist(&cloud.positions, 3, fallback_scale * fallback_scale);
+    let kc = sh_coeffs(max_sh_degree) * 3;
+    let mut sh = vec![0.0f32; n * kc];
+    for (row, c) in sh.chunks_exact_mut(kc).zip(&cloud.colors) {
+        for ch in 0..3 {
+            row[ch] = (c[ch] - 0.5) / SH_C0;
+        }
+    }
+    Gaussians {
+        means: cloud.positions.clone(),
+        log_scales: d2.iter().map(|&d| [d.max(1e-7).sqrt().ln(); 3]).collect(),
+        rotations: vec![[1.0, 0.0, 0.0, 0.0]; n],
+        opacity_logits: vec![logit(0.1); n],
+        sh_degree: max_sh_degree,
+        sh,
+        extra: Default::default(),
+    }
+}
+
+/// The point closest (least squares) to every camera's optical axis, pulled
+/// slightly towards the mean camera centre so parallel axes stay well posed.
+pub fn look_at_centre(cameras: &[Camera]) -> [f32; 3] {
+    let n = cameras.len().max(1) as f64;
+    let centres: Vec<[f64; 3]> = cameras.iter().map(|c| c.centre().map(f64::from)).collect();
+    let mean: [f64; 3] = std::array::from_fn(|k| centres.iter().map(|c| c[k]).sum::<f64>() / n);
+    // Σ (I − d dᵀ) x = Σ (I − d dᵀ) c, plus λ (x − mean).
+    let mut a = [[0.0f64; 3]; 3];
+    let mut b = [0.0f64; 3];
+    for (cam, c) in cameras.iter().zip(&centres) {
+        let d = cam.rotation[2].map(f64::from); // camera z axis in world coordinates
+        let dn = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-12);
+        let d = d.map(|v| v / dn);
+        for i in 0..3 {
+            for j in 0..3 {
+                let m = if i == j { 1.0 } else { 0.0 } - d[i] * d[j];
+                a[i][j] += m;
+                b[i] += m * c[j];
+            }
+        }
+    }
+    let lambda = 1e-3 * n;
+    for i in 0..3 {
+        a[i][i] += lambda;
+        b[i] += lambda * mean[i];
+    }
+    solve3(a, b).map(|x| x.map(|v| v as f32)).unwrap_or(mean.map(|v| v as f32))
+}
+
+fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
+    let det = |m: [[f64; 3]; 3]| {
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    };
+    let d = det(a);
+    if !(d.abs() > 1e-12) {
+        return None;
+    }
+    let x: [f64; 3] = std::array::from_fn(|k| {
+        let mut m = a;
+        for i in 0..3 {
+            m[i][k] = b[i];
+        }
+        det(m) / d
+    });
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+/// Whether a world point projects inside a camera's image, in front of it.
+fn sees(cam: &Camera, p: [f32; 3]) -> bool {
+    let r = &cam.rotation;
+    let t = &cam.translation;
+    let c: [f32; 3] = std::array::from_fn(|i| r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + t[i]);
+    if c[2] <= 0.01 {
+        return false;
+    }
+    let u = cam.fx * c[0] / c[2] + cam.cx;
+    let v = cam.fy * c[1] / c[2] + cam.cy;
+    u >= 0.0 && v >= 0.0 && u < cam.width as f32 && v < cam.height as f32
+}
+
+/// `n` random points in the cameras' common view: uniform in a box around the point
+/// the cameras look at (half-size: the mean camera distance to it), kept when at
+/// least half the cameras see them (any camera, if too few pass), with random
+/// colours. Deterministic for a seed.
+pub fn random_points(cameras: &[Camera], n: usize, rng: &mut ChaCha8Rng) -> PointCloud {
+    let mut cloud = PointCloud::default();
+    if cameras.is_empty() || n == 0 {
+        return cloud;
+    }
+    let centre = look_at_centre(cameras);
+    let half = cameras
+        .iter()
+        .map(|c| {
+            let p = c.centre();
+            ((p[0] - centre[0]).powi(2) + (p[1] - centre[1]).powi(2) + (p[2] - centre[2]).powi(2)).sqrt()
+        })
+        .sum::<f32>()
+        / cameras.len() as f32;
+    let half = if half.is_finite() && half > 1e-6 { half } else { 1.0 };
+    let need = cameras.len().div_ceil(2);
+    for min_seen in [need, 1] {
+        let mut tries = 0usize;
+        while cloud.len() < n && tries < 50 * n {
+            tries += 1;
+            let p: [f32; 3] = std::array::from_fn(|k| centre[k] + half * rng.gen_range(-1.0f32..1.0));
+            let seen = cameras.iter().filter(|c| sees(c, p)).take(min_seen).count();
+            if seen >= min_seen {
+                cloud.positions.push(p);
+                cloud.colors.push([rng.gen(), rng.gen(), rng.gen()]);
+            }
+        }
+        if cloud.len() >= n {
+            break;
+        }
+    }
+    if cloud.is_empty() {
+        // Nothing visible at all (degenerate rig): a Gaussian ball at the centre.
+        for _ in 0..n {
+            cloud.positions.push(std::array::from_fn(|k| centre[k] + 0.3 * half * normal(rng)));
+            cloud.colors.push([rng.gen(), rng.gen(), rng.gen()]);
+        }
+    }
+    cloud
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn kd_tree_matches_brute_force() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut pts: Vec<[f32; 3]> = (0..2000)
+            .map(|_| [rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0), rng.gen::<f32>() * 0.1])
+            .collect();
+        pts.push(pts[5]); // a duplicate
+        let got = knn_mean_sq_dist(&pts, 3, 1.0);
+        for i in (0..pts.len()).step_by(37).chain([5, pts.len() - 1]) {
+            let mut d: Vec<f32> = (0..pts.len())
+                .filter(|&j| j != i)
+                .map(|j| (0..3).map(|a| (pts[i][a] - pts[j][a]).powi(2)).sum())
+                .collect();
+            d.sort_by(f32::total_cmp);
+            let want = (d[0] + d[1] + d[2]) / 3.0;
+            assert!((got[i] - want).abs() <= 1e-6 * want.max(1e-6), "point {i}: {} vs {want}", got[i]);
+        }
+        assert_eq!(knn_mean_sq_dist(&[[0.0; 3]], 3, 0.25), vec![0.25]);
+        assert_eq!(knn_mean_sq_dist(&[[0.0; 3], [0.0, 0.0, 2.0]], 3, 0.25), vec![4.0, 4.0]);
+    }
+
+    #[test]
+    fn gaussians_from_points_follow_inria() {
+        let cloud = PointCloud {
+            positions: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            colors: vec![[0.5, 1.0, 0.0]; 4],
+        };
+        let g = gaussians_from_points(&cloud, 3, 0.1);
+        g.validate().unwrap();
+        assert_eq!(g.len(), 4);
+        assert!((g.log_scales[0][0] - 0.0).abs() < 1e-6, "three neighbours at distance 1");
+        assert!((crate::densify::quat_matrix(g.rotations[0])[0][0] - 1.0).abs() < 1e-6);
+        assert!((transsplat_scene::sigmoid(g.opacity_logits[0]) - 0.1).abs() < 1e-6);
+        assert!((g.sh[0] - 0.0).abs() < 1e-6 && (g.sh[1] - 0.5 / SH_C0).abs() < 1e-5);
+        assert!(g.sh[3..48].iter().all(|&v| v == 0.0));
+    }
+
+    #[test]
+    fn random_points_are_seen_by_the_cameras() {
+        // Four cameras on a ring around the origin, looking at it.
+        let cams: Vec<Camera> = (0..4)
+            .map(|k| {
+                let a = k as f32 * std::f32::consts::FRAC_PI_2;
+                let c = [4.0 * a.cos(), 0.0, 4.0 * a.sin()];
+                let z = [-a.cos(), 0.0, -a.sin()];
+                let y = [0.0, -1.0, 0.0];
+                let x = [y[1] * z[2] - y[2] * z[1], y[2] * z[0] - y[0] * z[2], y[0] * z[1] - y[1] * z[0]];
+                let r = [[x[0], y[0], z[0]], [x[1], y[1], z[1]], [x[2], y[2], z[2]]];
+                Camera::from_c2w(format!("{k}"), 64, 48, 50.0, 50.0, 32.0, 24.0, r, c)
+            })
+            .collect();
+        let c = look_at_centre(&cams);
+        assert!(c.iter().all(|v| v.abs() < 1e-3), "{c:?}");
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let cloud = random_points(&cams, 500, &mut rng);
+        assert_eq!(cloud.len(), 500);
+        for p in &cloud.positions {
+            assert!(cams.iter().filter(|c| sees(c, *p)).count() >= 2);
+        }
+        let again = random_points(&cams, 500, &mut ChaCha8Rng::seed_from_u64(1));
+        assert_eq!(cloud, again);
+    }
+}
