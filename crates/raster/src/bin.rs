@@ -110,20 +110,20 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
     let projected: Vec<Option<(Splat2d, [u32; 2])>> =
         (0..n).into_par_iter().with_min_len(1024).map(|i| project(view, &splats.params(i))).collect();
 
-    let mut means2d = vec![[0.0f32; 2]; n];
-    let mut depths = vec![0.0f32; n];
-    let mut radii = vec![[0u32; 2]; n];
-    let mut keys = Vec::with_capacity(n);
-    for (i, p) in projected.iter().enumerate() {
-        if let Some((s, r)) = p {
-            means2d[i] = s.xy;
-            depths[i] = s.depth;
-            radii[i] = *r;
-            if support(s).is_some() {
-                keys.push((s.depth.to_bits(), i as u32));
-            }
-        }
-    }
+    let means2d: Vec<[f32; 2]> =
+        projected.par_iter().with_min_len(4096).map(|p| p.map_or([0.0; 2], |(s, _)| s.xy)).collect();
+    let depths: Vec<f32> =
+        projected.par_iter().with_min_len(4096).map(|p| p.map_or(0.0, |(s, _)| s.depth)).collect();
+    let radii: Vec<[u32; 2]> =
+        projected.par_iter().with_min_len(4096).map(|p| p.map_or([0; 2], |(_, r)| r)).collect();
+    let mut keys: Vec<(u32, u32)> = projected
+        .par_iter()
+        .enumerate()
+        .with_min_len(4096)
+        .filter_map(|(i, p)| {
+            p.as_ref().filter(|(s, _)| support(s).is_some()).map(|(s, _)| (s.depth.to_bits(), i as u32))
+        })
+        .collect();
     radix_sort(&mut keys);
     let ids: Vec<u32> = keys.iter().map(|k| k.1).collect();
     let packed: Vec<Packed> = ids

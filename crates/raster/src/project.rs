@@ -222,22 +222,40 @@ fn sh_color(view: &View, p: &GaussianParams) -> [f32; 3] {
 /// and its per-axis pixel radius.
 pub fn project(view: &View, p: &GaussianParams) -> Option<(Splat2d, [u32; 2])> {
     let t = view.to_camera(p.mean);
-    if !(t[2] > NEAR && t[2] < FAR) {
+    let tz = t[2];
+    if !(tz > NEAR && tz < FAR) {
         return None;
     }
-    let f = forward_internals(view, p);
-    if !(f.det > 0.0) {
+    // Σ₂ = (J W R S)(J W R S)ᵀ: the same quantity as in `forward_internals`, with
+    // fewer operations (the backward pass recomputes the factored form).
+    let (_, _, rot) = quat_to_rotmat(p.quat);
+    let scale = p.log_scale.map(f32::exp);
+    let wr = matmul(&view.rot, &rot);
+    let rx_ = (t[0] / tz).clamp(-view.lim_x_neg, view.lim_x_pos);
+    let ry_ = (t[1] / tz).clamp(-view.lim_y_neg, view.lim_y_pos);
+    let (j00, j02) = (view.fx / tz, -view.fx * rx_ / tz);
+    let (j11, j12) = (view.fy / tz, -view.fy * ry_ / tz);
+    let mut r0 = [0.0f32; 3];
+    let mut r1 = [0.0f32; 3];
+    for k in 0..3 {
+        r0[k] = (j00 * wr[0][k] + j02 * wr[2][k]) * scale[k];
+        r1[k] = (j11 * wr[1][k] + j12 * wr[2][k]) * scale[k];
+    }
+    let c00 = r0[0] * r0[0] + r0[1] * r0[1] + r0[2] * r0[2] + EPS2D;
+    let c01 = r0[0] * r1[0] + r0[1] * r1[1] + r0[2] * r1[2];
+    let c11 = r1[0] * r1[0] + r1[1] * r1[1] + r1[2] * r1[2] + EPS2D;
+    let det = c00 * c11 - c01 * c01;
+    if !(det > 0.0) {
         return None;
     }
-    let [c00, c01, c11] = f.cov2d;
-    let inv = 1.0 / f.det;
+    let inv = 1.0 / det;
     let conic = [c11 * inv, -c01 * inv, c00 * inv];
     let rx = (EXTENT * c00.sqrt()).ceil();
     let ry = (EXTENT * c11.sqrt()).ceil();
     if rx <= 0.0 && ry <= 0.0 {
         return None;
     }
-    let xy = [view.fx * f.t[0] / f.t[2] + view.cx, view.fy * f.t[1] / f.t[2] + view.cy];
+    let xy = [view.fx * t[0] / tz + view.cx, view.fy * t[1] / tz + view.cy];
     if !(xy[0] + rx > 0.0
         && xy[0] - rx < view.width as f32
         && xy[1] + ry > 0.0
@@ -247,7 +265,7 @@ pub fn project(view: &View, p: &GaussianParams) -> Option<(Splat2d, [u32; 2])> {
     }
     let color = sh_color(view, p).map(|c| c.max(0.0));
     let opacity = transsplat_scene::sigmoid(p.opacity_logit);
-    Some((Splat2d { xy, conic, opacity, color, depth: f.t[2] }, [rx as u32, ry as u32]))
+    Some((Splat2d { xy, conic, opacity, color, depth: tz }, [rx as u32, ry as u32]))
 }
 
 /// Backward of [`project`] for a visible Gaussian: from the gradients on its
