@@ -25,6 +25,8 @@ enum Command {
     Uot(commands::uot::UotArgs),
     /// Write a built-in benchmark scene (tabletop, occluded) as a dataset with labels and masks.
     Scene(commands::scene::BuiltinSceneArgs),
+    /// Train a 3DGS scene from a COLMAP, transforms.json or INRIA-layout dataset.
+    Train(commands::train::TrainArgs),
     /// Benchmarks.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -36,6 +38,8 @@ enum BenchCommand {
     Transport(commands::uot::BenchArgs),
     /// Rasterizer: forward, backward and splat-back on a synthetic scene.
     Raster(commands::bench::RasterArgs),
+    /// Training: time per step (render, loss, backward, Adam) against forward + backward.
+    Train(commands::train::BenchArgs),
 }
 
 fn main() {
@@ -55,6 +59,8 @@ fn main() {
         Command::Scene(a) => commands::scene::run(a),
         Command::Bench(BenchCommand::Transport(a)) => commands::uot::bench(a),
         Command::Bench(BenchCommand::Raster(a)) => commands::bench::raster(a),
+        Command::Train(a) => commands::train::run(a),
+        Command::Bench(BenchCommand::Train(a)) => commands::train::bench(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");

@@ -1,1 +1,95 @@
-//! Benchmark: time per training step (placeholder, filled below).
+//! Time per training step on the rasterizer's synthetic benchmark scene
+//! (`transsplat_raster::bench`), against forward + backward alone, so the cost of the
+//! loss, the optimiser and the densification bookkeeping is a ratio.
+
+use crate::adam::Adam;
+use crate::densify::{DensifyConfig, DensifyStats};
+use crate::loss::image_loss;
+use crate::model::Model;
+use crate::trainer::{TrainConfig, Trainer};
+use std::time::Instant;
+use transsplat_raster::{backward, bench, render, Grads, ImageGrads, RenderOptions};
+
+/// Mean seconds per operation for one configuration.
+#[derive(Clone, Debug, Default)]
+pub struct TrainBench {
+    pub gaussians: usize,
+    pub width: u32,
+    pub height: u32,
+    /// Baseline: render + backward with a fixed image gradient.
+    pub forward_backward: f64,
+    /// A full [`Trainer::step`]: render, loss, backward, statistics, Adam.
+    pub step: f64,
+    /// The loss and its gradient alone (L1 + D-SSIM).
+    pub loss: f64,
+    /// The Adam update alone (every group).
+    pub adam: f64,
+    /// One densify-and-prune pass (amortised over `interval` = 100 steps in INRIA's schedule).
+    pub densify: f64,
+}
+
+fn mean_time(reps: usize, mut f: impl FnMut()) -> f64 {
+    f(); // warm-up
+    let t = Instant::now();
+    for _ in 0..reps.max(1) {
+        f();
+    }
+    t.elapsed().as_secs_f64() / reps.max(1) as f64
+}
+
+/// Runs the benchmark for `n` Gaussians at `width × height`, `reps` repetitions each.
+pub fn run(n: usize, width: u32, height: u32, reps: usize) -> TrainBench {
+    let g = bench::bench_scene(n, 7);
+    let cam = bench::bench_camera(width, height);
+    let px = (width * height) as usize;
+    let target: Vec<f32> = (0..px * 3).map(|i| ((i * 7919) % 17) as f32 / 17.0).collect();
+    let model = Model::new(g, 0);
+    let config = TrainConfig {
+        iterations: 1_000_000,
+        densify: DensifyConfig { from_step: u64::MAX, sh_degree_interval: 0, ..Default::default() },
+        ..Default::default()
+    };
+    let mut trainer = Trainer::new(model, 5.0, config).expect("valid benchmark scene");
+    let opts = RenderOptions::default();
+
+    let forward_backward = mean_time(reps, || {
+        let s = trainer.splats();
+        let (img, frame) = render(&s, &cam, &opts);
+        let mut grads = Grads::zeros(s.len(), 3, 0);
+        let v: Vec<f32> = img.rgb.iter().zip(&target).map(|(a, b)| (a - b) / px as f32).collect();
+        backward(&s, &cam, &frame, &ImageGrads { rgb: &v, ..Default::default() }, &mut grads);
+    });
+    let (img, frame) = trainer.render(&cam);
+    let loss = mean_time(reps, || {
+        let _ = image_loss(&img.rgb, &target, img.width, img.height, None, 0.2);
+    });
+    let mut grads = trainer.zero_grads();
+    grads.means.iter_mut().enumerate().for_each(|(i, m)| *m = [(i % 7) as f32 * 1e-6; 3]);
+    let mut adam_model = trainer.model.clone();
+    let mut adam = Adam::new(&adam_model);
+    let lr = trainer.learning_rates();
+    let adam_t = mean_time(reps, || adam.step(&mut adam_model, &grads, &lr));
+    drop(adam_model);
+    let step = mean_time(reps, || {
+        trainer.step(&cam, &target, None).expect("finite benchmark step");
+    });
+    // One densification pass with realistic statistics: about 5 % above threshold.
+    let mut stats = DensifyStats::new(trainer.model.len());
+    stats.record(
+        &frame.binned.means2d.iter().map(|_| [0.0; 2]).collect::<Vec<_>>(),
+        frame.radii(),
+        width,
+        height,
+    );
+    for (i, a) in stats.grad_accum.iter_mut().enumerate() {
+        *a = if i % 20 == 0 { 1e-3 } else { 1e-5 } * stats.denom[i] as f32;
+    }
+    let densify = {
+        let mut t = trainer.clone();
+        t.stats = stats;
+        let start = Instant::now();
+        let _ = t.densify_and_prune(None);
+        start.elapsed().as_secs_f64()
+    };
+    TrainBench { gaussians: n, width, height, forward_backward, step, loss, adam: adam_t, densify }
+}

@@ -5,4 +5,5 @@ pub mod common;
 pub mod info;
 pub mod render;
 pub mod scene;
+pub mod train;
 pub mod uot;

@@ -1,0 +1,200 @@
+//! `transsplat train`: 3DGS training from a COLMAP, transforms.json or INRIA-layout
+//! dataset into an INRIA output folder; and `transsplat bench train`.
+
+use super::common::{parse_rgb, prepare_out_dir, progress};
+use anyhow::{bail, Context, Result};
+use std::path::PathBuf;
+use transsplat_train::{
+    dataset, fit, initial_model, scene_extent, write_output, DensifyConfig, FitOptions, InitSource,
+    LearningRates, LoadOptions, TrainConfig, Trainer,
+};
+
+/// Arguments of `transsplat train`.
+#[derive(clap::Args, Debug)]
+pub struct TrainArgs {
+    /// Dataset folder: COLMAP (sparse/0 + images/), transforms.json, or cameras.json + images/.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Output folder (INRIA layout: point_cloud/iteration_N/point_cloud.ply, cameras.json).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Training steps (INRIA: 30000).
+    #[arg(long, default_value_t = 30_000)]
+    pub iters: u64,
+    /// Divide image sizes by this (1, 2, 4, 8; as INRIA -r).
+    #[arg(long, default_value_t = 1)]
+    pub resolution: u32,
+    /// Random seed.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Evaluate the test PSNR every this many steps (0 = only at the end).
+    #[arg(long, default_value_t = 1000)]
+    pub eval_every: u64,
+    /// Background colour R,G,B in [0, 1] (RGBA images are composited over it).
+    #[arg(long, value_parser = parse_rgb, default_value = "0,0,0")]
+    pub background: [f32; 3],
+    /// Highest SH degree (0-3).
+    #[arg(long, default_value_t = 3)]
+    pub sh_degree: u32,
+    /// Random points when the dataset has no point cloud.
+    #[arg(long, default_value_t = 100_000)]
+    pub random_points: usize,
+    /// Ignore masks/ even when present.
+    #[arg(long)]
+    pub no_masks: bool,
+    /// Opacity learning rate (INRIA: 0.025; up to 0.05).
+    #[arg(long, default_value_t = 0.025)]
+    pub opacity_lr: f32,
+    /// Densify until this step (INRIA: 15000).
+    #[arg(long, default_value_t = 15_000)]
+    pub densify_until: u64,
+}
+
+/// Runs `transsplat train`.
+pub fn run(args: &TrainArgs) -> Result<()> {
+    if args.iters == 0 {
+        bail!("--iters must be at least 1");
+    }
+    if !matches!(args.resolution, 1..=64) {
+        bail!("--resolution must be between 1 and 64, got {}", args.resolution);
+    }
+    if args.sh_degree > 3 {
+        bail!("--sh-degree must be 0 to 3, got {}", args.sh_degree);
+    }
+    if !(args.opacity_lr.is_finite() && args.opacity_lr >= 0.0) {
+        bail!("--opacity-lr must be a non-negative number");
+    }
+    let out = prepare_out_dir(&args.out, &[&args.data])?;
+    let load = LoadOptions {
+        resolution: args.resolution,
+        background: args.background,
+        use_masks: !args.no_masks,
+        ..Default::default()
+    };
+    let ds = dataset::load(&args.data, &load)?;
+    if ds.train.is_empty() {
+        bail!("{}: no training views", args.data.display());
+    }
+    let (w, h) = (ds.train[0].camera.width, ds.train[0].camera.height);
+    tracing::info!(
+        "{}: {:?} dataset, {} training and {} test views at {w}x{h}",
+        args.data.display(),
+        ds.kind,
+        ds.train.len(),
+        ds.test.len()
+    );
+    let opts = FitOptions {
+        config: TrainConfig {
+            iterations: args.iters,
+            lr: LearningRates { opacity: args.opacity_lr, ..Default::default() },
+            densify: DensifyConfig { until_step: args.densify_until, ..Default::default() },
+            background: args.background,
+            seed: args.seed,
+            ..Default::default()
+        },
+        max_sh_degree: args.sh_degree,
+        random_points: args.random_points,
+        eval_every: args.eval_every,
+    };
+    let (model, source) = initial_model(&ds, &opts);
+    match source {
+        InitSource::Points { count } => tracing::info!("initialised {count} Gaussians from the point cloud"),
+        InitSource::Random { count } => {
+            tracing::warn!(
+                "no point cloud in the dataset: initialised {count} Gaussians at random in the cameras' view"
+            )
+        }
+    }
+    if model.is_empty() {
+        bail!("{}: no initial Gaussians (empty point cloud and --random-points 0)", args.data.display());
+    }
+    let extent = scene_extent(&ds.cameras);
+    let mut trainer = Trainer::new(model, extent, opts.config.clone()).context("cannot start training")?;
+    let pb = progress(args.iters, "train");
+    pb.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    let started = std::time::Instant::now();
+    let eval = fit(&ds, &mut trainer, args.eval_every, |p| {
+        if p.step % 10 == 0 || p.step == p.iterations {
+            let test = p.test.as_ref().map_or(String::from("-"), |e| format!("{:.2}", e.psnr));
+            pb.set_message(format!("loss {:.4} test PSNR {test} Gaussians {}", p.ema_loss, p.gaussians));
+            pb.set_position(p.step);
+        }
+    })
+    .context("training stopped")?;
+    pb.finish_and_clear();
+    let ply = write_output(&out, &trainer, &ds.cameras)?;
+    tracing::info!(
+        "{} steps in {:.1} s: {} Gaussians, test PSNR {:.2} dB over {} views; wrote {}",
+        trainer.step,
+        started.elapsed().as_secs_f64(),
+        trainer.model.len(),
+        eval.psnr,
+        eval.views,
+        ply.display()
+    );
+    println!(
+        "{}",
+        serde_json::json!({
+            "steps": trainer.step, "gaussians": trainer.model.len(),
+            "test_psnr": if eval.views > 0 { Some(eval.psnr) } else { None }, "test_views": eval.views,
+            "seconds": started.elapsed().as_secs_f64(), "scene": ply,
+        })
+    );
+    Ok(())
+}
+
+/// Arguments of `transsplat bench train`.
+#[derive(clap::Args, Debug)]
+pub struct BenchArgs {
+    /// Gaussian counts (comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "100000,500000")]
+    pub gaussians: Vec<usize>,
+    /// Square image sizes (comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "256,512")]
+    pub sizes: Vec<u32>,
+    /// Repetitions per measurement (the mean is reported).
+    #[arg(long, default_value_t = 5)]
+    pub reps: usize,
+}
+
+/// Runs `transsplat bench train`: time per training step against forward + backward.
+pub fn bench(args: &BenchArgs) -> Result<()> {
+    if args.sizes.contains(&0) || args.gaussians.contains(&0) {
+        bail!("--sizes and --gaussians must be positive");
+    }
+    println!(
+        "{:>10} {:>9} {:>12} {:>10} {:>7} {:>9} {:>9} {:>10}",
+        "gaussians", "size", "fwd+bwd s", "step s", "ratio", "loss s", "adam s", "densify s"
+    );
+    for &n in &args.gaussians {
+        for &s in &args.sizes {
+            let r = transsplat_train::bench::run(n, s, s, args.reps);
+            println!(
+                "{:>10} {:>9} {:>12.4} {:>10.4} {:>7.2} {:>9.4} {:>9.4} {:>10.4}",
+                n,
+                format!("{s}x{s}"),
+                r.forward_backward,
+                r.step,
+                r.step / r.forward_backward,
+                r.loss,
+                r.adam,
+                r.densify
+            );
+            println!(
+                "{}",
+                serde_json::json!({
+                    "gaussians": n, "width": s, "height": s,
+                    "forward_backward_s": r.forward_backward, "step_s": r.step,
+                    "step_over_forward_backward": r.step / r.forward_backward,
+                    "loss_s": r.loss, "adam_s": r.adam, "densify_s": r.densify,
+                    "threads": rayon::current_num_threads(),
+                })
+            );
+        }
+    }
+    Ok(())
+}
