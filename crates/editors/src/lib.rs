@@ -1,0 +1,107 @@
+//! 2D editors: from the source renders of the edit views and an instruction, each
+//! returns per view the edited image Î_v, a text-relevant attention map A_v, semantic
+//! features E_v, appearance features Φ_v and an optional mask (SPEC "Editors").
+//!
+//! - [`folder`]: edited images made by any 2D tool, named like the views.
+//! - [`command`]: runs a user command on an exported folder (a file protocol).
+//! - [`simulated`]: ground-truth edits of the built-in scenes, corrupted per view the
+//!   way 2D editors fail, at a chosen severity.
+//! - [`features`]: built-in appearance features Φ (CIELAB + local texture statistics)
+//!   and the fallback semantic features E used when no feature model is given.
+
+pub mod command;
+pub mod features;
+pub mod folder;
+pub mod resize;
+pub mod simulated;
+
+//TMP pub use command::CommandEditor;
+pub use features::{appearance, change_attention, complete, semantic_fallback};
+//TMP pub use folder::{export_views, FolderEditor};
+pub use resize::resize_bilinear;
+pub use simulated::SimulatedEditor;
+
+use transsplat_scene::Camera;
+
+/// One edit view as the editor receives it.
+#[derive(Clone, Copy, Debug)]
+pub struct SourceView<'a> {
+    /// Index of the view in the scene's camera list.
+    pub index: usize,
+    pub camera: &'a Camera,
+    /// The current render, `H × W × 3` in [0, 1].
+    pub image: &'a [f32],
+}
+
+impl SourceView<'_> {
+    /// `(width, height)` of the view (its camera's image size).
+    pub fn size(&self) -> (usize, usize) {
+        (self.camera.width as usize, self.camera.height as usize)
+    }
+
+    /// Errors unless `image` holds `H × W × 3` values for the camera's size.
+    pub fn check(&self) -> Result<(), Error> {
+        let (w, h) = self.size();
+        if w == 0 || h == 0 || self.image.len() != w * h * 3 {
+            return Err(Error::Invalid(format!(
+                "view {} ({}): image has {} values but the camera is {w}x{h} (needs {})",
+                self.index,
+                self.camera.name,
+                self.image.len(),
+                w * h * 3
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// The editor's output for one view; every plane is row-major at the view's size.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct EditedView {
+    pub width: usize,
+    pub height: usize,
+    /// Edited image Î_v, `H × W × 3`.
+    pub image: Vec<f32>,
+    /// Text-relevant attention A_v ≥ 0, `H × W`.
+    pub attention: Vec<f32>,
+    /// Semantic features E_v, `H × W × d_sem` (reduced to d by the edit engine).
+    pub semantic: Vec<f32>,
+    pub d_sem: usize,
+    /// Appearance features Φ_v, `H × W × d_app`.
+    pub appearance: Vec<f32>,
+    pub d_app: usize,
+    /// Optional target mask in [0, 1], `H × W`.
+    pub mask: Option<Vec<f32>>,
+}
+
+/// Errors of the editors; messages are one line meant for the user.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// The instruction cannot be carried out (empty, or names nothing known).
+    #[error("{0}")]
+    Instruction(String),
+    /// No usable edited view at all.
+    #[error("{0}")]
+    NoEdits(String),
+    /// An external command failed.
+    #[error("{0}")]
+    Command(String),
+    /// A view or argument the editor cannot work with (e.g. an image whose size does
+    /// not match its camera).
+    #[error("{0}")]
+    Invalid(String),
+    #[error(transparent)]
+    Io(#[from] transsplat_scene::Error),
+    #[error(transparent)]
+    Scene(#[from] transsplat_scenes::Error),
+}
+
+/// A 2D editor. `edit` returns one entry per input view, `None` where the editor
+/// produced nothing for that view (the engine uses the rest and warns); it errors
+/// when no view could be edited.
+pub trait Editor {
+    /// Short name for logs and reports.
+    fn name(&self) -> &str;
+    /// Edits the views for `prompt`.
+    fn edit(&mut self, views: &[SourceView], prompt: &str) -> Result<Vec<Option<EditedView>>, Error>;
+}
