@@ -15,9 +15,9 @@ pub mod folder;
 pub mod resize;
 pub mod simulated;
 
-//TMP pub use command::CommandEditor;
+pub use command::CommandEditor;
 pub use features::{appearance, change_attention, complete, semantic_fallback};
-//TMP pub use folder::{export_views, FolderEditor};
+pub use folder::{export_views, FolderEditor};
 pub use resize::resize_bilinear;
 pub use simulated::SimulatedEditor;
 
