@@ -98,7 +98,9 @@ fn tile_span(p: &Packed, tiles_x: usize, tiles_y: usize) -> (usize, usize, usize
     let y0 = ((p.y - p.ey) / t).floor().max(0.0) as usize;
     let x1 = (((p.x + p.ex) / t).ceil().max(0.0) as usize).min(tiles_x);
     let y1 = (((p.y + p.ey) / t).ceil().max(0.0) as usize).min(tiles_y);
-    (x0, y0, x1, y1)
+    // A splat inside the culling radius can have its opacity-aware support wholly
+    // off the image (x0 past the last tile): an empty span, never a reversed one.
+    (x0.min(x1), y0.min(y1), x1, y1)
 }
 
 /// Projects, sorts and bins the splats for `view`.
