@@ -10,7 +10,7 @@ use crate::trainer::{TrainConfig, Trainer};
 use std::time::Instant;
 use transsplat_raster::{backward, bench, render, Grads, ImageGrads, RenderOptions};
 
-/// Mean seconds per operation for one configuration.
+/// Seconds per operation for one configuration (best of the repetitions).
 #[derive(Clone, Debug, Default)]
 pub struct TrainBench {
     pub gaussians: usize,
@@ -28,13 +28,16 @@ pub struct TrainBench {
     pub densify: f64,
 }
 
-fn mean_time(reps: usize, mut f: impl FnMut()) -> f64 {
-    f(); // warm-up
+fn time(f: impl FnOnce()) -> f64 {
     let t = Instant::now();
-    for _ in 0..reps.max(1) {
-        f();
-    }
-    t.elapsed().as_secs_f64() / reps.max(1) as f64
+    f();
+    t.elapsed().as_secs_f64()
+}
+
+/// Best of `reps` runs after a warm-up.
+fn best_time(reps: usize, mut f: impl FnMut()) -> f64 {
+    f();
+    (0..reps.max(1)).map(|_| time(&mut f)).fold(f64::INFINITY, f64::min)
 }
 
 /// Runs the benchmark for `n` Gaussians at `width × height`, `reps` repetitions each.
@@ -52,15 +55,24 @@ pub fn run(n: usize, width: u32, height: u32, reps: usize) -> TrainBench {
     let mut trainer = Trainer::new(model, 5.0, config).expect("valid benchmark scene");
     let opts = RenderOptions::default();
 
-    let forward_backward = mean_time(reps, || {
-        let s = trainer.splats();
-        let (img, frame) = render(&s, &cam, &opts);
-        let mut grads = Grads::zeros(s.len(), 3, 0);
-        let v: Vec<f32> = img.rgb.iter().zip(&target).map(|(a, b)| (a - b) / px as f32).collect();
-        backward(&s, &cam, &frame, &ImageGrads { rgb: &v, ..Default::default() }, &mut grads);
-    });
+    let mut forward_backward = f64::INFINITY;
+    let mut step = f64::INFINITY;
+    // Interleaved, best of `reps`: the machine may be shared, and the minimum is the
+    // least disturbed measurement of each.
+    for _ in 0..reps.max(1) + 1 {
+        forward_backward = forward_backward.min(time(|| {
+            let s = trainer.splats();
+            let (img, frame) = render(&s, &cam, &opts);
+            let mut grads = Grads::zeros(s.len(), 3, 0);
+            let v: Vec<f32> = img.rgb.iter().zip(&target).map(|(a, b)| (a - b) / px as f32).collect();
+            backward(&s, &cam, &frame, &ImageGrads { rgb: &v, ..Default::default() }, &mut grads);
+        }));
+        step = step.min(time(|| {
+            trainer.step(&cam, &target, None).expect("finite benchmark step");
+        }));
+    }
     let (img, frame) = trainer.render(&cam);
-    let loss = mean_time(reps, || {
+    let loss = best_time(reps, || {
         let _ = image_loss(&img.rgb, &target, img.width, img.height, None, 0.2);
     });
     let mut grads = trainer.zero_grads();
@@ -68,11 +80,8 @@ pub fn run(n: usize, width: u32, height: u32, reps: usize) -> TrainBench {
     let mut adam_model = trainer.model.clone();
     let mut adam = Adam::new(&adam_model);
     let lr = trainer.learning_rates();
-    let adam_t = mean_time(reps, || adam.step(&mut adam_model, &grads, &lr));
+    let adam_t = best_time(reps, || adam.step(&mut adam_model, &grads, &lr));
     drop(adam_model);
-    let step = mean_time(reps, || {
-        trainer.step(&cam, &target, None).expect("finite benchmark step");
-    });
     // One densification pass with realistic statistics: about 5 % above threshold.
     let mut stats = DensifyStats::new(trainer.model.len());
     stats.record(

@@ -156,7 +156,7 @@ pub struct BenchArgs {
     /// Square image sizes (comma-separated).
     #[arg(long, value_delimiter = ',', default_value = "256,512")]
     pub sizes: Vec<u32>,
-    /// Repetitions per measurement (the mean is reported).
+    /// Repetitions per measurement (the best is reported).
     #[arg(long, default_value_t = 5)]
     pub reps: usize,
 }
