@@ -27,6 +27,9 @@ enum Command {
     Scene(commands::scene::BuiltinSceneArgs),
     /// Train a 3DGS scene from a COLMAP, transforms.json or INRIA-layout dataset.
     Train(commands::train::TrainArgs),
+    /// Export the edit views (training cameras) as PNGs for editing with any 2D tool.
+    #[command(subcommand)]
+    Views(commands::views::ViewsCommand),
     /// Benchmarks.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -57,6 +60,7 @@ fn main() {
         Command::Info(a) => commands::info::run(a),
         Command::Uot(a) => commands::uot::run(a),
         Command::Scene(a) => commands::scene::run(a),
+        Command::Views(c) => commands::views::run(c),
         Command::Bench(BenchCommand::Transport(a)) => commands::uot::bench(a),
         Command::Bench(BenchCommand::Raster(a)) => commands::bench::raster(a),
         Command::Train(a) => commands::train::run(a),

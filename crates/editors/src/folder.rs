@@ -20,7 +20,7 @@ use crate::resize::resize_bilinear;
 use crate::{EditedView, Editor, Error, SourceView};
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
-use transsplat_scene::{atomic, image, npy};
+use transsplat_scene::{atomic, image, npy, Camera};
 
 /// Extensions tried for edited images, in order.
 pub const IMAGE_EXTENSIONS: &[&str] = &["png", "jpg", "jpeg", "PNG", "JPG", "JPEG"];
@@ -209,21 +209,57 @@ pub fn view_entries(views: &[SourceView]) -> Result<Vec<ViewEntry>, Error> {
 /// "index", "width", "height"}]}`) into `dir` (created if needed). Every file is
 /// written atomically.
 pub fn export_views(views: &[SourceView], dir: &Path) -> Result<(), Error> {
-    let entries = view_entries(views)?;
+    for v in views {
+        v.check()?;
+    }
+    let cams: Vec<(usize, &Camera)> = views.iter().map(|v| (v.index, v.camera)).collect();
+    export_views_with(&cams, dir, |k, _, _| Ok(views[k].image.to_vec()))?;
+    Ok(())
+}
+
+/// [`export_views`] for views rendered one at a time (so a large scene's views never
+/// all sit in memory): `image_of(k, index, camera)` returns view k's `H × W × 3` image.
+/// Returns the entries written to `views.json`.
+pub fn export_views_with(
+    cameras: &[(usize, &Camera)],
+    dir: &Path,
+    mut image_of: impl FnMut(usize, usize, &Camera) -> Result<Vec<f32>, Error>,
+) -> Result<Vec<ViewEntry>, Error> {
+    let mut seen = HashSet::new();
+    let mut entries = Vec::with_capacity(cameras.len());
+    for &(index, cam) in cameras {
+        let name = cam.stem();
+        if !seen.insert(name.clone()) {
+            return Err(Error::Invalid(format!(
+                "two views share the image name {name:?}; their files would overwrite each other"
+            )));
+        }
+        let (width, height) = (cam.width as usize, cam.height as usize);
+        entries.push(ViewEntry { file: format!("{name}.png"), name, index, width, height });
+    }
     std::fs::create_dir_all(dir).map_err(|e| transsplat_scene::Error::io(dir, e))?;
-    for (v, e) in views.iter().zip(&entries) {
-        image::write_png(&dir.join(&e.file), e.width, e.height, v.image)?;
+    for (k, (&(index, cam), e)) in cameras.iter().zip(&entries).enumerate() {
+        let img = image_of(k, index, cam)?;
+        if img.len() != e.width * e.height * 3 {
+            return Err(Error::Invalid(format!(
+                "view {index} ({}): image has {} values but the camera is {}x{}",
+                cam.name,
+                img.len(),
+                e.width,
+                e.height
+            )));
+        }
+        image::write_png(&dir.join(&e.file), e.width, e.height, &img)?;
     }
     let json = serde_json::json!({ "views": entries });
     let text = serde_json::to_string_pretty(&json).expect("plain data serialises");
     atomic::write_bytes(&dir.join("views.json"), text.as_bytes())?;
-    Ok(())
+    Ok(entries)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use transsplat_scene::Camera;
 
     pub(crate) fn camera(name: &str, w: u32, h: u32) -> Camera {
         Camera {

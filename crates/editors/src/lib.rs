@@ -17,7 +17,7 @@ pub mod simulated;
 
 pub use command::CommandEditor;
 pub use features::{appearance, change_attention, complete, semantic_fallback};
-pub use folder::{export_views, FolderEditor};
+pub use folder::{export_views, export_views_with, FolderEditor, ViewEntry};
 pub use resize::resize_bilinear;
 pub use simulated::SimulatedEditor;
 

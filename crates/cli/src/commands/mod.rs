@@ -7,3 +7,4 @@ pub mod render;
 pub mod scene;
 pub mod train;
 pub mod uot;
+pub mod views;

@@ -1,0 +1,66 @@
+//! End-to-end test of `transsplat views export` through the binary.
+
+use std::process::Command;
+use transsplat_editors::{Editor, FolderEditor, SourceView};
+use transsplat_raster::{render, RenderOptions, Splats};
+use transsplat_scene::{cameras, image, ply};
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_transsplat"))
+}
+
+#[test]
+fn views_export_writes_the_edit_views_and_refuses_foreign_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dir.path().join("ds");
+    let st =
+        bin().args(["scene", "tabletop", "--quick", "--views", "10", "--out"]).arg(&ds).status().unwrap();
+    assert!(st.success());
+    let out = dir.path().join("views");
+    let st = bin().args(["views", "export", "--scene"]).arg(&ds).arg("--out").arg(&out).status().unwrap();
+    assert!(st.success());
+
+    let cams = cameras::load(&ds.join("cameras.json")).unwrap();
+    let g = ply::read(&ds.join("point_cloud/iteration_0/point_cloud.ply")).unwrap();
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("views.json")).unwrap()).unwrap();
+    let listed: Vec<u64> =
+        json["views"].as_array().unwrap().iter().map(|v| v["index"].as_u64().unwrap()).collect();
+    assert_eq!(listed, vec![1, 2, 3, 4, 5, 6, 7, 9], "every camera but each 8th");
+    assert!(
+        !out.join(format!("{}.png", cams[0].stem())).exists()
+            && !out.join(format!("{}.png", cams[8].stem())).exists()
+    );
+
+    // the PNG is the library's render of that camera on black
+    let (want, _) = render(&Splats::new(&g), &cams[3], &RenderOptions::default());
+    let got = image::read(&out.join(format!("{}.png", cams[3].stem()))).unwrap();
+    assert_eq!((got.width, got.height), (want.width, want.height));
+    assert!(got.data.iter().zip(&want.rgb).all(|(a, b)| (a - b.clamp(0.0, 1.0)).abs() <= 0.5 / 255.0 + 1e-6));
+
+    // the exported folder read back by the folder editor: every view, no change
+    let views: Vec<SourceView> = [3usize, 8]
+        .iter()
+        .map(|&i| SourceView {
+            index: i,
+            camera: &cams[i],
+            image: if i == 3 { &got.data } else { &want.rgb },
+        })
+        .collect();
+    let back = FolderEditor::new(&out).edit(&views, "").unwrap();
+    assert!(back[0].as_ref().unwrap().attention.iter().all(|&a| a < 1e-5));
+    assert!(back[1].is_none(), "test view 8 was not exported");
+
+    // a folder holding other images of the same names is refused with exit status 2
+    let before = std::fs::read(ds.join("images").join(format!("{}.png", cams[1].stem()))).unwrap();
+    let o = bin()
+        .args(["views", "export", "--scene"])
+        .arg(&ds)
+        .arg("--out")
+        .arg(ds.join("images"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("did not write"));
+    assert_eq!(std::fs::read(ds.join("images").join(format!("{}.png", cams[1].stem()))).unwrap(), before);
+}
