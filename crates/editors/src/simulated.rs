@@ -39,6 +39,7 @@
 
 use crate::features::{complete, gaussian_blur};
 use crate::{EditedView, Editor, Error, SourceView};
+use rayon::prelude::*;
 use transsplat_scene::Gaussians;
 use transsplat_scenes::{edit::dc_colour, render_labels, Material, Scene};
 
@@ -237,6 +238,9 @@ impl Rng {
 /// `d[q] = min_p (q − p)² + f[p]`.
 fn edt_line(f: &[f64], d: &mut [f64]) {
     let n = f.len();
+    if n == 0 {
+        return;
+    }
     let mut v = vec![0usize; n];
     let mut z = vec![0.0f64; n + 1];
     let mut k = 0usize;
@@ -516,25 +520,21 @@ impl Editor for SimulatedEditor {
         self.instruct(prompt)?;
         let (ins, gt, colour) = self.current.as_ref().expect("set by instruct");
         let num_labels = self.scene.num_labels();
-        let mut out = Vec::with_capacity(views.len());
-        for v in views {
-            let (w, h) = v.size();
-            let r = render_labels(gt, &self.scene.labels, num_labels, v.camera, self.scene.background);
-            let target: Vec<bool> = r.labels.iter().map(|&l| l == ins.label).collect();
-            let mut rng = Rng::for_view(self.seed, v.index);
-            let c = corrupt(
-                &r.rgb,
-                &r.weight(ins.label),
-                &target,
-                w,
-                h,
-                *colour,
-                self.severity,
-                &mut rng,
-                self.want_mask,
-            );
-            out.push(Some(complete(c.image, w, h, c.attention, c.mask)));
-        }
+        let (seed, severity, want_mask) = (self.seed, self.severity, self.want_mask);
+        let scene = &self.scene;
+        // views in parallel; each has its own generator, so the order does not matter
+        let out: Vec<Option<EditedView>> = views
+            .par_iter()
+            .map(|v| {
+                let (w, h) = v.size();
+                let r = render_labels(gt, &scene.labels, num_labels, v.camera, scene.background);
+                let target: Vec<bool> = r.labels.iter().map(|&l| l == ins.label).collect();
+                let mut rng = Rng::for_view(seed, v.index);
+                let weight = r.weight(ins.label);
+                let c = corrupt(&r.rgb, &weight, &target, w, h, *colour, severity, &mut rng, want_mask);
+                Some(complete(c.image, w, h, c.attention, c.mask))
+            })
+            .collect();
         tracing::debug!(
             "simulated editor: {} on {} views at severity {}",
             ins.describe(),
