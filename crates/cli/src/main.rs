@@ -17,6 +17,9 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// The built-in benchmark: a built-in scene, the simulated editor, TransSplat and
+    /// every baseline and ablation scored against ground truth (no weights, no inputs).
+    Demo(commands::demo::DemoArgs),
     /// Render every camera of a scene to PNG (and raw .npy).
     Render(commands::render::RenderArgs),
     /// Print a summary of a scene: count, SH degree, bounding box, opacity and scale.
@@ -45,8 +48,17 @@ enum BenchCommand {
     Train(commands::train::BenchArgs),
 }
 
+/// Set by SIGINT / Ctrl-C; long commands stop at the next step and write nothing partial.
+static CANCEL: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
 fn main() {
     let cli = Cli::parse();
+    let _ = ctrlc::set_handler(|| {
+        if CANCEL.swap(true, std::sync::atomic::Ordering::SeqCst) {
+            std::process::exit(130);
+        }
+        eprintln!("interrupt: stopping at the next step (press Ctrl-C again to quit at once)");
+    });
     let level = match cli.verbose {
         0 => "info",
         1 => "debug",
@@ -56,6 +68,7 @@ fn main() {
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level));
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
     let result = match &cli.command {
+        Command::Demo(a) => commands::demo::run(a, &CANCEL),
         Command::Render(a) => commands::render::run(a),
         Command::Info(a) => commands::info::run(a),
         Command::Uot(a) => commands::uot::run(a),

@@ -1,6 +1,7 @@
 //! Every hyperparameter of an edit in one struct, with the paper's defaults
 //! (appendix B: M = 32 prototypes, d = 16 semantic channels, 30 Sinkhorn
-//! iterations, top-k 128), overridable from a TOML file and command-line flags.
+//! iterations) except top-k, which is dense by default (measured: see
+//! `TransportConfig::top_k`), overridable from a TOML file and command-line flags.
 
 use crate::prototypes::PrototypeConfig;
 use crate::view::TransportConfig;
@@ -98,7 +99,7 @@ pub struct LossConfig {
 
 impl Default for LossConfig {
     fn default() -> Self {
-        LossConfig { img: 1.0, dssim: 0.0, sem: 1.0, uot: 0.1, leak: 0.05 }
+        LossConfig { img: 1.0, dssim: 0.0, sem: 1.0, uot: 0.1, leak: 0.1 }
     }
 }
 
@@ -147,7 +148,7 @@ impl Default for LearningRates {
     fn default() -> Self {
         LearningRates {
             position: 0.0,
-            sh_dc: 0.01,
+            sh_dc: 0.025,
             sh_rest: 0.0005,
             opacity: 0.0,
             scale: 0.0,

@@ -12,9 +12,11 @@
 //! [`config`] holds every hyperparameter with the paper's defaults.
 
 pub mod config;
+pub mod engine;
 pub mod fusion;
 pub mod gate;
 pub mod losses;
+pub mod pca;
 pub mod prototypes;
 pub mod view;
 

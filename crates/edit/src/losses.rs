@@ -14,12 +14,15 @@ pub fn semantic(s: &[f32], z: &[f32], gamma: &[f32], d: usize, lambda: f32, grad
     lambda as f64 * loss
 }
 
-/// L_leak = Σ_i (1 − γ_i) ‖c_i − c_i⁽⁰⁾‖₁ over all SH coefficients (`k` values per
-/// Gaussian): returns the loss and adds λ ∂L/∂c into `grad`.
+/// L_leak = (1/N) Σ_i (1 − γ_i) ‖c_i − c_i⁽⁰⁾‖₁ over all SH coefficients (`k` values
+/// per Gaussian): returns λ L and adds λ ∂L/∂c into `grad`. The mean over the N
+/// Gaussians (not the paper's plain sum) keeps λ independent of the scene size: the
+/// per-Gaussian image-loss gradient it competes with also scales like 1/N.
 pub fn leakage(c: &[f32], c0: &[f32], gamma: &[f32], k: usize, lambda: f32, grad: &mut [f32]) -> f64 {
     let mut loss = 0.0f64;
+    let inv_n = 1.0 / gamma.len().max(1) as f32;
     for (i, &g) in gamma.iter().enumerate() {
-        let wgt = 1.0 - g;
+        let wgt = (1.0 - g) * inv_n;
         for j in i * k..(i + 1) * k {
             let diff = c[j] - c0[j];
             loss += (wgt * diff.abs()) as f64;
@@ -85,10 +88,15 @@ mod tests {
         }
         let c = [0.5f32, -0.5, 0.2];
         let c0 = [0.4f32, -0.1, 0.2];
-        let mut gc = [0.0f32; 3];
-        let l = leakage(&c, &c0, &[0.25], 3, 4.0, &mut gc);
-        assert!((l - 4.0 * 0.75 * 0.5).abs() < 1e-6);
-        assert_eq!(gc, [3.0, -3.0, 0.0]);
+        let mut c2 = c.to_vec();
+        c2.extend_from_slice(&c0);
+        let mut c02 = c0.to_vec();
+        c02.extend_from_slice(&c0);
+        let mut gc = [0.0f32; 6];
+        // Two Gaussians (N = 2): the second is unchanged.
+        let l = leakage(&c2, &c02, &[0.25, 0.0], 3, 4.0, &mut gc);
+        assert!((l - 4.0 * 0.75 * 0.5 / 2.0).abs() < 1e-6, "{l}");
+        assert_eq!(gc, [1.5, -1.5, 0.0, 0.0, 0.0, 0.0]);
     }
 
     #[test]

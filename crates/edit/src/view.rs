@@ -27,7 +27,8 @@ pub struct TransportConfig {
     pub tau_t: f64,
     /// Sinkhorn sweeps.
     pub iters: usize,
-    /// Each prototype keeps its k cheapest Gaussians; 0 = dense.
+    /// Each prototype keeps its k cheapest Gaussians; 0 = dense (the default; the
+    /// paper's 128 is available).
     pub top_k: usize,
     /// δ in y_i = Σ T e / (Σ T + δ).
     pub delta: f32,
@@ -43,7 +44,10 @@ impl Default for TransportConfig {
             tau_s: 0.5,
             tau_t: 10.0,
             iters: 30,
-            top_k: 128,
+            // Dense by default: measured on the demo, top-k 128 starves the target
+            // (each prototype reaches only its 128 cheapest Gaussians, so most target
+            // Gaussians get no support and the gate closes on them). See README.
+            top_k: 0,
             delta: 1e-8,
         }
     }

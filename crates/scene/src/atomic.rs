@@ -39,3 +39,101 @@ pub fn write_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
 pub fn read(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(|e| Error::io(path, e))
 }
+
+/// A folder written as a whole: files go into a hidden temporary folder beside the
+/// target, which replaces the target only in [`StagedDir::commit`]. Dropping it
+/// without committing removes the temporary folder, so an interrupted run leaves
+/// the target as it was.
+#[derive(Debug)]
+pub struct StagedDir {
+    target: PathBuf,
+    temp: PathBuf,
+    committed: bool,
+}
+
+impl StagedDir {
+    /// Starts writing `target`. An existing `target` must be an empty folder, or a
+    /// folder holding `marker` (a file an earlier run of the same command wrote),
+    /// which is then replaced on commit; anything else is refused.
+    pub fn begin(target: &Path, marker: &str) -> Result<Self> {
+        if target.exists() {
+            let ok = target.is_dir()
+                && (target.join(marker).is_file()
+                    || std::fs::read_dir(target).map(|mut d| d.next().is_none()).unwrap_or(false));
+            if !ok {
+                return Err(Error::format(
+                    target,
+                    format!("output folder exists and was not written by this command (no {marker}); choose another"),
+                ));
+            }
+        }
+        let name =
+            target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
+        let parent = target.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+        let temp = parent.join(format!(".{name}.partial-{}", std::process::id()));
+        if temp.exists() {
+            std::fs::remove_dir_all(&temp).map_err(|e| Error::io(&temp, e))?;
+        }
+        std::fs::create_dir_all(&temp).map_err(|e| Error::io(&temp, e))?;
+        Ok(StagedDir { target: target.to_path_buf(), temp, committed: false })
+    }
+
+    /// The temporary folder to write into.
+    pub fn path(&self) -> &Path {
+        &self.temp
+    }
+
+    /// Replaces the target with the written folder.
+    pub fn commit(mut self) -> Result<PathBuf> {
+        if self.target.exists() {
+            let old = self.temp.with_extension("old");
+            std::fs::rename(&self.target, &old).map_err(|e| Error::io(&self.target, e))?;
+            std::fs::rename(&self.temp, &self.target).map_err(|e| Error::io(&self.target, e))?;
+            let _ = std::fs::remove_dir_all(&old);
+        } else {
+            std::fs::rename(&self.temp, &self.target).map_err(|e| Error::io(&self.target, e))?;
+        }
+        self.committed = true;
+        Ok(self.target.clone())
+    }
+}
+
+impl Drop for StagedDir {
+    fn drop(&mut self) {
+        if !self.committed {
+            let _ = std::fs::remove_dir_all(&self.temp);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn staged_dir_replaces_only_its_own_output_and_cleans_up() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("out");
+        let s = StagedDir::begin(&target, "done.json").unwrap();
+        std::fs::write(s.path().join("done.json"), b"1").unwrap();
+        s.commit().unwrap();
+        assert!(target.join("done.json").is_file());
+        // A second run replaces it.
+        let s = StagedDir::begin(&target, "done.json").unwrap();
+        std::fs::write(s.path().join("done.json"), b"2").unwrap();
+        std::fs::write(s.path().join("x"), b"").unwrap();
+        s.commit().unwrap();
+        assert_eq!(std::fs::read(target.join("done.json")).unwrap(), b"2");
+        // Dropped without commit: nothing changes, no temporary folder left.
+        let s = StagedDir::begin(&target, "done.json").unwrap();
+        let temp = s.path().to_path_buf();
+        drop(s);
+        assert!(!temp.exists() && target.join("x").exists());
+        // A foreign folder is refused.
+        let foreign = dir.path().join("foreign");
+        std::fs::create_dir(&foreign).unwrap();
+        std::fs::write(foreign.join("precious"), b"").unwrap();
+        assert!(StagedDir::begin(&foreign, "done.json").is_err());
+    }
+}

@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod common;
+pub mod demo;
 pub mod info;
 pub mod render;
 pub mod scene;

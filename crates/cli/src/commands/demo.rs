@@ -1,0 +1,112 @@
+//! `transsplat demo`: the built-in benchmark with ground truth (no weights, no inputs).
+
+use super::common::progress;
+use anyhow::Result;
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use transsplat_edit::config::Method;
+use transsplat_edit::engine::Progress;
+use transsplat_edit::EditConfig;
+use transsplat_eval::demo::{self, DemoOptions};
+
+/// Arguments of `transsplat demo`.
+#[derive(clap::Args, Debug)]
+pub struct DemoArgs {
+    /// Output folder (replaced if it holds an earlier demo's output).
+    #[arg(long, default_value = "demo")]
+    pub out: PathBuf,
+    /// Small scene and few steps (about a minute).
+    #[arg(long)]
+    pub quick: bool,
+    /// Built-in scene.
+    #[arg(long, default_value = "tabletop")]
+    pub scene: String,
+    /// Instruction for the simulated editor.
+    #[arg(long, default_value = "make the ball blue")]
+    pub prompt: String,
+    /// Severity of the simulated editor's failures (0 = perfect edits).
+    #[arg(long, default_value_t = 1.0)]
+    pub severity: f32,
+    /// Methods to run (comma-separated): transsplat, naive, masklift, no_leaksup, no_prototype, geometric.
+    #[arg(long, value_delimiter = ',')]
+    pub methods: Option<Vec<String>>,
+    /// TOML file of edit settings (see `EditConfig`).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+/// Runs `transsplat demo`.
+pub fn run(args: &DemoArgs, cancel: &AtomicBool) -> Result<()> {
+    let config = match &args.config {
+        Some(p) => EditConfig::from_toml_file(p).map_err(anyhow::Error::msg)?,
+        None => EditConfig::default(),
+    };
+    let methods = match &args.methods {
+        None => Method::ALL.to_vec(),
+        Some(v) => v
+            .iter()
+            .map(|s| {
+                Method::parse(s.trim()).ok_or_else(|| {
+                    let all: Vec<&str> = Method::ALL.iter().map(|m| m.name()).collect();
+                    anyhow::anyhow!("unknown method {s:?}; methods are: {}", all.join(", "))
+                })
+            })
+            .collect::<Result<_>>()?,
+    };
+    let opts = DemoOptions {
+        out: args.out.clone(),
+        scene: args.scene.clone(),
+        prompt: args.prompt.clone(),
+        severity: args.severity,
+        quick: args.quick,
+        methods,
+        config,
+        seed: args.seed,
+    };
+    let mut bar: Option<(String, indicatif::ProgressBar)> = None;
+    let (out, scores) = demo::run(&opts, Some(cancel), &mut |name, p| {
+        if let Progress::Step { step, steps, loss } = p {
+            if bar.as_ref().is_none_or(|(n, _)| n != name) {
+                if let Some((_, b)) = bar.take() {
+                    b.finish_and_clear();
+                }
+                bar = Some((name.to_string(), progress(steps as u64, name)));
+            }
+            if let Some((_, b)) = &bar {
+                b.set_position(step as u64);
+                if step % 10 == 0 {
+                    b.set_message(format!("{name} {loss:.4}"));
+                }
+            }
+        }
+    })
+    .map_err(|e| match e {
+        demo::DemoError::Edit(transsplat_edit::engine::EditError::Interrupted(s)) => {
+            anyhow::anyhow!("interrupted at step {s}; nothing was written to {}", args.out.display())
+        }
+        e => e.into(),
+    })?;
+    if let Some((_, b)) = bar {
+        b.finish_and_clear();
+    }
+    println!(
+        "{:<14} {:>12} {:>16} {:>8} {:>8} {:>11} {:>9}",
+        "method", "target PSNR", "background PSNR", "PSNR", "SSIM", "gate AUROC", "seconds"
+    );
+    for s in &scores {
+        println!(
+            "{:<14} {:>12.3} {:>16.3} {:>8.3} {:>8.4} {:>11} {:>9.1}",
+            s.name,
+            s.metrics.target_psnr,
+            s.metrics.background_psnr,
+            s.metrics.psnr,
+            s.metrics.ssim,
+            s.gate_auroc.map_or("-".into(), |a| format!("{a:.4}")),
+            s.seconds
+        );
+    }
+    println!("wrote {}/metrics.json and {}/report.html", out.display(), out.display());
+    Ok(())
+}

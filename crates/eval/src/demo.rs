@@ -1,0 +1,304 @@
+//! The built-in benchmark (`transsplat demo`): builds a built-in scene, edits its
+//! training views with the simulated editor on a stated instruction, runs TransSplat
+//! and every baseline and ablation in the same loop, scores each edited scene
+//! against the ground truth on the test views, and writes `metrics.json`, the
+//! edited scenes and `report.html`.
+
+use crate::ground_truth::{GtMetrics, Reference};
+use crate::heatmap::render_values;
+use crate::metrics::auroc;
+use crate::report::Page;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use transsplat_edit::config::Method;
+use transsplat_edit::engine::{self, EditJob, EditResult, Progress};
+use transsplat_edit::EditConfig;
+use transsplat_editors::simulated::SimulatedEditor;
+use transsplat_raster::{render, RenderOptions, Splats};
+use transsplat_scene::{atomic::StagedDir, image, ply};
+use transsplat_scenes::{build, labels_from_extra, SceneConfig};
+
+/// Settings of a demo run.
+#[derive(Clone, Debug)]
+pub struct DemoOptions {
+    pub out: PathBuf,
+    pub scene: String,
+    pub prompt: String,
+    pub severity: f32,
+    pub quick: bool,
+    pub methods: Vec<Method>,
+    pub config: EditConfig,
+    pub seed: u64,
+}
+
+impl Default for DemoOptions {
+    fn default() -> Self {
+        DemoOptions {
+            out: PathBuf::from("demo"),
+            scene: "tabletop".into(),
+            prompt: "make the ball blue".into(),
+            severity: 1.0,
+            quick: false,
+            methods: Method::ALL.to_vec(),
+            config: EditConfig::default(),
+            seed: 0,
+        }
+    }
+}
+
+/// One method's scores.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct MethodScore {
+    pub name: String,
+    #[serde(flatten)]
+    pub metrics: GtMetrics,
+    pub gate_auroc: Option<f64>,
+    pub seconds: f64,
+    pub transport_seconds: f64,
+}
+
+/// The demo's errors.
+#[derive(Debug, thiserror::Error)]
+pub enum DemoError {
+    #[error(transparent)]
+    Scene(#[from] transsplat_scenes::Error),
+    #[error(transparent)]
+    Editor(#[from] transsplat_editors::Error),
+    #[error(transparent)]
+    Edit(#[from] engine::EditError),
+    #[error(transparent)]
+    Io(#[from] transsplat_scene::Error),
+}
+
+/// Marker file of a finished demo folder.
+pub const MARKER: &str = "metrics.json";
+
+/// Runs the demo; `on_method(name, progress)` reports progress.
+pub fn run(
+    opts: &DemoOptions,
+    cancel: Option<&AtomicBool>,
+    on_progress: &mut dyn FnMut(&str, Progress),
+) -> Result<(PathBuf, Vec<MethodScore>), DemoError> {
+    let staged = StagedDir::begin(&opts.out, MARKER)?;
+    let dir = staged.path().to_path_buf();
+    let scfg = if opts.quick { SceneConfig::quick() } else { SceneConfig::default() };
+    let scene = build(&opts.scene, &SceneConfig { seed: opts.seed, ..scfg })?;
+    let mut sim = SimulatedEditor::new(&scene, opts.severity, opts.seed);
+    let description = sim.instruct(&opts.prompt)?.describe();
+    let label = sim.target_label();
+    let truth = sim.ground_truth().clone();
+    tracing::info!("demo: scene {} ({} Gaussians), {description}", scene.name, scene.gaussians.len());
+    let reference = Reference::new(&scene, &truth, label);
+    let source = scene.gaussians_with_labels();
+    let bg = scene.background;
+    let opts_r = RenderOptions { background: bg };
+    let test = scene.test_views();
+    let stems: Vec<String> = test.iter().map(|&v| scene.cameras[v].stem()).collect();
+
+    // Reference images for the report.
+    std::fs::create_dir_all(dir.join("reference")).map_err(|e| transsplat_scene::Error::io(&dir, e))?;
+    for (k, stem) in stems.iter().enumerate() {
+        let cam = &scene.cameras[test[k]];
+        let (w, h) = (cam.width as usize, cam.height as usize);
+        image::write_png(&dir.join(format!("reference/source_{stem}.png")), w, h, &reference.source[k])?;
+        image::write_png(&dir.join(format!("reference/truth_{stem}.png")), w, h, &reference.truth[k])?;
+    }
+
+    let mut config = opts.config.clone();
+    if opts.quick {
+        config.schedule.steps = config.schedule.steps.min(150);
+        config.schedule.transport_every = config.schedule.transport_every.min(50);
+    }
+    let semantic =
+        |img: &[f32], w: usize, h: usize| transsplat_editors::features::semantic_fallback(img, w, h);
+    let mut scores = Vec::new();
+    let mut results: Vec<(Method, EditResult)> = Vec::new();
+    for &m in &opts.methods {
+        let cfg = config.for_method(m);
+        let job = EditJob {
+            gaussians: &source,
+            cameras: &scene.cameras,
+            edit_views: scene.train_views(),
+            background: bg,
+            prompt: &opts.prompt,
+            source_semantic: &semantic,
+        };
+        let mut editor = sim.clone();
+        let res = engine::run(&job, &mut editor, &cfg, cancel, &mut |p| on_progress(m.name(), p))?;
+        let metrics = reference.score(&scene, &res.gaussians);
+        let labels = labels_from_extra(&res.gaussians).unwrap_or_else(|| scene.labels.clone());
+        let is_target: Vec<bool> = labels.iter().map(|&l| l == label).collect();
+        let gate_auroc = res.gate.as_ref().and_then(|g| auroc(g, &is_target));
+        if let Some(g) = &res.gate {
+            let mean = |want: bool| {
+                let v: Vec<f32> =
+                    g.iter().zip(&is_target).filter(|(_, &t)| t == want).map(|(&x, _)| x).collect();
+                v.iter().sum::<f32>() / v.len().max(1) as f32
+            };
+            tracing::info!(
+                "{}: mean gate on the target {:.3}, elsewhere {:.3}",
+                m.name(),
+                mean(true),
+                mean(false)
+            );
+        }
+        let name = m.name();
+        let mdir = dir.join(name);
+        std::fs::create_dir_all(&mdir).map_err(|e| transsplat_scene::Error::io(&mdir, e))?;
+        ply::write(&mdir.join("point_cloud.ply"), &res.gaussians)?;
+        let s = Splats::new(&res.gaussians);
+        for (k, &v) in test.iter().enumerate() {
+            let cam = &scene.cameras[v];
+            let (w, h) = (cam.width as usize, cam.height as usize);
+            image::write_png(
+                &mdir.join(format!("test_{}.png", stems[k])),
+                w,
+                h,
+                &render(&s, cam, &opts_r).0.rgb,
+            )?;
+            if let Some(g) = &res.gate {
+                image::write_png(
+                    &mdir.join(format!("gate_{}.png", stems[k])),
+                    w,
+                    h,
+                    &render_values(&res.gaussians, g, cam),
+                )?;
+            }
+        }
+        let stats = serde_json::json!({"rounds": res.rounds, "losses": res.losses, "timing": res.timing, "prototypes": res.prototypes});
+        transsplat_scene::atomic::write_bytes(&mdir.join("transport.json"), stats.to_string().as_bytes())?;
+        tracing::info!(
+            "{name}: target PSNR {:.2}, background PSNR {:.2}, PSNR {:.2}, SSIM {:.4}, gate AUROC {}, {:.1} s (transport {:.1} s)",
+            metrics.target_psnr,
+            metrics.background_psnr,
+            metrics.psnr,
+            metrics.ssim,
+            gate_auroc.map_or("-".into(), |a| format!("{a:.4}")),
+            res.timing.total,
+            res.timing.transport
+        );
+        scores.push(MethodScore {
+            name: name.into(),
+            metrics,
+            gate_auroc,
+            seconds: res.timing.total,
+            transport_seconds: res.timing.transport,
+        });
+        results.push((m, res));
+    }
+
+    let methods: serde_json::Map<String, serde_json::Value> = scores
+        .iter()
+        .map(|s| {
+            let v = serde_json::json!({
+                "target_psnr": s.metrics.target_psnr, "background_psnr": s.metrics.background_psnr,
+                "psnr": s.metrics.psnr, "ssim": s.metrics.ssim, "gate_auroc": s.gate_auroc,
+                "seconds": s.seconds, "transport_seconds": s.transport_seconds,
+            });
+            (s.name.clone(), v)
+        })
+        .collect();
+    let metrics = serde_json::json!({
+        "scene": scene.name, "prompt": opts.prompt, "edit": description, "severity": opts.severity,
+        "quick": opts.quick, "gaussians": scene.gaussians.len(), "test_views": test,
+        "methods": methods,
+    });
+    write_report(&dir, &opts.prompt, &description, &scene.name, &stems, &scores, &results, &config)?;
+    transsplat_scene::atomic::write_bytes(
+        &dir.join(MARKER),
+        serde_json::to_string_pretty(&metrics).expect("json").as_bytes(),
+    )?;
+    let out = staged.commit()?;
+    Ok((out, scores))
+}
+
+#[allow(clippy::too_many_arguments)]
+fn write_report(
+    dir: &Path,
+    prompt: &str,
+    description: &str,
+    scene: &str,
+    stems: &[String],
+    scores: &[MethodScore],
+    results: &[(Method, EditResult)],
+    config: &EditConfig,
+) -> Result<(), DemoError> {
+    let mut p = Page::new(&format!("transsplat demo: \"{prompt}\" on {scene}"));
+    p.paragraph(&format!("Simulated editor: {description}. Test views: every 8th camera."));
+    p.heading("Metrics (test views)");
+    let f = |v: f64| format!("{v:.3}");
+    let rows: Vec<Vec<String>> = scores
+        .iter()
+        .map(|s| {
+            vec![
+                s.name.clone(),
+                f(s.metrics.target_psnr),
+                f(s.metrics.background_psnr),
+                f(s.metrics.psnr),
+                format!("{:.4}", s.metrics.ssim),
+                s.gate_auroc.map_or("-".into(), |a| format!("{a:.4}")),
+                format!("{:.1}", s.seconds),
+                format!("{:.1}%", 100.0 * s.transport_seconds / s.seconds.max(1e-9)),
+            ]
+        })
+        .collect();
+    p.table(
+        &[
+            "method",
+            "target PSNR",
+            "background PSNR",
+            "PSNR",
+            "SSIM",
+            "gate AUROC",
+            "seconds",
+            "transport share",
+        ],
+        &rows,
+    );
+    p.heading("Renders of the test views");
+    let mut grid = Vec::new();
+    for stem in stems {
+        let mut cells = vec![
+            ("source".to_string(), format!("reference/source_{stem}.png")),
+            ("ground truth".to_string(), format!("reference/truth_{stem}.png")),
+        ];
+        for s in scores {
+            cells.push((s.name.clone(), format!("{}/test_{stem}.png", s.name)));
+        }
+        grid.push((stem.clone(), cells));
+    }
+    p.image_grid(&grid);
+    p.heading("Gate γ (or lifted mask) per Gaussian");
+    let mut grid = Vec::new();
+    for stem in stems {
+        let cells = results
+            .iter()
+            .filter(|(_, r)| r.gate.is_some())
+            .map(|(m, _)| (m.name().to_string(), format!("{}/gate_{stem}.png", m.name())))
+            .collect();
+        grid.push((stem.clone(), cells));
+    }
+    p.image_grid(&grid);
+    p.heading("Losses and transport statistics");
+    let series = |get: &dyn Fn(&EditResult) -> Vec<(f64, f64)>| -> Vec<(String, Vec<(f64, f64)>)> {
+        results.iter().map(|(m, r)| (m.name().to_string(), get(r))).filter(|(_, v)| !v.is_empty()).collect()
+    };
+    p.plot("image loss per step", &series(&|r| r.losses.iter().map(|l| (l.step as f64, l.img)).collect()));
+    p.plot("leak loss per step", &series(&|r| r.losses.iter().map(|l| (l.step as f64, l.leak)).collect()));
+    p.plot(
+        "transport objective per round",
+        &series(&|r| r.rounds.iter().map(|x| (x.round as f64, x.objective)).collect()),
+    );
+    p.plot(
+        "transported mass per round",
+        &series(&|r| r.rounds.iter().map(|x| (x.round as f64, x.transported_mass)).collect()),
+    );
+    p.plot(
+        "mean gate per round",
+        &series(&|r| r.rounds.iter().map(|x| (x.round as f64, x.mean_gate)).collect()),
+    );
+    p.heading("Settings");
+    p.preformatted(&config.to_toml());
+    transsplat_scene::atomic::write_bytes(&dir.join("report.html"), p.finish().as_bytes())?;
+    Ok(())
+}

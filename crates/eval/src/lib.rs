@@ -1,0 +1,16 @@
+//! Evaluation of edits.
+//!
+//! - [`metrics`]: PSNR (optionally inside or outside a mask), SSIM, AUROC.
+//! - [`ground_truth`]: scores an edited scene of a built-in benchmark scene against
+//!   its ground-truth edit on the test views (SPEC "Evaluation": target PSNR inside
+//!   the target mask against the ground-truth edit, background PSNR outside it
+//!   against the original, SSIM, gate AUROC against the per-Gaussian target label).
+//! - [`heatmap`]: per-Gaussian values (the gate) rendered as a colour map.
+//! - [`demo`]: the built-in benchmark: a scene, the simulated editor, TransSplat and
+//!   every baseline and ablation, `metrics.json` and `report.html` ([`report`]).
+
+pub mod demo;
+pub mod ground_truth;
+pub mod heatmap;
+pub mod metrics;
+pub mod report;
