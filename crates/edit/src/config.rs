@@ -189,7 +189,7 @@ impl Default for EditConfig {
             loss: LossConfig::default(),
             schedule: ScheduleConfig::default(),
             lr: LearningRates::default(),
-            pixel_samples: 512,
+            pixel_samples: 256,
             masklift_threshold: 0.5,
             seed: 0,
         }

@@ -385,7 +385,10 @@ pub fn run(
                         crate::normalize(&mut p, 1e-8);
                         phi.extend(p);
                     }
-                    Ok(view::transport(idx, a, &m2d, &sv, &phi, &v.protos, diag(cam), &cfg.transport)?)
+                    let mut t =
+                        view::transport(idx, a, &m2d, &sv, &phi, &v.protos, diag(cam), &cfg.transport)?;
+                    t.view = v.cam;
+                    Ok(t)
                 })
                 .collect();
             cached = results.into_iter().collect::<Result<_, _>>()?;
@@ -443,18 +446,19 @@ pub fn run(
                     rec.sem =
                         losses::semantic(&tr.model.features, z, &gamma, d, cfg.loss.sem, &mut grads.features);
                 }
-                let nv = cached.len().max(1) as f32;
-                for v in &cached {
+                // L_uot = Σ_v 𝒯_v: one view per step, like L_img (an unbiased estimate of
+                // the mean over views).
+                if let Some(v) = cached.iter().find(|t| t.view == vd.cam) {
                     losses::transport_semantic(
                         &tr.model.features,
                         &v.idx,
                         &v.plan_e,
                         d,
                         cfg.transport.lambda_sem,
-                        cfg.loss.uot / nv,
+                        cfg.loss.uot,
                         &mut grads.features,
                     );
-                    rec.uot += cfg.loss.uot as f64 * v.objective / nv as f64;
+                    rec.uot = cfg.loss.uot as f64 * v.objective;
                 }
                 if cfg.loss.leak > 0.0 {
                     rec.leak = losses::leakage(

@@ -119,6 +119,8 @@ pub fn cost(
 /// The outcome of one view's transport, per visible Gaussian.
 #[derive(Clone, Debug, Default)]
 pub struct ViewTransport {
+    /// Camera index of the view (set by the caller; 0 by default).
+    pub view: usize,
     /// Global indices of the visible Gaussians (the sources).
     pub idx: Vec<u32>,
     /// Source masses a_i^v.
@@ -172,6 +174,7 @@ pub fn transport(
         .flat_map(|(yi, &wi)| yi.iter().map(move |v| v * (wi + cfg.delta)))
         .collect();
     Ok(ViewTransport {
+        view: 0,
         idx,
         a,
         w,
