@@ -123,7 +123,7 @@ impl Default for ScheduleConfig {
     fn default() -> Self {
         ScheduleConfig {
             steps: 600,
-            transport_every: 100,
+            transport_every: 150,
             reedit_every: 0,
             densify_every: 0,
             densify_gate: 0.5,

@@ -121,6 +121,16 @@ struct ViewData {
     mask: Vec<f32>,
 }
 
+/// The source side of one view's transport: visible Gaussians, masses a_i^v,
+/// projected means and normalised appearance descriptors φ_i^v.
+#[derive(Default)]
+struct ViewSources {
+    idx: Vec<u32>,
+    a: Vec<f32>,
+    m2d: Vec<[f32; 2]>,
+    phi: Vec<f32>,
+}
+
 fn splats_of(g: &Gaussians) -> Splats<'_> {
     Splats::new(g)
 }
@@ -353,6 +363,14 @@ pub fn run(
     let mut order: Vec<usize> = Vec::new();
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0xED17);
     let mut force_round = false;
+    // Geometry and opacity stay fixed when their learning rates are zero and nothing
+    // is densified; then the per-view source statistics are computed once.
+    let geometry_frozen = lr.position == 0.0
+        && lr.scale == 0.0
+        && lr.rotation == 0.0
+        && lr.opacity == 0.0
+        && cfg.schedule.densify_every == 0;
+    let mut sources: Vec<ViewSources> = Vec::new();
     let diag = |c: &Camera| ((c.width as f32).powi(2) + (c.height as f32).powi(2)).sqrt();
 
     for step in 0..cfg.schedule.steps {
@@ -367,26 +385,49 @@ pub fn run(
             let s = &tr.model.features;
             let opacity: Vec<f32> = g.opacity_logits.iter().map(|&o| sigmoid(o)).collect();
             let splats = splats_of(g);
+            // Visibility, projected means and appearance descriptors depend only on
+            // geometry and opacity: recomputed only when those can have changed.
+            if !geometry_frozen || sources.len() != views.len() {
+                sources = views
+                    .par_iter()
+                    .map(|v| {
+                        if v.protos.is_empty() {
+                            return ViewSources::default();
+                        }
+                        let st = gaussian_stats(&splats, &job.cameras[v.cam], Some((&v.app, v.d_app)));
+                        let (idx, a) = view::source_masses(&st.visibility, &opacity);
+                        let m2d: Vec<[f32; 2]> = idx.iter().map(|&i| st.means2d[i as usize]).collect();
+                        let mut phi: Vec<f32> = Vec::with_capacity(idx.len() * v.d_app);
+                        for &i in &idx {
+                            let mut p = st.splat[i as usize * v.d_app..(i as usize + 1) * v.d_app].to_vec();
+                            crate::normalize(&mut p, 1e-8);
+                            phi.extend(p);
+                        }
+                        ViewSources { idx, a, m2d, phi }
+                    })
+                    .collect();
+            }
             let results: Vec<Result<ViewTransport, EditError>> = views
                 .par_iter()
-                .filter(|v| !v.protos.is_empty())
-                .map(|v| {
+                .zip(&sources)
+                .filter(|(v, _)| !v.protos.is_empty())
+                .map(|(v, src)| {
                     let cam = &job.cameras[v.cam];
-                    let st = gaussian_stats(&splats, cam, Some((&v.app, v.d_app)));
-                    let (idx, a) = view::source_masses(&st.visibility, &opacity);
-                    let m2d: Vec<[f32; 2]> = idx.iter().map(|&i| st.means2d[i as usize]).collect();
-                    let sv: Vec<f32> = idx
+                    let sv: Vec<f32> = src
+                        .idx
                         .iter()
                         .flat_map(|&i| s[i as usize * d..(i as usize + 1) * d].iter().copied())
                         .collect();
-                    let mut phi: Vec<f32> = Vec::with_capacity(idx.len() * v.d_app);
-                    for &i in &idx {
-                        let mut p = st.splat[i as usize * v.d_app..(i as usize + 1) * v.d_app].to_vec();
-                        crate::normalize(&mut p, 1e-8);
-                        phi.extend(p);
-                    }
-                    let mut t =
-                        view::transport(idx, a, &m2d, &sv, &phi, &v.protos, diag(cam), &cfg.transport)?;
+                    let mut t = view::transport(
+                        src.idx.clone(),
+                        src.a.clone(),
+                        &src.m2d,
+                        &sv,
+                        &src.phi,
+                        &v.protos,
+                        diag(cam),
+                        &cfg.transport,
+                    )?;
                     t.view = v.cam;
                     Ok(t)
                 })
@@ -489,6 +530,7 @@ pub fn run(
                 *gr = r.gather(gr, 1);
             }
             cached.clear();
+            sources.clear();
             force_round = cfg.method.uses_transport();
         }
         progress(Progress::Step {
