@@ -20,6 +20,8 @@ enum Command {
     /// The built-in benchmark: a built-in scene, the simulated editor, TransSplat and
     /// every baseline and ablation scored against ground truth (no weights, no inputs).
     Demo(commands::demo::DemoArgs),
+    /// Edit a scene from an instruction with a 2D editor (folder, command or simulated).
+    Edit(commands::edit::EditArgs),
     /// Render every camera of a scene to PNG (and raw .npy).
     Render(commands::render::RenderArgs),
     /// Print a summary of a scene: count, SH degree, bounding box, opacity and scale.
@@ -69,6 +71,7 @@ fn main() {
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
     let result = match &cli.command {
         Command::Demo(a) => commands::demo::run(a, &CANCEL),
+        Command::Edit(a) => commands::edit::run(a, &CANCEL),
         Command::Render(a) => commands::render::run(a),
         Command::Info(a) => commands::info::run(a),
         Command::Uot(a) => commands::uot::run(a),

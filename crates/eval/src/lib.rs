@@ -10,6 +10,7 @@
 //!   every baseline and ablation, `metrics.json` and `report.html` ([`report`]).
 
 pub mod demo;
+pub mod edit_output;
 pub mod ground_truth;
 pub mod heatmap;
 pub mod metrics;

@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod common;
 pub mod demo;
+pub mod edit;
 pub mod info;
 pub mod render;
 pub mod scene;

@@ -1,0 +1,218 @@
+//! `transsplat edit`: language-driven editing of a scene with any 2D editor.
+
+use super::common::{load_cameras, load_scene, parse_rgb, progress, SceneArgs};
+use anyhow::{bail, Context, Result};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use transsplat_edit::config::Method;
+use transsplat_edit::engine::{self, EditJob, Progress};
+use transsplat_edit::EditConfig;
+use transsplat_editors::{CommandEditor, Editor, FolderEditor, SimulatedEditor};
+use transsplat_eval::edit_output::{self, EditOutput, MARKER};
+use transsplat_scene::atomic::StagedDir;
+
+/// Which 2D editor produces the edits.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EditorKind {
+    /// Edited images made by any tool, in `--edits DIR` (see `transsplat views export`).
+    Folder,
+    /// Runs `--command CMD` on exported views (file protocol in the editors crate docs).
+    Command,
+    /// Ground-truth edits of a built-in scene, corrupted like a 2D editor's.
+    Simulated,
+}
+
+/// Arguments of `transsplat edit`.
+#[derive(clap::Args, Debug)]
+pub struct EditArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Cameras: cameras.json, transforms.json or a COLMAP folder (default: beside the scene).
+    #[arg(long, conflicts_with = "data")]
+    pub cameras: Option<PathBuf>,
+    /// A dataset folder (COLMAP, transforms.json or cameras.json layout) giving the cameras.
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// The instruction, e.g. "make the ball blue".
+    #[arg(long)]
+    pub prompt: String,
+    #[arg(long, value_enum)]
+    pub editor: EditorKind,
+    /// Folder of edited images (`folder` editor).
+    #[arg(long)]
+    pub edits: Option<PathBuf>,
+    /// Command line to run (`command` editor).
+    #[arg(long)]
+    pub command: Option<String>,
+    /// Simulated editor severity (0 = perfect edits).
+    #[arg(long, default_value_t = 1.0)]
+    pub severity: f32,
+    /// TOML file of edit settings.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Method: transsplat, naive, masklift, no_leaksup, no_prototype, geometric.
+    #[arg(long)]
+    pub method: Option<String>,
+    /// Optimisation steps (overrides the config).
+    #[arg(long)]
+    pub steps: Option<usize>,
+    /// Background colour R,G,B in [0, 1].
+    #[arg(long, value_parser = parse_rgb, default_value = "0,0,0")]
+    pub background: [f32; 3],
+    /// Output folder (replaced only if it holds an earlier edit's output).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// The built-in scene a dataset folder written by `transsplat scene` came from.
+fn builtin_scene(scene_arg: &Path) -> Result<transsplat_scenes::Scene> {
+    let root = if scene_arg.is_dir() {
+        scene_arg.to_path_buf()
+    } else {
+        scene_arg
+            .parent()
+            .and_then(Path::parent)
+            .and_then(Path::parent)
+            .map(Path::to_path_buf)
+            .unwrap_or_default()
+    };
+    let labels = root.join("labels.json");
+    let text = std::fs::read_to_string(&labels).with_context(|| {
+        format!(
+            "{}: the simulated editor needs a built-in scene folder written by `transsplat scene`",
+            labels.display()
+        )
+    })?;
+    let v: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{}: not JSON", labels.display()))?;
+    let name = v["scene"].as_str().with_context(|| format!("{}: no scene name", labels.display()))?;
+    let cfg = transsplat_scenes::SceneConfig {
+        seed: v["seed"].as_u64().unwrap_or(0),
+        detail: v["detail"].as_f64().unwrap_or(1.0) as f32,
+        width: v["width"].as_u64().unwrap_or(256) as u32,
+        height: v["height"].as_u64().unwrap_or(192) as u32,
+        views: v["views"].as_array().map_or(32, |a| a.len()),
+    };
+    Ok(transsplat_scenes::build(name, &cfg)?)
+}
+
+/// Runs `transsplat edit`.
+pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
+    if args.prompt.trim().is_empty() {
+        bail!("--prompt is empty: give an instruction such as \"make the ball blue\"");
+    }
+    let mut config = match &args.config {
+        Some(p) => EditConfig::from_toml_file(p).map_err(anyhow::Error::msg)?,
+        None => EditConfig::default(),
+    };
+    if let Some(m) = &args.method {
+        let method = Method::parse(m).with_context(|| format!("unknown method {m:?}"))?;
+        config = config.for_method(method);
+    }
+    if let Some(s) = args.steps {
+        config.schedule.steps = s;
+    }
+    config.validate().map_err(anyhow::Error::msg)?;
+    let (g, scene_path) = load_scene(&args.scene)?;
+    let cam_arg = args.cameras.as_deref().or(args.data.as_deref());
+    let (cams, cam_path) = load_cameras(cam_arg, &args.scene.scene)?;
+    for c in &cams {
+        c.validate().map_err(|e| anyhow::anyhow!("{}: {e}", cam_path.display()))?;
+    }
+    let out_abs = std::path::absolute(&args.out).unwrap_or(args.out.clone());
+    for input in [&scene_path, &cam_path] {
+        if let Ok(i) = input.canonicalize() {
+            if i.starts_with(&out_abs) || i.parent() == Some(out_abs.as_path()) {
+                bail!("{}: output folder would contain the input {}", args.out.display(), input.display());
+            }
+        }
+    }
+    let test: Vec<usize> = (0..cams.len()).filter(|i| i % 8 == 0).collect();
+    let mut edit_views: Vec<usize> = (0..cams.len()).filter(|i| i % 8 != 0).collect();
+    if edit_views.is_empty() {
+        edit_views = (0..cams.len()).collect();
+    }
+    let staged = StagedDir::begin(&args.out, MARKER)?;
+    let mut editor: Box<dyn Editor> = match args.editor {
+        EditorKind::Folder => {
+            let dir = args.edits.as_ref().context("--editor folder needs --edits DIR")?;
+            Box::new(FolderEditor::new(dir))
+        }
+        EditorKind::Command => {
+            let cmd = args.command.as_ref().context("--editor command needs --command CMD")?;
+            Box::new(CommandEditor::new(cmd.clone(), staged.path().join("editor")))
+        }
+        EditorKind::Simulated => {
+            let scene = builtin_scene(&args.scene.scene)?;
+            if scene.gaussians.len() != g.len() {
+                bail!("{}: the scene does not match its built-in source (labels.json)", scene_path.display());
+            }
+            Box::new(SimulatedEditor::new(&scene, args.severity, config.seed))
+        }
+    };
+    let semantic = |img: &[f32], w: usize, h: usize| transsplat_editors::semantic_fallback(img, w, h);
+    let job = EditJob {
+        gaussians: &g,
+        cameras: &cams,
+        edit_views: edit_views.clone(),
+        background: args.background,
+        prompt: &args.prompt,
+        source_semantic: &semantic,
+    };
+    let bar = progress(config.schedule.steps as u64, "edit");
+    let result = engine::run(&job, editor.as_mut(), &config, Some(cancel), &mut |p| match p {
+        Progress::Step { step, loss, .. } => {
+            bar.set_position(step as u64);
+            if step % 10 == 0 {
+                bar.set_message(format!("loss {loss:.4}"));
+            }
+        }
+        Progress::Round(r) => tracing::debug!(
+            "transport round {}: objective {:.4}, mean gate {:.3}",
+            r.round,
+            r.objective,
+            r.mean_gate
+        ),
+        Progress::Edited { views, seconds } => {
+            tracing::info!("editor {} edited {views} views in {seconds:.1} s", editor_name(args.editor))
+        }
+    });
+    bar.finish_and_clear();
+    let result = result.map_err(|e| match e {
+        engine::EditError::Interrupted(s) => {
+            anyhow::anyhow!("interrupted at step {s}; nothing was written to {}", args.out.display())
+        }
+        e => e.into(),
+    })?;
+    edit_output::write(
+        staged.path(),
+        &EditOutput {
+            source: &g,
+            result: &result,
+            cameras: &cams,
+            test_views: &test,
+            edit_views: &edit_views,
+            background: args.background,
+            prompt: &args.prompt,
+            editor: editor_name(args.editor),
+            config: &config,
+        },
+    )?;
+    let out = staged.commit()?;
+    println!(
+        "edited {} Gaussians in {:.1} s (transport {:.1} s); wrote {}",
+        result.gaussians.len(),
+        result.timing.total,
+        result.timing.transport,
+        out.display()
+    );
+    Ok(())
+}
+
+fn editor_name(k: EditorKind) -> &'static str {
+    match k {
+        EditorKind::Folder => "folder",
+        EditorKind::Command => "command",
+        EditorKind::Simulated => "simulated",
+    }
+}

@@ -1,0 +1,147 @@
+//! End-to-end tests of `transsplat edit`, `transsplat views export` + the folder
+//! editor, and `transsplat demo --quick` through the binary.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_transsplat"))
+}
+
+fn ok(o: &Output) {
+    assert!(
+        o.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+fn quick_scene(dir: &Path) -> std::path::PathBuf {
+    let ds = dir.join("ds");
+    ok(&bin().args(["scene", "tabletop", "--quick", "--out"]).arg(&ds).output().unwrap());
+    ds
+}
+
+#[test]
+fn simulated_edit_writes_the_scene_renders_and_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = quick_scene(dir.path());
+    let out = dir.path().join("edit");
+    let o = bin()
+        .args(["edit", "--scene"])
+        .arg(&ds)
+        .args(["--prompt", "make the ball blue", "--editor", "simulated", "--steps", "60", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    ok(&o);
+    let g = transsplat_scene::ply::read(&out.join("point_cloud/iteration_60/point_cloud.ply")).unwrap();
+    assert!(g.extra.names.iter().filter(|n| n.starts_with("sem_")).count() == 16, "{:?}", g.extra.names);
+    assert!(g.extra.names.iter().any(|n| n == "label"));
+    for f in [
+        "report.html",
+        "transport.json",
+        "cameras.json",
+        "renders/after_view_000.png",
+        "renders/gate_view_000.png",
+    ] {
+        assert!(out.join(f).is_file(), "missing {f}");
+    }
+    let stats: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("transport.json")).unwrap()).unwrap();
+    let rounds = stats["rounds"].as_array().unwrap();
+    assert!(!rounds.is_empty() && rounds[0]["objective"].as_f64().unwrap().is_finite());
+    // A second run may replace its own output; a foreign folder is refused.
+    let foreign = dir.path().join("foreign");
+    std::fs::create_dir(&foreign).unwrap();
+    std::fs::write(foreign.join("keep.txt"), b"mine").unwrap();
+    let o = bin()
+        .args(["edit", "--scene"])
+        .arg(&ds)
+        .args(["--prompt", "make the ball blue", "--editor", "simulated", "--steps", "5", "--out"])
+        .arg(&foreign)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(std::fs::read(foreign.join("keep.txt")).unwrap(), b"mine");
+}
+
+#[test]
+fn bad_edit_inputs_exit_2_and_write_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = quick_scene(dir.path());
+    let out = dir.path().join("edit");
+    let cases: [(&[&str], &str); 4] = [
+        (&["--prompt", "make the unicorn blue", "--editor", "simulated"], "ball, crate"),
+        (&["--prompt", " ", "--editor", "simulated"], "empty"),
+        (&["--prompt", "make the ball blue", "--editor", "folder"], "--edits"),
+        (
+            &["--prompt", "make the ball blue", "--editor", "folder", "--edits", "/nonexistent-edits"],
+            "nonexistent-edits",
+        ),
+    ];
+    for (args, needle) in cases {
+        let o = bin().args(["edit", "--scene"]).arg(&ds).args(args).arg("--out").arg(&out).output().unwrap();
+        assert_eq!(o.status.code(), Some(2), "{args:?}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert!(!out.exists(), "{args:?} left an output folder");
+    }
+}
+
+#[test]
+fn exported_views_edited_elsewhere_come_back_through_the_folder_editor() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = quick_scene(dir.path());
+    let views = dir.path().join("views");
+    ok(&bin().args(["views", "export", "--scene"]).arg(&ds).arg("--out").arg(&views).output().unwrap());
+    // "Edit" the exports elsewhere: tint every view's right half blue.
+    let mut n = 0;
+    for e in std::fs::read_dir(&views).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_some_and(|x| x == "png") {
+            let mut img = transsplat_scene::image::read(&p).unwrap();
+            let w = img.width;
+            for (i, px) in img.data.chunks_exact_mut(3).enumerate() {
+                if i % w > w / 2 {
+                    px[2] = 1.0;
+                }
+            }
+            transsplat_scene::image::write_png(&p, img.width, img.height, &img.data).unwrap();
+            n += 1;
+        }
+    }
+    assert!(n > 0);
+    let out = dir.path().join("edit");
+    ok(&bin()
+        .args(["edit", "--scene"])
+        .arg(&ds)
+        .args(["--prompt", "make the right side blue", "--editor", "folder", "--steps", "30", "--edits"])
+        .arg(&views)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap());
+    assert!(out.join("point_cloud/iteration_30/point_cloud.ply").is_file());
+}
+
+#[test]
+fn quick_demo_writes_metrics_for_every_method_and_transsplat_leaks_less_than_naive() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    ok(&bin().args(["demo", "--quick", "--out"]).arg(&out).output().unwrap());
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
+    for name in ["transsplat", "naive", "masklift", "no_leaksup", "no_prototype", "geometric"] {
+        let e = &m["methods"][name];
+        for k in ["target_psnr", "background_psnr", "psnr", "ssim", "seconds"] {
+            assert!(e[k].as_f64().is_some_and(f64::is_finite), "{name}.{k}");
+        }
+        assert!(e.get("gate_auroc").is_some(), "{name}.gate_auroc");
+    }
+    let bg = |n: &str| m["methods"][n]["background_psnr"].as_f64().unwrap();
+    assert!(bg("transsplat") > bg("naive") + 1.0, "transsplat {} vs naive {}", bg("transsplat"), bg("naive"));
+    assert!(m["methods"]["transsplat"]["gate_auroc"].as_f64().unwrap() > 0.9);
+    assert!(out.join("report.html").is_file() && out.join("transsplat/point_cloud.ply").is_file());
+}

@@ -1,0 +1,133 @@
+//! The output folder of `transsplat edit`: the edited scene in the INRIA layout
+//! (semantic latents as extra `sem_*` properties), before/after renders and gate heat
+//! maps of the test views, per-round transport statistics and `report.html`.
+
+use crate::heatmap::render_values;
+use crate::report::Page;
+use std::path::Path;
+use transsplat_edit::engine::EditResult;
+use transsplat_edit::EditConfig;
+use transsplat_raster::{render, RenderOptions, Splats};
+use transsplat_scene::{atomic, cameras, image, ply, Camera, Gaussians};
+
+/// File that marks a finished edit folder.
+pub const MARKER: &str = "transport.json";
+
+/// Everything `write` needs.
+pub struct EditOutput<'a> {
+    pub source: &'a Gaussians,
+    pub result: &'a EditResult,
+    pub cameras: &'a [Camera],
+    pub test_views: &'a [usize],
+    pub edit_views: &'a [usize],
+    pub background: [f32; 3],
+    pub prompt: &'a str,
+    pub editor: &'a str,
+    pub config: &'a EditConfig,
+}
+
+/// Writes the edit's outputs into `dir` (a staged folder).
+pub fn write(dir: &Path, o: &EditOutput) -> Result<(), transsplat_scene::Error> {
+    let r = o.result;
+    let steps = o.config.schedule.steps;
+    let pc = dir.join(format!("point_cloud/iteration_{steps}"));
+    std::fs::create_dir_all(&pc).map_err(|e| transsplat_scene::Error::io(&pc, e))?;
+    ply::write(&pc.join("point_cloud.ply"), &r.gaussians)?;
+    cameras::inria::write(&dir.join("cameras.json"), o.cameras)?;
+    let rd = dir.join("renders");
+    std::fs::create_dir_all(&rd).map_err(|e| transsplat_scene::Error::io(&rd, e))?;
+    let opts = RenderOptions { background: o.background };
+    let (before, after) = (Splats::new(o.source), Splats::new(&r.gaussians));
+    let mut grid = Vec::new();
+    for &v in o.test_views {
+        let cam = &o.cameras[v];
+        let (w, h) = (cam.width as usize, cam.height as usize);
+        let stem = cam.stem();
+        image::write_png(&rd.join(format!("before_{stem}.png")), w, h, &render(&before, cam, &opts).0.rgb)?;
+        image::write_png(&rd.join(format!("after_{stem}.png")), w, h, &render(&after, cam, &opts).0.rgb)?;
+        let mut cells = vec![
+            ("before".to_string(), format!("renders/before_{stem}.png")),
+            ("after".to_string(), format!("renders/after_{stem}.png")),
+        ];
+        if let Some(g) = &r.gate {
+            image::write_png(
+                &rd.join(format!("gate_{stem}.png")),
+                w,
+                h,
+                &render_values(&r.gaussians, g, cam),
+            )?;
+            cells.push(("gate".to_string(), format!("renders/gate_{stem}.png")));
+        }
+        grid.push((stem, cells));
+    }
+    // The editor's 2D edits of a few views, for inspection.
+    let mut edits = Vec::new();
+    for (k, (e, &v)) in r.edited.iter().zip(o.edit_views).enumerate() {
+        let Some(e) = e else { continue };
+        if k % 4 != 0 {
+            continue;
+        }
+        let stem = o.cameras[v].stem();
+        image::write_png(&rd.join(format!("edited2d_{stem}.png")), e.width, e.height, &e.image)?;
+        let amax = e.attention.iter().fold(0.0f32, |m, &a| m.max(a)).max(1e-12);
+        let att: Vec<f32> = e.attention.iter().flat_map(|&a| [a / amax; 3]).collect();
+        image::write_png(&rd.join(format!("attention_{stem}.png")), e.width, e.height, &att)?;
+        edits.push((
+            stem.clone(),
+            vec![
+                ("2D edit".to_string(), format!("renders/edited2d_{stem}.png")),
+                ("attention".to_string(), format!("renders/attention_{stem}.png")),
+            ],
+        ));
+    }
+    let stats = serde_json::json!({
+        "prompt": o.prompt, "editor": o.editor, "method": o.config.method.name(),
+        "rounds": r.rounds, "losses": r.losses, "timing": r.timing, "prototypes": r.prototypes,
+        "gaussians": r.gaussians.len(),
+        "mean_gate": r.gate.as_ref().map(|g| g.iter().map(|&x| x as f64).sum::<f64>() / g.len().max(1) as f64),
+    });
+    let mut p = Page::new(&format!("transsplat edit: \"{}\"", o.prompt));
+    p.paragraph(&format!(
+        "Editor {}, method {}, {} Gaussians, {:.1} s (editor {:.1} s, transport {:.1} s, optimisation {:.1} s).",
+        o.editor,
+        o.config.method.name(),
+        r.gaussians.len(),
+        r.timing.total,
+        r.timing.editor,
+        r.timing.transport,
+        r.timing.optimise
+    ));
+    p.heading("Test views: before, after, gate");
+    p.image_grid(&grid);
+    p.heading("The editor's 2D edits and attention (every 4th edit view)");
+    p.image_grid(&edits);
+    p.heading("Losses and transport statistics");
+    let pts = |f: &dyn Fn(usize) -> (f64, f64), n: usize| (0..n).map(f).collect::<Vec<_>>();
+    let l = &r.losses;
+    p.plot(
+        "losses per step",
+        &[
+            ("L_img".into(), pts(&|i| (l[i].step as f64, l[i].img), l.len())),
+            ("L_leak".into(), pts(&|i| (l[i].step as f64, l[i].leak), l.len())),
+            ("L_sem".into(), pts(&|i| (l[i].step as f64, l[i].sem), l.len())),
+        ],
+    );
+    let rs = &r.rounds;
+    p.plot(
+        "transport objective and dual",
+        &[
+            ("objective".into(), pts(&|i| (rs[i].round as f64, rs[i].objective), rs.len())),
+            ("dual".into(), pts(&|i| (rs[i].round as f64, rs[i].dual), rs.len())),
+        ],
+    );
+    p.plot(
+        "transported mass",
+        &[("mass".into(), pts(&|i| (rs[i].round as f64, rs[i].transported_mass), rs.len()))],
+    );
+    p.plot("mean gate", &[("mean γ".into(), pts(&|i| (rs[i].round as f64, rs[i].mean_gate), rs.len()))]);
+    p.heading("Settings");
+    p.preformatted(&o.config.to_toml());
+    atomic::write_bytes(&dir.join("report.html"), p.finish().as_bytes())?;
+    atomic::write_bytes(&dir.join(MARKER), serde_json::to_string_pretty(&stats).expect("json").as_bytes())?;
+    Ok(())
+}
