@@ -35,6 +35,9 @@ pub enum EditError {
     Interrupted(usize),
 }
 
+/// Semantic features of an image: `(image, w, h)` → `(H × W × d, d)`.
+pub type SemanticFn = dyn Fn(&[f32], usize, usize) -> (Vec<f32>, usize) + Sync;
+
 /// What the edit works on.
 pub struct EditJob<'a> {
     /// The source scene.
@@ -47,7 +50,7 @@ pub struct EditJob<'a> {
     pub prompt: &'a str,
     /// Semantic features of a source render (`image, w, h` → `(H×W×d, d)`); must be
     /// the same feature extractor as the editor's E_v.
-    pub source_semantic: &'a (dyn Fn(&[f32], usize, usize) -> (Vec<f32>, usize) + Sync),
+    pub source_semantic: &'a SemanticFn,
 }
 
 /// Statistics of one transport round.
@@ -326,28 +329,31 @@ pub fn run(
 
     // 5. The optimiser.
     let lr = &cfg.lr;
-    let mut tcfg = TrainConfig::default();
-    tcfg.iterations = cfg.schedule.steps as u64;
-    tcfg.lr = transsplat_train::LearningRates {
-        position_init: lr.position,
-        position_final: lr.position * 0.01,
-        position_max_steps: None,
-        sh_dc: lr.sh_dc,
-        sh_rest: lr.sh_rest,
-        opacity: lr.opacity,
-        scaling: lr.scale,
-        rotation: lr.rotation,
-        features: lr.semantic,
-    };
-    tcfg.densify = DensifyConfig { sh_degree_interval: 0, ..DensifyConfig::disabled() };
+    let mut densify = DensifyConfig { sh_degree_interval: 0, ..DensifyConfig::disabled() };
     if cfg.schedule.densify_every > 0 {
-        tcfg.densify.from_step = 0;
-        tcfg.densify.until_step = cfg.schedule.steps as u64 + 1;
-        tcfg.densify.interval = cfg.schedule.densify_every as u64;
-        tcfg.densify.opacity_reset_interval = 0;
+        densify.from_step = 0;
+        densify.until_step = cfg.schedule.steps as u64 + 1;
+        densify.interval = cfg.schedule.densify_every as u64;
+        densify.opacity_reset_interval = 0;
     }
-    tcfg.background = job.background;
-    tcfg.seed = cfg.seed;
+    let tcfg = TrainConfig {
+        iterations: cfg.schedule.steps as u64,
+        lr: transsplat_train::LearningRates {
+            position_init: lr.position,
+            position_final: lr.position * 0.01,
+            position_max_steps: None,
+            sh_dc: lr.sh_dc,
+            sh_rest: lr.sh_rest,
+            opacity: lr.opacity,
+            scaling: lr.scale,
+            rotation: lr.rotation,
+            features: lr.semantic,
+        },
+        densify,
+        background: job.background,
+        seed: cfg.seed,
+        ..TrainConfig::default()
+    };
     let extent = transsplat_train::trainer::scene_extent(job.cameras);
     let model = Model::with_features(g0.clone(), s_init, d).map_err(EditError::Train)?;
     let mut tr = Trainer::new(model, extent, tcfg).map_err(|e| EditError::Train(e.to_string()))?;

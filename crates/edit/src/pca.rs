@@ -129,8 +129,8 @@ impl Pca {
         let (di, d) = (self.d_in, self.d);
         let mut out = vec![0.0f32; plane.len() / di * d];
         out.par_chunks_mut(d).zip(plane.par_chunks(di)).with_min_len(1024).for_each(|(o, x)| {
-            for i in 0..di {
-                let xi = x[i] - self.mean[i];
+            for (i, (&xv, &m)) in x.iter().zip(&self.mean).enumerate() {
+                let xi = xv - m;
                 if xi != 0.0 {
                     let row = &self.basis[i * d..(i + 1) * d];
                     for (oj, bj) in o.iter_mut().zip(row) {
