@@ -272,10 +272,10 @@ mod tests {
         let c = EditConfig::default();
         assert_eq!(
             (c.prototypes.count, c.semantic_dim, c.transport.iters, c.transport.top_k),
-            (32, 16, 30, 128)
+            (32, 16, 30, 0)
         );
-        let c = EditConfig::from_toml("[transport]\ntop_k = 0\neps = 0.1\n[loss]\nleak = 2.0\n").unwrap();
-        assert_eq!(c.transport.top_k, 0);
+        let c = EditConfig::from_toml("[transport]\ntop_k = 128\neps = 0.1\n[loss]\nleak = 2.0\n").unwrap();
+        assert_eq!(c.transport.top_k, 128);
         assert_eq!(c.loss.leak, 2.0);
         assert_eq!(c.prototypes.count, 32);
         let back = EditConfig::from_toml(&c.to_toml()).unwrap();

@@ -560,7 +560,9 @@ impl<'p, L: Layout> Engine<'p, L> {
         if !mx.is_finite() {
             return f64::NEG_INFINITY;
         }
-        let s: f64 = (0..n).into_par_iter().map(|r| (x(r) - mx).exp()).sum();
+        let s: f64 = crate::det_chunks(n, 8192, |range| range.map(|r| (x(r) - mx).exp()).sum::<f64>())
+            .into_iter()
+            .sum();
         mx + s.ln()
     }
 

@@ -82,6 +82,17 @@ impl Params {
     }
 }
 
+/// `f` over fixed chunks of `0..n` in parallel, results in chunk order: callers
+/// combine them sequentially so floating-point sums do not depend on scheduling.
+pub(crate) fn det_chunks<T: Send>(
+    n: usize,
+    chunk: usize,
+    f: impl Fn(std::ops::Range<usize>) -> T + Sync,
+) -> Vec<T> {
+    use rayon::prelude::*;
+    (0..n.div_ceil(chunk)).into_par_iter().map(|c| f(c * chunk..((c + 1) * chunk).min(n))).collect()
+}
+
 /// Validation shared by the solvers; `Some` for problems whose answer is the empty plan.
 pub(crate) fn prepare(p: &Problem<'_>, params: &Params) -> Result<Option<Solution>> {
     params.validate()?;

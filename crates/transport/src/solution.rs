@@ -103,18 +103,24 @@ pub(crate) fn finish(p: &Problem<'_>, params: &Params, raw: Raw) -> Solution {
     let (a, b) = (p.a, p.b);
     let f = &raw.potentials.f;
     let g = &raw.potentials.g;
-    let sa: f64 = a.par_iter().map(|&x| x as f64).sum();
+    let sa: f64 = a.iter().map(|&x| x as f64).sum();
     let sb: f64 = b.iter().map(|&x| x as f64).sum();
-    // Per-source sums in parallel: (f r, mass, KL(r|a), |r - a|, dual source term).
-    let (fr, mass, kl_s, err_s, dual_s) = (0..a.len())
-        .into_par_iter()
-        .map(|i| {
+    // Per-source sums in parallel over fixed chunks, combined in order, so the result
+    // does not depend on thread scheduling: (f r, mass, KL(r|a), |r - a|, dual term).
+    let (fr, mass, kl_s, err_s, dual_s) = crate::det_chunks(a.len(), 8192, |range| {
+        let mut acc = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for i in range {
             let (r, ai) = (raw.row_mass[i], a[i] as f64);
-            let fr = if r > 0.0 { f[i] * r } else { 0.0 };
-            let d = if ai > 0.0 { ai * phi(f[i], params.tau_s) } else { 0.0 };
-            (fr, r, kl(r, ai), (r - ai).abs(), d)
-        })
-        .reduce(|| (0.0, 0.0, 0.0, 0.0, 0.0), |x, y| (x.0 + y.0, x.1 + y.1, x.2 + y.2, x.3 + y.3, x.4 + y.4));
+            acc.0 += if r > 0.0 { f[i] * r } else { 0.0 };
+            acc.1 += r;
+            acc.2 += kl(r, ai);
+            acc.3 += (r - ai).abs();
+            acc.4 += if ai > 0.0 { ai * phi(f[i], params.tau_s) } else { 0.0 };
+        }
+        acc
+    })
+    .into_iter()
+    .fold((0.0, 0.0, 0.0, 0.0, 0.0), |x, y| (x.0 + y.0, x.1 + y.1, x.2 + y.2, x.3 + y.3, x.4 + y.4));
     let mut gc = 0.0;
     let mut kl_t = 0.0;
     let mut err_t = 0.0;
