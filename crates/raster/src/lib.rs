@@ -274,6 +274,17 @@ pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, gr
     ] {
         assert!(v.is_empty() || v.len() == want, "{name} gradient has {} values, expected {want}", v.len());
     }
+    let n = splats.len();
+    assert!(
+        grads.means.len() == n
+            && grads.log_scales.len() == n
+            && grads.rotations.len() == n
+            && grads.opacity_logits.len() == n
+            && grads.sh.len() == n * sh_coeffs(splats.sh_degree) * 3
+            && grads.features.len() >= n * f
+            && grads.means2d.len() == n,
+        "gradient arrays do not match the Gaussians"
+    );
     let stride = kernel::grad_stride(f);
     let st = ForwardState { final_t: &frame.final_t, last: &frame.last, background: frame.background };
     let pg = PixelGrads { rgb: g.rgb, alpha: g.alpha, depth: g.depth, features: g.features };
@@ -291,45 +302,53 @@ pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, gr
     let view = View::new(cam);
     let kc = sh_coeffs(splats.sh_degree) * 3;
     let active = splats.active_sh_degree.min(splats.sh_degree);
-    let per: Vec<(project::GaussianGrads, Vec<f32>)> = b
-        .ids
-        .par_iter()
-        .enumerate()
-        .with_min_len(512)
-        .map(|(j, &id)| {
-            let a = &acc[j * stride..(j + 1) * stride];
-            let sg = Splat2dGrads {
-                xy: [a[0], a[1]],
-                conic: [a[2], a[3], a[4]],
-                opacity: a[5],
-                color: [a[6], a[7], a[8]],
-                depth: a[9],
-            };
-            let mut vsh = vec![0.0f32; sh_coeffs(active) * 3];
-            let gg = project::project_backward(&view, &splats.params(id as usize), &sg, &mut vsh);
-            (gg, vsh)
-        })
-        .collect();
-    for (j, (&id, (gg, vsh))) in b.ids.iter().zip(per).enumerate() {
-        let i = id as usize;
+    let nsh = sh_coeffs(active) * 3;
+    let ptr = (
+        par::SharedMut(grads.means.as_mut_ptr()),
+        par::SharedMut(grads.log_scales.as_mut_ptr()),
+        par::SharedMut(grads.rotations.as_mut_ptr()),
+        par::SharedMut(grads.opacity_logits.as_mut_ptr()),
+        par::SharedMut(grads.sh.as_mut_ptr()),
+        par::SharedMut(grads.features.as_mut_ptr()),
+        par::SharedMut(grads.means2d.as_mut_ptr()),
+    );
+    b.ids.par_iter().enumerate().with_min_len(1024).for_each(|(j, &id)| {
         let a = &acc[j * stride..(j + 1) * stride];
-        for k in 0..3 {
-            grads.means[i][k] += gg.mean[k];
-            grads.log_scales[i][k] += gg.log_scale[k];
+        let sg = Splat2dGrads {
+            xy: [a[0], a[1]],
+            conic: [a[2], a[3], a[4]],
+            opacity: a[5],
+            color: [a[6], a[7], a[8]],
+            depth: a[9],
+        };
+        let i = id as usize;
+        let mut vsh = [0.0f32; 48];
+        let gg = project::project_backward(&view, &splats.params(i), &sg, &mut vsh[..nsh]);
+        // SAFETY: `ids` holds each Gaussian at most once, so every task writes a
+        // disjoint set of entries, all in bounds (checked by `Grads` shapes above).
+        unsafe {
+            let m = &mut *ptr.0.get().add(i);
+            let l = &mut *ptr.1.get().add(i);
+            for k in 0..3 {
+                m[k] += gg.mean[k];
+                l[k] += gg.log_scale[k];
+            }
+            let r = &mut *ptr.2.get().add(i);
+            for k in 0..4 {
+                r[k] += gg.quat[k];
+            }
+            *ptr.3.get().add(i) += gg.opacity_logit;
+            for (k, v) in vsh[..nsh].iter().enumerate() {
+                *ptr.4.get().add(i * kc + k) += v;
+            }
+            for k in 0..f {
+                *ptr.5.get().add(i * f + k) += a[10 + k];
+            }
+            let m2 = &mut *ptr.6.get().add(i);
+            m2[0] += a[0];
+            m2[1] += a[1];
         }
-        for k in 0..4 {
-            grads.rotations[i][k] += gg.quat[k];
-        }
-        grads.opacity_logits[i] += gg.opacity_logit;
-        for (d, s) in grads.sh[i * kc..i * kc + vsh.len()].iter_mut().zip(&vsh) {
-            *d += s;
-        }
-        for k in 0..f {
-            grads.features[i * f + k] += a[10 + k];
-        }
-        grads.means2d[i][0] += a[0];
-        grads.means2d[i][1] += a[1];
-    }
+    });
 }
 
 /// Per-Gaussian statistics of one view (SPEC, Method 1), and the splat-back.
