@@ -40,6 +40,7 @@
 use crate::features::{complete, gaussian_blur};
 use crate::{EditedView, Editor, Error, SourceView};
 use rayon::prelude::*;
+use transsplat_scene::rng::SplitMix64;
 use transsplat_scene::Gaussians;
 use transsplat_scenes::{edit::dc_colour, render_labels, Material, Scene};
 
@@ -203,35 +204,11 @@ pub fn parse_instruction(scene: &Scene, prompt: &str) -> Result<Instruction, Err
     }
 }
 
-/// SplitMix64: small, seedable, deterministic.
-struct Rng(u64);
-
-impl Rng {
-    fn for_view(seed: u64, index: usize) -> Self {
-        let mut r = Rng(seed ^ (index as u64).wrapping_add(1).wrapping_mul(0xD1B5_4A32_D192_ED03));
-        r.next();
-        r
-    }
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [0, 1).
-    fn unit(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32
-    }
-    fn range(&mut self, lo: f32, hi: f32) -> f32 {
-        lo + (hi - lo) * self.unit()
-    }
-    /// Standard normal (Box–Muller).
-    fn normal(&mut self) -> f32 {
-        let u1 = (self.unit() as f64).max(1e-12);
-        let u2 = self.unit() as f64;
-        ((-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()) as f32
-    }
+/// The per-view generator: SplitMix64 seeded by (seed, view index).
+fn view_rng(seed: u64, index: usize) -> SplitMix64 {
+    let mut r = SplitMix64::new(seed ^ (index as u64).wrapping_add(1).wrapping_mul(0xD1B5_4A32_D192_ED03));
+    r.next_u64();
+    r
 }
 
 /// Squared Euclidean distance transform of one line (Felzenszwalb & Huttenlocher):
@@ -298,7 +275,7 @@ pub fn distance_to(mask: &[bool], w: usize, h: usize) -> Option<Vec<f32>> {
 }
 
 /// A smooth noise field with zero mean and unit standard deviation.
-fn smooth_noise(rng: &mut Rng, w: usize, h: usize) -> Vec<f32> {
+fn smooth_noise(rng: &mut SplitMix64, w: usize, h: usize) -> Vec<f32> {
     let white: Vec<f32> = (0..w * h).map(|_| rng.normal()).collect();
     let mut n = gaussian_blur(&white, w, h, 2.0);
     let len = n.len().max(1) as f64;
@@ -329,7 +306,7 @@ fn corrupt(
     h: usize,
     edit_colour: [f32; 3],
     severity: f32,
-    rng: &mut Rng,
+    rng: &mut SplitMix64,
     want_mask: bool,
 ) -> Corrupted {
     let n = w * h;
@@ -376,14 +353,14 @@ fn corrupt(
     }
 
     // 3. spurious blobs outside the target and its spill ring
-    let count = ((rng.unit() * (3.0 * s + 1.0)).floor() as usize).min(8);
+    let count = ((rng.uniform() * (3.0 * s + 1.0)).floor() as usize).min(8);
     let mut blobs = vec![0.0f32; n];
     for _ in 0..count {
         let r = rng.range(0.02, 0.05) * diag;
         let strength = (s * rng.range(0.35, 0.7)).min(1.0);
         let mut centre = None;
         for _ in 0..20 {
-            let (x, y) = (rng.unit() * w as f32, rng.unit() * h as f32);
+            let (x, y) = (rng.uniform() * w as f32, rng.uniform() * h as f32);
             let i = (y as usize).min(h - 1) * w + (x as usize).min(w - 1);
             let clear = match &dist {
                 Some(d) => d[i] > rho.max(1.0) + r,
@@ -529,7 +506,7 @@ impl Editor for SimulatedEditor {
                 let (w, h) = v.size();
                 let r = render_labels(gt, &scene.labels, num_labels, v.camera, scene.background);
                 let target: Vec<bool> = r.labels.iter().map(|&l| l == ins.label).collect();
-                let mut rng = Rng::for_view(seed, v.index);
+                let mut rng = view_rng(seed, v.index);
                 let weight = r.weight(ins.label);
                 let c = corrupt(&r.rgb, &weight, &target, w, h, *colour, severity, &mut rng, want_mask);
                 Some(complete(c.image, w, h, c.attention, c.mask))

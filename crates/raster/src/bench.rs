@@ -7,27 +7,7 @@
 
 use crate::{backward, gaussian_stats, render, Grads, ImageGrads, RenderOptions, Splats};
 use std::time::Instant;
-use transsplat_scene::{Camera, Gaussians};
-
-/// Small deterministic generator (SplitMix64), so the scene needs no RNG crate.
-struct SplitMix(u64);
-impl SplitMix {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn uniform(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32
-    }
-    fn normal(&mut self) -> f32 {
-        let u = self.uniform().max(1e-7);
-        let v = self.uniform();
-        (-2.0 * u.ln()).sqrt() * (std::f32::consts::TAU * v).cos()
-    }
-}
+use transsplat_scene::{rng::SplitMix64, Camera, Gaussians};
 
 /// The benchmark camera: at the origin looking down +z, 60° horizontal field of view.
 pub fn bench_camera(width: u32, height: u32) -> Camera {
@@ -47,7 +27,7 @@ pub fn bench_camera(width: u32, height: u32) -> Camera {
 
 /// `n` Gaussians filling the frustum of [`bench_camera`] (resolution-independent).
 pub fn bench_scene(n: usize, seed: u64) -> Gaussians {
-    let mut rng = SplitMix(seed ^ 0x5EED);
+    let mut rng = SplitMix64::new(seed ^ 0x5EED);
     let tan = 30f32.to_radians().tan();
     // Footprint area per Gaussian ∝ 1/n keeps ~120 overlaps per pixel.
     let pixel_sigma = (0.5 * 512.0 * 512.0 * 120.0 / (n as f32 * std::f32::consts::PI * 9.0)).sqrt();

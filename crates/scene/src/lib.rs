@@ -20,6 +20,7 @@ pub mod gaussians;
 pub mod image;
 pub mod npy;
 pub mod ply;
+pub mod rng;
 pub mod scene_paths;
 
 pub use camera::Camera;

@@ -10,7 +10,7 @@
 //! from a closure of the position (the texture); a small random degree-1 SH term gives
 //! some view dependence.
 
-use crate::rng::Rng;
+use crate::rng::{seeded, Rng};
 use transsplat_scene::Gaussians;
 
 /// The SH DC basis constant: colour = `SH_C0 * f_dc + 0.5`.
@@ -94,7 +94,7 @@ impl Builder {
         Builder {
             g: Gaussians { sh_degree: SH_DEGREE, ..Default::default() },
             labels: Vec::new(),
-            rng: Rng::new(seed),
+            rng: seeded(seed),
             view_dependence: 0.03,
             opacity: 0.97,
         }
