@@ -113,6 +113,17 @@ pub struct Splat2dGrads {
     pub depth: f32,
 }
 
+/// Rotation matrix of a (w, x, y, z) quaternion after normalisation (the identity
+/// for a zero or non-finite quaternion).
+pub fn rotation_matrix(q: [f32; 4]) -> M3 {
+    let n = q.iter().map(|v| v * v).sum::<f32>();
+    if n > 0.0 && n.is_finite() {
+        quat_to_rotmat(q).2
+    } else {
+        [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    }
+}
+
 fn quat_to_rotmat(q: [f32; 4]) -> ([f32; 4], f32, M3) {
     let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
     let [w, x, y, z] = [q[0] / n, q[1] / n, q[2] / n, q[3] / n];

@@ -195,16 +195,9 @@ fn max_scale(ls: &[f32; 3]) -> f32 {
     ls[0].max(ls[1]).max(ls[2]).exp()
 }
 
-/// Rotation matrix of a (w, x, y, z) quaternion, normalised (identity if zero).
-pub fn quat_matrix(q: [f32; 4]) -> [[f32; 3]; 3] {
-    let n = (q.iter().map(|v| v * v).sum::<f32>()).sqrt();
-    let [w, x, y, z] = if n > 0.0 && n.is_finite() { q.map(|v| v / n) } else { [1.0, 0.0, 0.0, 0.0] };
-    [
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
-    ]
-}
+/// Rotation matrix of a (w, x, y, z) quaternion, normalised (identity if zero):
+/// the rasterizer's own, so densification and rendering agree.
+pub use transsplat_raster::project::rotation_matrix as quat_matrix;
 
 /// Standard normal sample (Box–Muller).
 pub(crate) fn normal(rng: &mut ChaCha8Rng) -> f32 {
