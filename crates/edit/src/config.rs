@@ -210,6 +210,39 @@ impl EditConfig {
         Ok(c)
     }
 
+    /// Applies `key.path=value` overrides (command-line `--set`), e.g.
+    /// `transport.top_k=128` or `loss.leak=0.2`; values are TOML (`true`, `1.5`,
+    /// `"transsplat"`), bare words are taken as strings. Unknown keys are errors.
+    pub fn with_overrides(&self, sets: &[String]) -> Result<Self, String> {
+        let mut root: toml::Value = toml::Value::try_from(self).map_err(|e| e.to_string())?;
+        for set in sets {
+            let (key, value) = set
+                .split_once('=')
+                .ok_or_else(|| format!("--set {set:?}: expected KEY=VALUE, e.g. loss.leak=0.2"))?;
+            let value: toml::Value = toml::from_str::<toml::Table>(&format!("v = {}", value.trim()))
+                .ok()
+                .and_then(|mut t| t.remove("v"))
+                .unwrap_or_else(|| toml::Value::String(value.trim().to_string()));
+            let mut node = &mut root;
+            let parts: Vec<&str> = key.trim().split('.').collect();
+            for (k, part) in parts.iter().enumerate() {
+                let table =
+                    node.as_table_mut().ok_or_else(|| format!("--set {set:?}: {part:?} is not a section"))?;
+                if !table.contains_key(*part) {
+                    return Err(format!("--set {set:?}: unknown setting {key:?}"));
+                }
+                if k + 1 == parts.len() {
+                    table.insert(part.to_string(), value.clone());
+                    break;
+                }
+                node = table.get_mut(*part).expect("checked above");
+            }
+        }
+        let c: EditConfig = root.try_into().map_err(|e: toml::de::Error| e.to_string())?;
+        c.validate()?;
+        Ok(c)
+    }
+
     /// The settings as TOML (for reports and for `--config` round trips).
     pub fn to_toml(&self) -> String {
         toml::to_string_pretty(self).expect("config serialises")
@@ -284,5 +317,12 @@ mod tests {
         assert!(EditConfig::from_toml("[transport]\neps = -1.0\n").unwrap_err().contains("transport.eps"));
         assert_eq!(Method::parse("no_prototype"), Some(Method::NoPrototype));
         assert_eq!(c.for_method(Method::Geometric).transport.lambda_sem, 0.0);
+        let o = c
+            .with_overrides(&["transport.top_k=64".into(), "loss.leak = 0.5".into(), "method=naive".into()])
+            .unwrap();
+        assert_eq!((o.transport.top_k, o.loss.leak, o.method), (64, 0.5, Method::Naive));
+        assert!(c.with_overrides(&["transport.nope=1".into()]).unwrap_err().contains("unknown setting"));
+        assert!(c.with_overrides(&["fusion.tau_r=-1".into()]).unwrap_err().contains("fusion.tau_r"));
+        assert!(c.with_overrides(&["leak".into()]).unwrap_err().contains("KEY=VALUE"));
     }
 }

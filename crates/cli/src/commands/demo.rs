@@ -33,6 +33,9 @@ pub struct DemoArgs {
     /// TOML file of edit settings (see `EditConfig`).
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// Override any edit setting, e.g. `--set transport.top_k=128`.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
 }
@@ -43,6 +46,7 @@ pub fn run(args: &DemoArgs, cancel: &AtomicBool) -> Result<()> {
         Some(p) => EditConfig::from_toml_file(p).map_err(anyhow::Error::msg)?,
         None => EditConfig::default(),
     };
+    let config = config.with_overrides(&args.set).map_err(anyhow::Error::msg)?;
     let methods = match &args.methods {
         None => Method::ALL.to_vec(),
         Some(v) => v

@@ -56,6 +56,9 @@ pub struct EditArgs {
     /// Optimisation steps (overrides the config).
     #[arg(long)]
     pub steps: Option<usize>,
+    /// Override any setting, e.g. `--set transport.top_k=128 --set loss.leak=0.2`.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
     /// Background colour R,G,B in [0, 1].
     #[arg(long, value_parser = parse_rgb, default_value = "0,0,0")]
     pub background: [f32; 3],
@@ -109,6 +112,7 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         let method = Method::parse(m).with_context(|| format!("unknown method {m:?}"))?;
         config = config.for_method(method);
     }
+    config = config.with_overrides(&args.set).map_err(anyhow::Error::msg)?;
     if let Some(s) = args.steps {
         config.schedule.steps = s;
     }
