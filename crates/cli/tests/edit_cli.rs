@@ -91,6 +91,28 @@ fn bad_edit_inputs_exit_2_and_write_nothing() {
 }
 
 #[test]
+fn unedited_views_mean_nothing_to_edit() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = quick_scene(dir.path());
+    let views = dir.path().join("views");
+    ok(&bin().args(["views", "export", "--scene"]).arg(&ds).arg("--out").arg(&views).output().unwrap());
+    let out = dir.path().join("edit");
+    let o = bin()
+        .args(["edit", "--scene"])
+        .arg(&ds)
+        .args(["--prompt", "make it nicer", "--editor", "folder", "--edits"])
+        .arg(&views)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("found nothing to edit"), "{err}");
+    assert!(!out.exists());
+}
+
+#[test]
 fn exported_views_edited_elsewhere_come_back_through_the_folder_editor() {
     let dir = tempfile::tempdir().unwrap();
     let ds = quick_scene(dir.path());

@@ -206,6 +206,9 @@ pub fn run(
     cancel: Option<&AtomicBool>,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<EditResult, EditError> {
+    // The method's implied settings (ablations zero some weights), however the
+    // config was assembled.
+    let cfg = &cfg.for_method(cfg.method);
     cfg.validate().map_err(EditError::Input)?;
     if job.prompt.trim().is_empty() {
         return Err(EditError::Input("the instruction (--prompt) is empty".into()));
@@ -239,6 +242,29 @@ pub fn run(
             src_views.len()
         )));
     }
+    for (e, &v) in edited.iter().zip(&job.edit_views) {
+        let Some(e) = e else { continue };
+        let c = &job.cameras[v];
+        let px = c.width as usize * c.height as usize;
+        let ok = e.width == c.width as usize
+            && e.height == c.height as usize
+            && e.image.len() == px * 3
+            && e.attention.len() == px
+            && e.d_sem > 0
+            && e.semantic.len() == px * e.d_sem
+            && e.d_app > 0
+            && e.appearance.len() == px * e.d_app
+            && e.mask.as_ref().is_none_or(|m| m.len() == px);
+        if !ok {
+            return Err(EditError::Input(format!(
+                "editor {} returned an output for view {:?} whose planes do not match the view size {}x{}",
+                editor.name(),
+                c.name,
+                c.width,
+                c.height
+            )));
+        }
+    }
     let editor_s = t_edit.elapsed().as_secs_f64();
     let usable = edited.iter().filter(|e| e.is_some()).count();
     if usable == 0 {
@@ -257,6 +283,9 @@ pub fn run(
         })
         .collect();
     let d_in = src_sem[0].1;
+    if d_in == 0 || src_sem.iter().any(|(p, d)| *d != d_in || p.len() % d_in != 0) {
+        return Err(EditError::Input("the source semantic features are empty or inconsistent".into()));
+    }
     for e in edited.iter().flatten() {
         if e.d_sem != d_in {
             return Err(EditError::Input(format!(
@@ -519,10 +548,13 @@ pub fn run(
                 }
             }
         }
-        let mask: Option<Vec<bool>> = (cfg.schedule.densify_every > 0).then(|| match &lifted {
-            Some(m) => m.clone(),
-            None => gamma.iter().map(|&g| g >= cfg.schedule.densify_gate).collect(),
-        });
+        // Densification only among gated Gaussians (lifted mask for masklift; no
+        // restriction for the ablation without leakage suppression, or for naive).
+        let mask: Option<Vec<bool>> = match (cfg.schedule.densify_every > 0, cfg.method, &lifted) {
+            (false, _, _) | (true, Method::NoLeaksup | Method::Naive, _) => None,
+            (true, _, Some(m)) => Some(m.clone()),
+            (true, _, None) => Some(gamma.iter().map(|&g| g >= cfg.schedule.densify_gate).collect()),
+        };
         let report =
             tr.finish_step(&grads, &frame, mask.as_deref()).map_err(|e| EditError::Train(e.to_string()))?;
         if let Some(r) = &report.reindex {

@@ -110,7 +110,8 @@ pub fn cost(
             if cfg.lambda_app != 0.0 {
                 v += cfg.lambda_app * cosine_distance(pi, &protos.psi[j * da..(j + 1) * da]);
             }
-            *cij = v.max(0.0);
+            // NaN stays NaN so the transport crate reports it; rounding below 0 is clipped.
+            *cij = if v.is_nan() { v } else { v.max(0.0) };
         }
     });
     c

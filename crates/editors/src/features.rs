@@ -287,8 +287,13 @@ pub fn semantic_fallback(image: &[f32], w: usize, h: usize) -> (Vec<f32>, usize)
     (interleave(&planes, n), D_SEM)
 }
 
-/// Smoothed change map: Σ_c |edited − source| per pixel, Gaussian-smoothed with
-/// σ = [`CHANGE_SIGMA`] px; `H × W`, ≥ 0. NaN differences count as 0.
+/// Per-channel change below which a difference is 8-bit quantisation, not an edit.
+pub const CHANGE_FLOOR: f32 = 2.0 / 255.0;
+
+/// Smoothed change map: Σ_c [|edited − source| − floor]_+ per pixel (the floor,
+/// [`CHANGE_FLOOR`], removes 8-bit quantisation noise so an unedited image yields no
+/// attention), Gaussian-smoothed with σ = [`CHANGE_SIGMA`] px; `H × W`, ≥ 0. NaN
+/// differences count as 0.
 pub fn change_attention(source: &[f32], edited: &[f32], w: usize, h: usize) -> Vec<f32> {
     let n = w * h;
     let mut diff = vec![0.0f32; n];
@@ -297,7 +302,7 @@ pub fn change_attention(source: &[f32], edited: &[f32], w: usize, h: usize) -> V
         for c in 0..3 {
             let (a, b) = (source.get(i * 3 + c), edited.get(i * 3 + c));
             if let (Some(a), Some(b)) = (a, b) {
-                let v = (a - b).abs();
+                let v = ((a - b).abs() - CHANGE_FLOOR).max(0.0);
                 if v.is_finite() {
                     s += v;
                 }
@@ -411,10 +416,11 @@ mod tests {
         assert!(change_attention(&src, &src, w, h).iter().all(|&v| v == 0.0));
         let mut ed = src.clone();
         ed[(10 * w + 10) * 3 + 1] = 0.8; // one pixel, one channel, change 0.3
-        ed[(10 * w + 10) * 3 + 2] = 0.4; // and 0.1 in another: total 0.4
+        ed[(10 * w + 10) * 3 + 2] = 0.4; // and 0.1 in another: total 0.4 less two floors
+        ed[(3 * w + 3) * 3] = 0.5 + 1.5 / 255.0; // below the quantisation floor: ignored
         let a = change_attention(&src, &ed, w, h);
         let mass: f32 = a.iter().sum();
-        assert!(close(mass, 0.4, 1e-4), "mass {mass}");
+        assert!(close(mass, 0.4 - 2.0 * CHANGE_FLOOR, 1e-4), "mass {mass}");
         let peak = a.iter().cloned().fold(0.0, f32::max);
         assert_eq!(a[10 * w + 10], peak);
         assert!(close(a[10 * w + 7], a[7 * w + 10], 1e-7) && close(a[10 * w + 7], a[10 * w + 13], 1e-7));

@@ -3,7 +3,8 @@
 //!
 //! - target PSNR: inside the target mask (the ground-truth edited scene's label
 //!   render), against the ground-truth edit;
-//! - background PSNR: outside it, against the original (unedited) render — leakage;
+//! - background PSNR: where the target has no visible weight (< 1/255), against the
+//!   original (unedited) render — leakage;
 //! - PSNR and SSIM: whole image against the ground-truth edit.
 //!
 //! Masked PSNRs pool the squared error over all test views (a small target gives
@@ -30,6 +31,9 @@ pub struct Reference {
     pub source: Vec<Vec<f32>>,
     pub truth: Vec<Vec<f32>>,
     pub target_mask: Vec<Vec<bool>>,
+    /// Pixels where the target contributes no visible weight (< 1/255): the
+    /// background set, so a correct edit of the target's outline is not leakage.
+    pub background_mask: Vec<Vec<bool>>,
     pub background: [f32; 3],
 }
 
@@ -44,6 +48,7 @@ impl Reference {
             source: vec![],
             truth: vec![],
             target_mask: vec![],
+            background_mask: vec![],
             background: scene.background,
         };
         for &v in &views {
@@ -52,6 +57,7 @@ impl Reference {
             r.truth.push(render(&ts, cam, &opts).0.rgb);
             let lr = scene.render_edited(truth, v).expect("test view exists");
             r.target_mask.push(lr.mask(label));
+            r.background_mask.push(lr.weight(label).iter().map(|&w| w < 1.0 / 255.0).collect());
         }
         r
     }
@@ -66,11 +72,11 @@ impl Reference {
             let cam = &scene.cameras[v];
             let img = render(&s, cam, &opts).0.rgb;
             let inside = &self.target_mask[k];
-            let outside: Vec<bool> = inside.iter().map(|&m| !m).collect();
+            let outside = &self.background_mask[k];
             let (a, b) = squared_error(&img, &self.truth[k], Some(inside));
             se_t += a;
             n_t += b;
-            let (a, b) = squared_error(&img, &self.source[k], Some(&outside));
+            let (a, b) = squared_error(&img, &self.source[k], Some(outside));
             se_b += a;
             n_b += b;
             let (a, b) = squared_error(&img, &self.truth[k], None);
@@ -78,9 +84,11 @@ impl Reference {
             ssim_sum += ssim(&img, &self.truth[k], cam.width as usize, cam.height as usize);
         }
         let nv = self.views.len().max(1) as f64;
+        // NaN (JSON null) when a set is empty, e.g. the target is in no test view.
+        let masked = |se: f64, n: usize| if n == 0 { f64::NAN } else { psnr_from_mse(se / n as f64) };
         GtMetrics {
-            target_psnr: psnr_from_mse(se_t / n_t.max(1) as f64),
-            background_psnr: psnr_from_mse(se_b / n_b.max(1) as f64),
+            target_psnr: masked(se_t, n_t),
+            background_psnr: masked(se_b, n_b),
             psnr: psnr_sum / nv,
             ssim: ssim_sum / nv,
         }
