@@ -134,10 +134,6 @@ struct ViewSources {
     phi: Vec<f32>,
 }
 
-fn splats_of(g: &Gaussians) -> Splats<'_> {
-    Splats::new(g)
-}
-
 /// Pixel-level prototypes for the `no_prototype` ablation: a seeded subsample of the
 /// support pixels, each its own prototype with mass ∝ Ā.
 fn pixel_prototypes(ev: &ViewEvidence, cfg: &EditConfig, seed: u64) -> Prototypes {
@@ -180,7 +176,7 @@ fn lift(g: &Gaussians, cams: &[&Camera], planes: &[&[f32]], channels: usize) -> 
     let n = g.len();
     let mut num = vec![0.0f64; n * channels];
     let mut den = vec![0.0f64; n];
-    let s = splats_of(g);
+    let s = Splats::new(g);
     for (cam, plane) in cams.iter().zip(planes) {
         let st = gaussian_stats(&s, cam, Some((plane, channels)));
         for i in 0..n {
@@ -224,7 +220,7 @@ pub fn run(
 
     // 1. Render the source views and edit them.
     let t_edit = Instant::now();
-    let s0 = splats_of(g0);
+    let s0 = Splats::new(g0);
     let sources: Vec<Vec<f32>> =
         job.edit_views.iter().map(|&v| render(&s0, &job.cameras[v], &opts).0.rgb).collect();
     let src_views: Vec<SourceView> = job
@@ -419,7 +415,7 @@ pub fn run(
             let g = &tr.model.gaussians;
             let s = &tr.model.features;
             let opacity: Vec<f32> = g.opacity_logits.iter().map(|&o| sigmoid(o)).collect();
-            let splats = splats_of(g);
+            let splats = Splats::new(g);
             // Visibility, projected means and appearance descriptors depend only on
             // geometry and opacity: recomputed only when those can have changed.
             if !geometry_frozen || sources.len() != views.len() {
@@ -468,10 +464,10 @@ pub fn run(
                 })
                 .collect();
             cached = results.into_iter().collect::<Result<_, _>>()?;
-            let acc = fusion::accumulate(n_of(&tr), d, &cached, cfg.fusion.min_support);
+            let acc = fusion::accumulate(tr.model.len(), d, &cached, cfg.fusion.min_support);
             let z = fusion::canonical_targets(&acc, &tr.model.features, cfg.fusion.rho);
             zbar = Some(fusion::ema(zbar.as_deref(), &z, cfg.fusion.ema));
-            let r = gate::residuals(n_of(&tr), &cached, cfg.fusion.min_support);
+            let r = gate::residuals(tr.model.len(), &cached, cfg.fusion.min_support);
             gamma = gate::gate(&r, cfg.fusion.tau_r);
             let secs = t.elapsed().as_secs_f64();
             transport_s += secs;
@@ -499,13 +495,15 @@ pub fn run(
         let cam = &job.cameras[vd.cam];
         tr.begin_step();
         let (w, h) = (cam.width as usize, cam.height as usize);
-        let mut sp = splats_of(&tr.model.gaussians);
+        let mut sp = Splats::new(&tr.model.gaussians);
         sp.active_sh_degree = tr.active_sh_degree;
         let (img, frame) = render(&sp, cam, &opts);
-        let il = transsplat_train::loss::image_loss(&img.rgb, &vd.target, w, h, None, cfg.loss.dssim);
+        let mut il = transsplat_train::loss::image_loss(&img.rgb, &vd.target, w, h, None, cfg.loss.dssim);
+        if cfg.loss.img != 1.0 {
+            il.grad.iter_mut().for_each(|g| *g *= cfg.loss.img);
+        }
         let mut grads = tr.zero_grads();
-        let gi: Vec<f32> = il.grad.iter().map(|g| g * cfg.loss.img).collect();
-        backward(&sp, cam, &frame, &ImageGrads { rgb: &gi, ..Default::default() }, &mut grads);
+        backward(&sp, cam, &frame, &ImageGrads { rgb: &il.grad, ..Default::default() }, &mut grads);
         let mut rec = StepLosses { step, img: (il.loss * cfg.loss.img) as f64, ..Default::default() };
         match cfg.method {
             Method::Naive => {}
@@ -601,10 +599,6 @@ pub fn run(
         edited,
         prototypes: proto_counts,
     })
-}
-
-fn n_of(tr: &Trainer) -> usize {
-    tr.model.len()
 }
 
 /// Writes the semantic latents as extra properties `sem_0..sem_{d-1}`, replacing

@@ -167,21 +167,8 @@ impl Editor for CommandEditor {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::folder::tests::camera;
     use transsplat_scene::{npy, Camera};
-
-    fn camera(name: &str, w: u32, h: u32) -> Camera {
-        Camera {
-            name: name.into(),
-            width: w,
-            height: h,
-            fx: 10.0,
-            fy: 10.0,
-            cx: w as f32 / 2.0,
-            cy: h as f32 / 2.0,
-            rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-            translation: [0.0; 3],
-        }
-    }
 
     fn setup() -> (Vec<Camera>, Vec<Vec<f32>>) {
         let cams = vec![camera("v0.png", 6, 4), camera("v1.png", 6, 4)];

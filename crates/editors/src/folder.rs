@@ -258,7 +258,7 @@ pub fn export_views_with(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     pub(crate) fn camera(name: &str, w: u32, h: u32) -> Camera {

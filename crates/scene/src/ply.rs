@@ -188,8 +188,9 @@ enum Format {
     BigEndian,
 }
 
+/// A PLY scalar property type (shared with other PLY readers, e.g. plain point clouds).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Scalar {
+pub enum Scalar {
     I8,
     U8,
     I16,
@@ -201,7 +202,8 @@ enum Scalar {
 }
 
 impl Scalar {
-    fn parse(s: &str) -> Option<Self> {
+    /// The type of a header name (`float`, `uchar`, `float64`, ...).
+    pub fn parse(s: &str) -> Option<Self> {
         Some(match s {
             "char" | "int8" => Scalar::I8,
             "uchar" | "uint8" => Scalar::U8,
@@ -215,7 +217,8 @@ impl Scalar {
         })
     }
 
-    fn size(self) -> usize {
+    /// Bytes per value in binary formats.
+    pub fn size(self) -> usize {
         match self {
             Scalar::I8 | Scalar::U8 => 1,
             Scalar::I16 | Scalar::U16 => 2,
@@ -226,6 +229,11 @@ impl Scalar {
 
     fn is_float(self) -> bool {
         matches!(self, Scalar::F32 | Scalar::F64)
+    }
+
+    /// One binary value (little or big endian) as f32; NaN if `b` is too short.
+    pub fn decode(self, b: &[u8], big: bool) -> f32 {
+        decode(self, b, big)
     }
 }
 

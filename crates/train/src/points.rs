@@ -11,6 +11,7 @@
 //! size whatever the header claims; nothing panics on bad input.
 
 use std::path::Path;
+use transsplat_scene::ply::Scalar;
 use transsplat_scene::{atomic, Error, Result};
 
 /// Points with colours in [0, 1].
@@ -34,67 +35,14 @@ impl PointCloud {
 /// Zeroth-order SH constant.
 pub const SH_C0: f32 = 0.282_094_8;
 
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Ty {
-    I8,
-    U8,
-    I16,
-    U16,
-    I32,
-    U32,
-    F32,
-    F64,
-}
-
-impl Ty {
-    fn parse(s: &str) -> Option<Ty> {
-        Some(match s {
-            "char" | "int8" => Ty::I8,
-            "uchar" | "uint8" => Ty::U8,
-            "short" | "int16" => Ty::I16,
-            "ushort" | "uint16" => Ty::U16,
-            "int" | "int32" => Ty::I32,
-            "uint" | "uint32" => Ty::U32,
-            "float" | "float32" => Ty::F32,
-            "double" | "float64" => Ty::F64,
-            _ => return None,
-        })
-    }
-    fn size(self) -> usize {
-        match self {
-            Ty::I8 | Ty::U8 => 1,
-            Ty::I16 | Ty::U16 => 2,
-            Ty::I32 | Ty::U32 | Ty::F32 => 4,
-            Ty::F64 => 8,
-        }
-    }
-    /// Scale that maps the type's range to [0, 1] for colours.
-    fn colour_scale(self) -> f32 {
-        match self {
-            Ty::U8 => 1.0 / 255.0,
-            Ty::U16 => 1.0 / 65535.0,
-            Ty::I8 => 1.0 / 127.0,
-            Ty::I16 => 1.0 / 32767.0,
-            _ => 1.0,
-        }
-    }
-    fn read(self, b: &[u8], big: bool) -> f64 {
-        macro_rules! get {
-            ($t:ty, $n:expr) => {{
-                let a: [u8; $n] = b[..$n].try_into().expect("sized");
-                (if big { <$t>::from_be_bytes(a) } else { <$t>::from_le_bytes(a) }) as f64
-            }};
-        }
-        match self {
-            Ty::I8 => b[0] as i8 as f64,
-            Ty::U8 => b[0] as f64,
-            Ty::I16 => get!(i16, 2),
-            Ty::U16 => get!(u16, 2),
-            Ty::I32 => get!(i32, 4),
-            Ty::U32 => get!(u32, 4),
-            Ty::F32 => get!(f32, 4),
-            Ty::F64 => get!(f64, 8),
-        }
+/// Scale that maps an integer type's range to [0, 1] for colours (floats as they are).
+fn colour_scale(t: Scalar) -> f32 {
+    match t {
+        Scalar::U8 => 1.0 / 255.0,
+        Scalar::U16 => 1.0 / 65535.0,
+        Scalar::I8 => 1.0 / 127.0,
+        Scalar::I16 => 1.0 / 32767.0,
+        _ => 1.0,
     }
 }
 
@@ -102,7 +50,7 @@ impl Ty {
 struct Element {
     name: String,
     count: usize,
-    props: Vec<(String, Ty)>,
+    props: Vec<(String, Scalar)>,
     has_list: bool,
 }
 
@@ -147,7 +95,7 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<PointCloud> {
             }
             ["property", ty, name] => {
                 let e = elements.last_mut().ok_or_else(|| err("property before any element".into()))?;
-                let ty = Ty::parse(ty).ok_or_else(|| err(format!("unknown property type {ty:?}")))?;
+                let ty = Scalar::parse(ty).ok_or_else(|| err(format!("unknown property type {ty:?}")))?;
                 e.props.push((name.to_string(), ty));
             }
             _ => return Err(err(format!("unrecognised PLY header line {line:?}"))),
@@ -162,7 +110,7 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<PointCloud> {
     if v.has_list {
         return Err(err("vertex element has list properties, which a point cloud does not use".into()));
     }
-    let find_prop = |names: &[&str]| -> Option<(usize, Ty)> {
+    let find_prop = |names: &[&str]| -> Option<(usize, Scalar)> {
         names.iter().find_map(|n| v.props.iter().position(|p| p.0 == *n).map(|k| (k, v.props[k].1)))
     };
     let xyz = [find_prop(&["x"]), find_prop(&["y"]), find_prop(&["z"])];
@@ -177,7 +125,7 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<PointCloud> {
     let dc = [find_prop(&["f_dc_0"]), find_prop(&["f_dc_1"]), find_prop(&["f_dc_2"])];
     let colour = |row: &dyn Fn(usize) -> f64| -> [f32; 3] {
         if let [Some(r), Some(g), Some(b)] = rgb {
-            [r, g, b].map(|(k, t)| (row(k) as f32 * t.colour_scale()).clamp(0.0, 1.0))
+            [r, g, b].map(|(k, t)| (row(k) as f32 * colour_scale(t)).clamp(0.0, 1.0))
         } else if let [Some(r), Some(g), Some(b)] = dc {
             [r, g, b].map(|(k, _)| (0.5 + SH_C0 * row(k) as f32).clamp(0.0, 1.0))
         } else {
@@ -254,7 +202,7 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<PointCloud> {
             cloud.colors.reserve(v.count);
             for i in 0..v.count {
                 let r = &bytes[off + i * row..off + (i + 1) * row];
-                push(&|k| v.props[k].1.read(&r[offsets[k]..], big), &mut cloud);
+                push(&|k| v.props[k].1.decode(&r[offsets[k]..], big) as f64, &mut cloud);
             }
         }
         f => return Err(err(format!("unknown PLY format {f:?}"))),
