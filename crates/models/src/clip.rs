@@ -1,0 +1,1 @@
+//! CLIP image and text features (HF `CLIPModel` layout). Being written.

@@ -1,0 +1,1 @@
+//! DINOv2 patch features (HF `Dinov2Model` layout). Being written.

@@ -1,0 +1,21 @@
+//! Foundation models for transsplat, written with candle and loaded from local
+//! Hugging Face / diffusers folders (nothing is downloaded at run time).
+//!
+//! - [`ip2p`]: the InstructPix2Pix 2D editor (UNet with 8 input channels, VAE, CLIP text
+//!   encoder, DDIM with three-way guidance), with a DiffEdit-style edit-attention map.
+//! - [`dinov2`]: DINOv2 patch features, upsampled to the image: the semantic features E_v.
+//! - [`clip`]: CLIP image and text features for the CLIP-sim / CLIP-dir metrics.
+//! - [`tokenizer`]: the CLIP byte-pair tokenizer with its vocabulary bundled.
+//! - [`weights`]: locating, validating and memory-mapping weight folders.
+//!
+//! Every model is proven against the reference Python implementation (diffusers,
+//! transformers) on tiny randomly initialised configurations; the fixtures are written by
+//! `tools/model_fixtures_*.py` and committed under `tests/fixtures`.
+
+pub mod clip;
+pub mod dinov2;
+pub mod ip2p;
+pub mod tokenizer;
+pub mod weights;
+
+pub use weights::{default_device, Error, ModelDir};
