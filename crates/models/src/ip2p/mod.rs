@@ -1,1 +1,18 @@
-//! InstructPix2Pix. Being written.
+//! InstructPix2Pix, the paper's 2D editor, from a diffusers pipeline folder as
+//! published in `timbrooks/instruct-pix2pix` (`unet/`, `vae/`, `text_encoder/`,
+//! `tokenizer/`, `scheduler/`).
+//!
+//! - [`unet`]: the conditional UNet (8 input channels: noisy latent + image latent).
+//! - [`vae`]: the auto-encoder; the image-conditioning latent is its posterior mode.
+//! - [`ddim`]: DDIM (η = 0) with the start-span usage of Instruct-NeRF2NeRF.
+//! - [`pipeline`]: one edit with three-way guidance and the DiffEdit-style attention.
+
+pub mod ddim;
+pub mod pipeline;
+pub mod unet;
+pub mod vae;
+
+pub use ddim::{Ddim, DdimConfig};
+pub use pipeline::{Edit, Ip2p, PromptEmbeds, Settings, DOWNLOAD_HINT};
+pub use unet::{UNet, UNetConfig};
+pub use vae::{Vae, VaeConfig};

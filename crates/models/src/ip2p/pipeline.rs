@@ -1,0 +1,181 @@
+//! One InstructPix2Pix edit in the Instruct-NeRF2NeRF / Instruct-GS2GS manner: the
+//! render is encoded, noised to the first timestep of a span T drawn in [0.70, 0.98] of
+//! the schedule, and denoised by DDIM with three-way classifier-free guidance
+//! (SPEC "Editors"; paper §"Implementation details": DDIM, 20 steps, t ∈ [0.70, 0.98]).
+
+use candle_core::{DType, Device, Tensor};
+
+use super::ddim::{Ddim, DdimConfig};
+use super::unet::{UNet, UNetConfig};
+use super::vae::{Vae, VaeConfig};
+use crate::weights::{Error, ModelDir};
+
+/// The command that downloads the InstructPix2Pix weights into `DIR`.
+pub const DOWNLOAD_HINT: &str = "hf download timbrooks/instruct-pix2pix --local-dir DIR";
+
+/// Sampling settings (defaults: the paper's).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Settings {
+    /// DDIM steps over the start span.
+    pub steps: usize,
+    /// Text guidance s_T.
+    pub text_guidance: f64,
+    /// Image guidance s_I.
+    pub image_guidance: f64,
+    /// The start span T is drawn uniformly in [t_min, t_max] × the training steps.
+    pub t_min: f64,
+    pub t_max: f64,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Self { steps: 20, text_guidance: 7.5, image_guidance: 1.5, t_min: 0.70, t_max: 0.98 }
+    }
+}
+
+impl Settings {
+    /// Errors unless the settings make sense.
+    pub fn check(&self) -> Result<(), String> {
+        if self.steps == 0 {
+            return Err("ip2p: steps must be at least 1".into());
+        }
+        if !(0.0 < self.t_min && self.t_min <= self.t_max && self.t_max <= 1.0) {
+            return Err(format!("ip2p: need 0 < t_min <= t_max <= 1, got [{}, {}]", self.t_min, self.t_max));
+        }
+        if !(self.text_guidance.is_finite() && self.image_guidance.is_finite()) {
+            return Err("ip2p: guidance scales must be finite".into());
+        }
+        Ok(())
+    }
+}
+
+/// The prompt and the empty prompt through the text encoder, `1 × tokens × dim` each.
+#[derive(Debug, Clone)]
+pub struct PromptEmbeds {
+    pub cond: Tensor,
+    pub uncond: Tensor,
+}
+
+/// The result of one edit.
+#[derive(Debug, Clone)]
+pub struct Edit {
+    /// Edited image, `1 × 3 × H × W` in [0, 1].
+    pub image: Tensor,
+    /// Text-guidance magnitude at latent resolution, `1 × 1 × h × w` (see [`Ip2p::edit`]).
+    pub attention: Tensor,
+}
+
+/// The UNet, the VAE and the DDIM schedule of an InstructPix2Pix pipeline folder.
+#[derive(Debug)]
+pub struct Ip2p {
+    pub unet: UNet,
+    pub vae: Vae,
+    pub ddim: Ddim,
+    pub device: Device,
+}
+
+fn corrupt(dir: &ModelDir, file: &str, msg: String) -> Error {
+    Error::Corrupt { path: dir.path.join(file), msg }
+}
+
+impl Ip2p {
+    /// Loads `unet/` and `vae/` (fp32, fp16 or bf16 safetensors, converted to f32) and the
+    /// DDIM schedule from `scheduler/scheduler_config.json` (SD 1.x values if absent).
+    pub fn load(pipeline: &ModelDir, device: &Device) -> Result<Self, Error> {
+        let unet_dir = pipeline.component("unet", "InstructPix2Pix UNet")?;
+        let config: UNetConfig = unet_dir.config("config.json")?;
+        config.check().map_err(|m| corrupt(&unet_dir, "config.json", m))?;
+        if config.in_channels != 2 * config.out_channels {
+            return Err(corrupt(
+                &unet_dir,
+                "config.json",
+                format!(
+                    "in_channels {} is not twice out_channels {}: not an InstructPix2Pix UNet",
+                    config.in_channels, config.out_channels
+                ),
+            ));
+        }
+        let vb = unet_dir.var_builder("diffusion_pytorch_model", DType::F32, device)?;
+        let unet = UNet::new(vb, config)
+            .map_err(|e| corrupt(&unet_dir, "diffusion_pytorch_model", e.to_string()))?;
+
+        let vae_dir = pipeline.component("vae", "InstructPix2Pix VAE")?;
+        let config: VaeConfig = vae_dir.config("config.json")?;
+        config.check().map_err(|m| corrupt(&vae_dir, "config.json", m))?;
+        if config.latent_channels != unet.config.out_channels {
+            return Err(corrupt(
+                &vae_dir,
+                "config.json",
+                format!(
+                    "latent_channels {} does not match the UNet's {} output channels",
+                    config.latent_channels, unet.config.out_channels
+                ),
+            ));
+        }
+        let vb = vae_dir.var_builder("diffusion_pytorch_model", DType::F32, device)?;
+        let vae =
+            Vae::new(vb, config).map_err(|e| corrupt(&vae_dir, "diffusion_pytorch_model", e.to_string()))?;
+
+        let sched = pipeline.path.join("scheduler").join("scheduler_config.json");
+        let config = if sched.is_file() {
+            let dir = ModelDir { path: pipeline.path.join("scheduler"), ..pipeline.clone() };
+            dir.config::<DdimConfig>("scheduler_config.json")?
+        } else {
+            DdimConfig::instruct_pix2pix()
+        };
+        let ddim = Ddim::new(config).map_err(|m| Error::Corrupt { path: sched, msg: m })?;
+        Ok(Self { unet, vae, ddim, device: device.clone() })
+    }
+
+    /// Unscaled posterior mode of images `B × 3 × H × W` in [0, 1].
+    pub fn encode(&self, image: &Tensor) -> candle_core::Result<Tensor> {
+        self.vae.encode_mode(&((image * 2.0)? - 1.0)?)
+    }
+
+    /// Images in [0, 1] from diffusion latents (scaled by the VAE scaling factor).
+    pub fn decode(&self, latents: &Tensor) -> candle_core::Result<Tensor> {
+        let z = (latents / self.vae.config.scaling_factor)?;
+        ((self.vae.decode(&z)? / 2.0)? + 0.5)?.clamp(0f32, 1f32)
+    }
+
+    /// Edits one image (`1 × 3 × H × W` in [0, 1], H and W multiples of the VAE's
+    /// down-scaling) for `prompt`, starting from its latent noised with `noise`
+    /// (`1 × 4 × h × w`) to the first of `settings.steps` DDIM timesteps over a span of
+    /// `span` training steps. `on_step(i, n)` is called after each step.
+    ///
+    /// Each step runs the UNet on a batch of three — (text, image), (∅, image), (∅, ∅) —
+    /// and combines ε = ε_u + s_T(ε_text − ε_img) + s_I(ε_img − ε_u) (SPEC "Editors").
+    /// The image-conditioning latent is the unscaled posterior mode; the edited latent is
+    /// the mode × the scaling factor. The attention A_v (the paper's text-relevant map,
+    /// §3.2) is DiffEdit-style: the channel mean of |ε_text − ε_img| averaged over steps.
+    pub fn edit(
+        &self,
+        image: &Tensor,
+        prompt: &PromptEmbeds,
+        noise: &Tensor,
+        span: usize,
+        settings: &Settings,
+        on_step: &mut dyn FnMut(usize, usize),
+    ) -> candle_core::Result<Edit> {
+        let ts = self.ddim.timesteps(span, settings.steps).map_err(candle_core::Error::Msg)?;
+        let ratio = span / settings.steps;
+        let cond = self.encode(image)?;
+        let mut latents = self.ddim.add_noise(&(&cond * self.vae.config.scaling_factor)?, noise, ts[0])?;
+        let image_cond = Tensor::cat(&[&cond, &cond, &cond.zeros_like()?], 0)?;
+        let context = Tensor::cat(&[&prompt.cond, &prompt.uncond, &prompt.uncond], 0)?;
+        let mut attention = Tensor::zeros((1, 1, cond.dim(2)?, cond.dim(3)?), DType::F32, cond.device())?;
+        for (i, &t) in ts.iter().enumerate() {
+            let x = Tensor::cat(&[&latents, &latents, &latents], 0)?;
+            let eps = self.unet.forward(&Tensor::cat(&[&x, &image_cond], 1)?, t as f64, &context)?;
+            let (e_text, e_img, e_u) = (eps.narrow(0, 0, 1)?, eps.narrow(0, 1, 1)?, eps.narrow(0, 2, 1)?);
+            let text_dir = (&e_text - &e_img)?;
+            let guided = ((&e_u + (&text_dir * settings.text_guidance)?)?
+                + ((&e_img - &e_u)? * settings.image_guidance)?)?;
+            attention = (attention + text_dir.abs()?.mean_keepdim(1)?)?;
+            latents = self.ddim.step(&guided, t, ratio, &latents)?;
+            on_step(i + 1, ts.len());
+        }
+        let attention = (attention / ts.len() as f64)?;
+        Ok(Edit { image: self.decode(&latents)?, attention })
+    }
+}

@@ -1,0 +1,212 @@
+//! The Stable Diffusion auto-encoder (diffusers `AutoencoderKL`), built from a diffusers
+//! `vae/config.json`. The blocks are candle-transformers' (they match diffusers, and
+//! read both the current `to_q/to_k/to_v/to_out.0` and the older
+//! `query/key/value/proj_attn` attention names); the encoder and decoder are wired here
+//! so that the posterior's mode (its mean) is available, which InstructPix2Pix uses as
+//! the image-conditioning latent.
+
+use candle_core::{Module, Tensor};
+use candle_nn::{self as nn, VarBuilder};
+use candle_transformers::models::stable_diffusion::unet_2d_blocks::{
+    DownEncoderBlock2D, DownEncoderBlock2DConfig, UNetMidBlock2D, UNetMidBlock2DConfig, UpDecoderBlock2D,
+    UpDecoderBlock2DConfig,
+};
+use serde::Deserialize;
+
+fn three() -> usize {
+    3
+}
+fn four() -> usize {
+    4
+}
+fn groups() -> usize {
+    32
+}
+fn f_true() -> bool {
+    true
+}
+fn sd_scale() -> f64 {
+    0.18215
+}
+
+/// The fields of a diffusers `AutoencoderKL` config that this implementation reads.
+#[derive(Debug, Clone, Deserialize)]
+pub struct VaeConfig {
+    #[serde(default = "three")]
+    pub in_channels: usize,
+    #[serde(default = "three")]
+    pub out_channels: usize,
+    pub block_out_channels: Vec<usize>,
+    pub layers_per_block: usize,
+    #[serde(default = "four")]
+    pub latent_channels: usize,
+    #[serde(default = "groups")]
+    pub norm_num_groups: usize,
+    /// Latents are multiplied by this before diffusion (0.18215 for SD 1.x).
+    #[serde(default = "sd_scale")]
+    pub scaling_factor: f64,
+    #[serde(default = "f_true")]
+    pub use_quant_conv: bool,
+    #[serde(default = "f_true")]
+    pub use_post_quant_conv: bool,
+    #[serde(default = "f_true")]
+    pub mid_block_add_attention: bool,
+    #[serde(default)]
+    pub shift_factor: Option<f64>,
+}
+
+impl VaeConfig {
+    /// Errors naming the first setting this implementation does not support.
+    pub fn check(&self) -> Result<(), String> {
+        if self.block_out_channels.is_empty() {
+            return Err("block_out_channels is empty".into());
+        }
+        if !self.mid_block_add_attention {
+            return Err("mid_block_add_attention = false is not supported".into());
+        }
+        if self.shift_factor.is_some_and(|s| s != 0.0) {
+            return Err("shift_factor is not supported (SD 1.x VAEs have none)".into());
+        }
+        if let Some(c) = self.block_out_channels.iter().find(|&&c| c % self.norm_num_groups != 0) {
+            return Err(format!("{c} channels do not divide into {} groups", self.norm_num_groups));
+        }
+        Ok(())
+    }
+
+    /// Image pixels per latent pixel along each axis (8 for SD).
+    pub fn downscale(&self) -> usize {
+        1 << (self.block_out_channels.len() - 1)
+    }
+}
+
+/// diffusers `AutoencoderKL`.
+#[derive(Debug)]
+pub struct Vae {
+    pub config: VaeConfig,
+    enc_conv_in: nn::Conv2d,
+    enc_down: Vec<DownEncoderBlock2D>,
+    enc_mid: UNetMidBlock2D,
+    enc_norm_out: nn::GroupNorm,
+    enc_conv_out: nn::Conv2d,
+    quant_conv: Option<nn::Conv2d>,
+    post_quant_conv: Option<nn::Conv2d>,
+    dec_conv_in: nn::Conv2d,
+    dec_mid: UNetMidBlock2D,
+    dec_up: Vec<UpDecoderBlock2D>,
+    dec_norm_out: nn::GroupNorm,
+    dec_conv_out: nn::Conv2d,
+}
+
+fn conv3(vb: VarBuilder, cin: usize, cout: usize) -> candle_core::Result<nn::Conv2d> {
+    nn::conv2d(cin, cout, 3, nn::Conv2dConfig { padding: 1, ..Default::default() }, vb)
+}
+
+impl Vae {
+    /// Builds the auto-encoder from `config` and the weights in `vb` (diffusers names).
+    pub fn new(vb: VarBuilder, config: VaeConfig) -> candle_core::Result<Self> {
+        config.check().map_err(candle_core::Error::Msg)?;
+        let c = &config;
+        let chans = &c.block_out_channels;
+        let n = chans.len();
+        let last = chans[n - 1];
+        let mid_cfg = UNetMidBlock2DConfig {
+            num_layers: 1,
+            resnet_eps: 1e-6,
+            resnet_groups: Some(c.norm_num_groups),
+            attn_num_head_channels: None,
+            output_scale_factor: 1.0,
+        };
+
+        let enc = vb.pp("encoder");
+        let enc_conv_in = conv3(enc.pp("conv_in"), c.in_channels, chans[0])?;
+        let mut enc_down = Vec::with_capacity(n);
+        for i in 0..n {
+            let cin = if i == 0 { chans[0] } else { chans[i - 1] };
+            let cfg = DownEncoderBlock2DConfig {
+                num_layers: c.layers_per_block,
+                resnet_eps: 1e-6,
+                resnet_groups: c.norm_num_groups,
+                output_scale_factor: 1.0,
+                add_downsample: i + 1 < n,
+                downsample_padding: 0,
+            };
+            enc_down.push(DownEncoderBlock2D::new(enc.pp("down_blocks").pp(i), cin, chans[i], cfg)?);
+        }
+        let enc_mid = UNetMidBlock2D::new(enc.pp("mid_block"), last, None, mid_cfg)?;
+        let enc_norm_out = nn::group_norm(c.norm_num_groups, last, 1e-6, enc.pp("conv_norm_out"))?;
+        let enc_conv_out = conv3(enc.pp("conv_out"), last, 2 * c.latent_channels)?;
+        let l2 = 2 * c.latent_channels;
+        let quant_conv = if c.use_quant_conv {
+            Some(nn::conv2d(l2, l2, 1, Default::default(), vb.pp("quant_conv"))?)
+        } else {
+            None
+        };
+        let lc = c.latent_channels;
+        let post_quant_conv = if c.use_post_quant_conv {
+            Some(nn::conv2d(lc, lc, 1, Default::default(), vb.pp("post_quant_conv"))?)
+        } else {
+            None
+        };
+
+        let dec = vb.pp("decoder");
+        let dec_conv_in = conv3(dec.pp("conv_in"), lc, last)?;
+        let dec_mid = UNetMidBlock2D::new(dec.pp("mid_block"), last, None, mid_cfg)?;
+        let rev: Vec<usize> = chans.iter().rev().copied().collect();
+        let mut dec_up = Vec::with_capacity(n);
+        for i in 0..n {
+            let cin = if i == 0 { rev[0] } else { rev[i - 1] };
+            let cfg = UpDecoderBlock2DConfig {
+                num_layers: c.layers_per_block + 1,
+                resnet_eps: 1e-6,
+                resnet_groups: c.norm_num_groups,
+                output_scale_factor: 1.0,
+                add_upsample: i + 1 < n,
+            };
+            dec_up.push(UpDecoderBlock2D::new(dec.pp("up_blocks").pp(i), cin, rev[i], cfg)?);
+        }
+        let dec_norm_out = nn::group_norm(c.norm_num_groups, chans[0], 1e-6, dec.pp("conv_norm_out"))?;
+        let dec_conv_out = conv3(dec.pp("conv_out"), chans[0], c.out_channels)?;
+        Ok(Self {
+            config,
+            enc_conv_in,
+            enc_down,
+            enc_mid,
+            enc_norm_out,
+            enc_conv_out,
+            quant_conv,
+            post_quant_conv,
+            dec_conv_in,
+            dec_mid,
+            dec_up,
+            dec_norm_out,
+            dec_conv_out,
+        })
+    }
+
+    /// Mode (mean) of the latent posterior of `x` (`B × 3 × H × W` in [-1, 1]), unscaled.
+    pub fn encode_mode(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        let mut h = self.enc_conv_in.forward(x)?;
+        for block in &self.enc_down {
+            h = block.forward(&h)?;
+        }
+        h = self.enc_mid.forward(&h, None)?;
+        h = self.enc_conv_out.forward(&nn::ops::silu(&self.enc_norm_out.forward(&h)?)?)?;
+        if let Some(q) = &self.quant_conv {
+            h = q.forward(&h)?;
+        }
+        h.narrow(1, 0, self.config.latent_channels)
+    }
+
+    /// Decodes unscaled latents `z` (`B × latent_channels × h × w`) to images in about [-1, 1].
+    pub fn decode(&self, z: &Tensor) -> candle_core::Result<Tensor> {
+        let z = match &self.post_quant_conv {
+            Some(p) => p.forward(z)?,
+            None => z.clone(),
+        };
+        let mut h = self.dec_mid.forward(&self.dec_conv_in.forward(&z)?, None)?;
+        for block in &self.dec_up {
+            h = block.forward(&h)?;
+        }
+        self.dec_conv_out.forward(&nn::ops::silu(&self.dec_norm_out.forward(&h)?)?)
+    }
+}
