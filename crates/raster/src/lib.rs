@@ -312,8 +312,21 @@ pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, gr
         par::SharedMut(grads.features.as_mut_ptr()),
         par::SharedMut(grads.means2d.as_mut_ptr()),
     );
-    b.ids.par_iter().enumerate().with_min_len(1024).for_each(|(j, &id)| {
+    // Walk the Gaussians in index order (not depth order): parameter reads and gradient
+    // writes then stream through memory, and only the accumulator row is a random read.
+    let pos = depth_positions(&b.ids, n);
+    (0..n).into_par_iter().with_min_len(2048).for_each(|i| {
+        let j = pos[i];
+        if j == u32::MAX {
+            return;
+        }
+        let j = j as usize;
         let a = &acc[j * stride..(j + 1) * stride];
+        // The projection backward is linear in the splat gradients: a splat that no
+        // pixel reached (occluded behind saturated pixels) contributes exactly zero.
+        if a.iter().all(|&v| v == 0.0) {
+            return;
+        }
         let sg = Splat2dGrads {
             xy: [a[0], a[1]],
             conic: [a[2], a[3], a[4]],
@@ -321,11 +334,10 @@ pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, gr
             color: [a[6], a[7], a[8]],
             depth: a[9],
         };
-        let i = id as usize;
         let mut vsh = [0.0f32; 48];
         let gg = project::project_backward(&view, &splats.params(i), &sg, &mut vsh[..nsh]);
-        // SAFETY: `ids` holds each Gaussian at most once, so every task writes a
-        // disjoint set of entries, all in bounds (checked by `Grads` shapes above).
+        // SAFETY: every task writes only Gaussian i's entries, all in bounds (checked by
+        // the `Grads` shapes above).
         unsafe {
             let m = &mut *ptr.0.get().add(i);
             let l = &mut *ptr.1.get().add(i);
@@ -401,20 +413,50 @@ pub fn gaussian_stats(splats: &Splats, cam: &Camera, image: Option<(&[f32], usiz
         splat: vec![0.0; n * channels],
         channels,
     };
-    for (j, &id) in b.ids.iter().enumerate() {
-        let i = id as usize;
-        let a = &acc[j * stride..(j + 1) * stride];
-        s.weight_sum[i] = a[0];
-        s.alpha_sum[i] = a[1];
-        s.pixel_count[i] = a[2] as u32;
-        if a[1] > 0.0 {
-            s.visibility[i] = (a[0] / a[1]).min(1.0);
-        }
-        if a[0] > 0.0 {
-            for k in 0..channels {
-                s.splat[i * channels + k] = a[3 + k] / a[0];
+    // Index order (see `backward`): the writes stream, the accumulator rows are gathered.
+    let pos = depth_positions(&b.ids, n);
+    const C: usize = 4096;
+    let row = |j: u32| &acc[j as usize * stride..(j as usize + 1) * stride];
+    (
+        s.weight_sum.par_chunks_mut(C),
+        s.alpha_sum.par_chunks_mut(C),
+        s.pixel_count.par_chunks_mut(C),
+        s.visibility.par_chunks_mut(C),
+        pos.par_chunks(C),
+    )
+        .into_par_iter()
+        .for_each(|(ws, al, pc, vis, pos)| {
+            for (k, &j) in pos.iter().enumerate().filter(|(_, &j)| j != u32::MAX) {
+                let a = row(j);
+                ws[k] = a[0];
+                al[k] = a[1];
+                pc[k] = a[2] as u32;
+                if a[1] > 0.0 {
+                    vis[k] = (a[0] / a[1]).min(1.0);
+                }
             }
-        }
+        });
+    if channels > 0 {
+        s.splat.par_chunks_mut(C * channels).zip(pos.par_chunks(C)).for_each(|(sp, pos)| {
+            for (k, &j) in pos.iter().enumerate().filter(|(_, &j)| j != u32::MAX) {
+                let a = row(j);
+                if a[0] > 0.0 {
+                    for c in 0..channels {
+                        sp[k * channels + c] = a[3 + c] / a[0];
+                    }
+                }
+            }
+        });
     }
     s
+}
+
+/// `pos[i]` = the position of Gaussian i in the depth-sorted list `ids` (u32::MAX when
+/// it is not in the list).
+fn depth_positions(ids: &[u32], n: usize) -> Vec<u32> {
+    let mut pos = vec![u32::MAX; n];
+    for (j, &id) in ids.iter().enumerate() {
+        pos[id as usize] = j as u32;
+    }
+    pos
 }
