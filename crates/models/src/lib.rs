@@ -6,6 +6,7 @@
 //! - [`dinov2`]: DINOv2 patch features, upsampled to the image: the semantic features E_v.
 //! - [`clip`]: CLIP image and text features for the CLIP-sim / CLIP-dir metrics.
 //! - [`tokenizer`]: the CLIP byte-pair tokenizer with its vocabulary bundled.
+//! - [`resample`]: torch-exact bicubic / bilinear resizing for the models' preprocessing.
 //! - [`weights`]: locating, validating and memory-mapping weight folders.
 //!
 //! Every model is proven against the reference Python implementation (diffusers,
@@ -15,6 +16,7 @@
 pub mod clip;
 pub mod dinov2;
 pub mod ip2p;
+pub mod resample;
 pub mod tokenizer;
 pub mod weights;
 
