@@ -48,6 +48,22 @@ fn support(s: &Splat2d) -> Option<(f32, f32, f32)> {
     Some((ex, ey, thr))
 }
 
+fn pack(s: &Splat2d, ex: f32, ey: f32, thr: f32) -> Packed {
+    Packed {
+        x: s.xy[0],
+        y: s.xy[1],
+        a: s.conic[0],
+        b: s.conic[1],
+        c: s.conic[2],
+        opacity: s.opacity,
+        color: s.color,
+        depth: s.depth,
+        ex,
+        ey,
+        thr,
+    }
+}
+
 /// Everything the compositing passes need for one view.
 #[derive(Clone, Debug, Default)]
 pub struct Binned {
@@ -109,47 +125,44 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
     let (width, height) = (view.width as usize, view.height as usize);
     let tiles_x = width.div_ceil(TILE);
     let tiles_y = height.div_ceil(TILE);
-    let projected: Vec<Option<(Splat2d, [u32; 2])>> =
-        (0..n).into_par_iter().with_min_len(1024).map(|i| project(view, &splats.params(i))).collect();
-
-    let means2d: Vec<[f32; 2]> =
-        projected.par_iter().with_min_len(4096).map(|p| p.map_or([0.0; 2], |(s, _)| s.xy)).collect();
-    let depths: Vec<f32> =
-        projected.par_iter().with_min_len(4096).map(|p| p.map_or(0.0, |(s, _)| s.depth)).collect();
-    let radii: Vec<[u32; 2]> =
-        projected.par_iter().with_min_len(4096).map(|p| p.map_or([0; 2], |(_, r)| r)).collect();
-    let mut keys: Vec<(u32, u32)> = projected
+    // One pass in index order: per-Gaussian outputs written in place, the splats that
+    // can blend somewhere packed compactly (chunk by chunk, so still in index order).
+    const PCH: usize = 4096;
+    let mut means2d = vec![[0.0f32; 2]; n];
+    let mut depths = vec![0.0f32; n];
+    let mut radii = vec![[0u32; 2]; n];
+    let parts: Vec<(Vec<u32>, Vec<Packed>)> =
+        (means2d.par_chunks_mut(PCH), depths.par_chunks_mut(PCH), radii.par_chunks_mut(PCH))
+            .into_par_iter()
+            .enumerate()
+            .map(|(c, (m2, dp, rd))| {
+                let (mut ids, mut pk) = (Vec::new(), Vec::new());
+                for k in 0..m2.len() {
+                    let i = c * PCH + k;
+                    let Some((s, r)) = project(view, &splats.params(i)) else { continue };
+                    (m2[k], dp[k], rd[k]) = (s.xy, s.depth, r);
+                    if let Some((ex, ey, thr)) = support(&s) {
+                        ids.push(i as u32);
+                        pk.push(pack(&s, ex, ey, thr));
+                    }
+                }
+                (ids, pk)
+            })
+            .collect();
+    let (visible_ids, visible): (Vec<Vec<u32>>, Vec<Vec<Packed>>) = parts.into_iter().unzip();
+    let visible_ids: Vec<u32> = visible_ids.concat();
+    let visible: Vec<Packed> = visible.concat();
+    // Stable sort by depth; ties keep index order, as the slots are in index order.
+    let mut keys: Vec<(u32, u32)> = visible
         .par_iter()
         .enumerate()
         .with_min_len(4096)
-        .filter_map(|(i, p)| {
-            p.as_ref().filter(|(s, _)| support(s).is_some()).map(|(s, _)| (s.depth.to_bits(), i as u32))
-        })
+        .map(|(k, p)| (p.depth.to_bits(), k as u32))
         .collect();
     radix_sort(&mut keys);
-    let ids: Vec<u32> = keys.iter().map(|k| k.1).collect();
-    let packed: Vec<Packed> = ids
-        .par_iter()
-        .with_min_len(4096)
-        .map(|&i| {
-            let (s, _) = projected[i as usize].expect("visible");
-            let (ex, ey, thr) = support(&s).expect("has support");
-            Packed {
-                x: s.xy[0],
-                y: s.xy[1],
-                a: s.conic[0],
-                b: s.conic[1],
-                c: s.conic[2],
-                opacity: s.opacity,
-                color: s.color,
-                depth: s.depth,
-                ex,
-                ey,
-                thr,
-            }
-        })
-        .collect();
-    drop(projected);
+    let ids: Vec<u32> = keys.par_iter().with_min_len(4096).map(|k| visible_ids[k.1 as usize]).collect();
+    let packed: Vec<Packed> = keys.par_iter().with_min_len(4096).map(|k| visible[k.1 as usize]).collect();
+    drop((keys, visible, visible_ids));
     let f = splats.num_features;
     let mut feats = vec![0.0f32; ids.len() * f];
     if f > 0 {
