@@ -1,1 +1,238 @@
-//! DINOv2 patch features (HF `Dinov2Model` layout). Being written.
+//! DINOv2 patch features (Hugging Face `Dinov2Model` layout: `facebook/dinov2-small`,
+//! `facebook/dinov2-base`), upsampled to the image: the semantic features E_v of the edit
+//! (SPEC, Editors).
+//!
+//! Pipeline of [`Dinov2::features`], proven against torch + transformers by
+//! `tests/dinov2_parity.rs`:
+//! 1. the image is resized bicubically (torch `interpolate`, `align_corners=False`) so each
+//!    side is the nearest multiple of the patch size (14), at least one patch. Decision:
+//!    nearest multiple rather than a fixed 224/518 square, so the patch grid keeps the
+//!    image's aspect ratio and roughly one patch per 14 pixels of the render;
+//! 2. ImageNet mean / std;
+//! 3. the ViT: patch embedding (14 × 14 conv with bias), class token, position embeddings
+//!    (the 37 × 37 grid of the checkpoints resized bicubically to the patch grid, as
+//!    transformers does it, skipped when the grid is the native square), pre-norm layers
+//!    `x + λ₁·attn(norm1(x))`, `x + λ₂·mlp(norm2(x))` (layer scales λ, gelu MLP), final
+//!    `layernorm`;
+//! 4. the patch tokens, as a `C × gh × gw` grid, upsampled bilinearly
+//!    (`align_corners=False`) to `H × W`, returned interleaved `H × W × C`.
+
+use candle_core::{DType, Device, Module, Tensor};
+use candle_nn::{layer_norm, linear, LayerNorm, Linear, VarBuilder};
+use serde::Deserialize;
+
+use crate::resample;
+use crate::{Error, ModelDir};
+
+/// Download command for the DINOv2 weights.
+pub const DINOV2_HINT: &str = "hf download facebook/dinov2-small --local-dir DIR";
+
+/// ImageNet normalisation used by DINOv2.
+pub const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
+/// See [`IMAGENET_MEAN`].
+pub const IMAGENET_STD: [f32; 3] = [0.229, 0.224, 0.225];
+
+fn default_act() -> String {
+    "gelu".to_string()
+}
+fn default_eps() -> f64 {
+    1e-6
+}
+fn default_mlp_ratio() -> f64 {
+    4.0
+}
+fn default_true() -> bool {
+    true
+}
+
+/// `config.json` of a `Dinov2Model`.
+#[derive(Debug, Clone, Deserialize)]
+pub struct Dinov2Config {
+    pub hidden_size: usize,
+    pub num_hidden_layers: usize,
+    pub num_attention_heads: usize,
+    #[serde(default = "default_mlp_ratio")]
+    pub mlp_ratio: f64,
+    pub image_size: usize,
+    pub patch_size: usize,
+    #[serde(default = "default_act")]
+    pub hidden_act: String,
+    #[serde(default = "default_eps")]
+    pub layer_norm_eps: f64,
+    #[serde(default = "default_true")]
+    pub qkv_bias: bool,
+    #[serde(default)]
+    pub use_swiglu_ffn: bool,
+}
+
+#[derive(Debug, Clone)]
+struct Layer {
+    norm1: LayerNorm,
+    q: Linear,
+    k: Linear,
+    v: Linear,
+    o: Linear,
+    scale1: Tensor,
+    norm2: LayerNorm,
+    fc1: Linear,
+    fc2: Linear,
+    scale2: Tensor,
+}
+
+/// A DINOv2 ViT.
+#[derive(Debug, Clone)]
+pub struct Dinov2 {
+    cls_token: Tensor,
+    patch_weight: Tensor,
+    patch_bias: Tensor,
+    /// `[1 + n², C]` position embeddings of the native `n × n` grid.
+    position: Tensor,
+    layers: Vec<Layer>,
+    layernorm: LayerNorm,
+    config: Dinov2Config,
+    device: Device,
+}
+
+impl Dinov2 {
+    /// Loads a `Dinov2Model` folder (`config.json`, `model.safetensors`).
+    pub fn load(dir: &ModelDir, device: &Device) -> Result<Self, Error> {
+        let config: Dinov2Config = dir.config("config.json")?;
+        let path = dir.path.join("config.json");
+        if config.hidden_act != "gelu" || config.use_swiglu_ffn || !config.qkv_bias {
+            return Err(Error::Corrupt {
+                path,
+                msg:
+                    "only the gelu-MLP DINOv2 models with qkv bias (dinov2-small/-base/-large) are supported"
+                        .into(),
+            });
+        }
+        let vb = dir.var_builder("model", DType::F32, device)?;
+        Self::new(vb, config)
+    }
+
+    /// Builds the model from weights in the hub layout.
+    pub fn new(vb: VarBuilder, config: Dinov2Config) -> Result<Self, Error> {
+        let c = config.hidden_size;
+        let p = config.patch_size;
+        let grid = config.image_size / p;
+        let emb = vb.pp("embeddings");
+        let mlp = (c as f64 * config.mlp_ratio) as usize;
+        let layers = (0..config.num_hidden_layers)
+            .map(|i| {
+                let l = vb.pp(format!("encoder.layer.{i}"));
+                let a = l.pp("attention.attention");
+                Ok(Layer {
+                    norm1: layer_norm(c, config.layer_norm_eps, l.pp("norm1"))?,
+                    q: linear(c, c, a.pp("query"))?,
+                    k: linear(c, c, a.pp("key"))?,
+                    v: linear(c, c, a.pp("value"))?,
+                    o: linear(c, c, l.pp("attention.output.dense"))?,
+                    scale1: l.get(c, "layer_scale1.lambda1")?,
+                    norm2: layer_norm(c, config.layer_norm_eps, l.pp("norm2"))?,
+                    fc1: linear(c, mlp, l.pp("mlp.fc1"))?,
+                    fc2: linear(mlp, c, l.pp("mlp.fc2"))?,
+                    scale2: l.get(c, "layer_scale2.lambda1")?,
+                })
+            })
+            .collect::<candle_core::Result<Vec<_>>>()?;
+        Ok(Self {
+            cls_token: emb.get((1, 1, c), "cls_token")?.reshape((1, c))?,
+            patch_weight: emb.get((c, 3, p, p), "patch_embeddings.projection.weight")?,
+            patch_bias: emb.get(c, "patch_embeddings.projection.bias")?,
+            position: emb.get((1, grid * grid + 1, c), "position_embeddings")?.squeeze(0)?,
+            layers,
+            layernorm: layer_norm(c, config.layer_norm_eps, vb.pp("layernorm"))?,
+            device: vb.device().clone(),
+            config,
+        })
+    }
+
+    /// Feature channels (384 for dinov2-small, 768 for -base).
+    pub fn channels(&self) -> usize {
+        self.config.hidden_size
+    }
+
+    /// Patch grid `(gh, gw)` used for an `h × w` image.
+    pub fn grid(&self, width: usize, height: usize) -> (usize, usize) {
+        let p = self.config.patch_size as f64;
+        let side = |n: usize| ((n as f64 / p).round() as usize).max(1);
+        (side(height), side(width))
+    }
+
+    /// Position embeddings `[1 + gh·gw, C]` for a `gh × gw` grid.
+    fn positions(&self, gh: usize, gw: usize) -> candle_core::Result<Tensor> {
+        let n = self.config.image_size / self.config.patch_size;
+        if gh == n && gw == n {
+            return Ok(self.position.clone());
+        }
+        let c = self.config.hidden_size;
+        let cls = self.position.narrow(0, 0, 1)?;
+        // [n², C] → planar [C, n, n], resized, back to [gh·gw, C].
+        let grid = self.position.narrow(0, 1, n * n)?.t()?.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
+        let resized = resample::bicubic(&grid, c, n, n, gh, gw);
+        let patch = Tensor::from_vec(resized, (c, gh * gw), &self.device)?.t()?;
+        Tensor::cat(&[&cls, &patch], 0)
+    }
+
+    /// `last_hidden_state` `[1 + gh·gw, C]` (class token first, after the final layernorm)
+    /// of one normalised planar image `3 × (gh·14) × (gw·14)`.
+    pub fn forward(&self, planar: Vec<f32>, gh: usize, gw: usize) -> Result<Tensor, Error> {
+        let p = self.config.patch_size;
+        let c = self.config.hidden_size;
+        let x = Tensor::from_vec(planar, (1, 3, gh * p, gw * p), &self.device)?;
+        let patches = x
+            .conv2d(&self.patch_weight, 0, p, 1, 1)?
+            .broadcast_add(&self.patch_bias.reshape((1, c, 1, 1))?)?;
+        let patches = patches.flatten_from(2)?.squeeze(0)?.t()?; // [gh·gw, C]
+        let mut h =
+            Tensor::cat(&[&self.cls_token, &patches], 0)?.add(&self.positions(gh, gw)?)?.unsqueeze(0)?;
+        let heads = self.config.num_attention_heads;
+        let hd = c / heads;
+        let n = 1 + gh * gw;
+        for l in &self.layers {
+            let y = l.norm1.forward(&h)?;
+            let split = |t: Tensor| t.reshape((1, n, heads, hd))?.transpose(1, 2)?.contiguous();
+            let q = split((l.q.forward(&y)? * (hd as f64).powf(-0.5))?)?;
+            let k = split(l.k.forward(&y)?)?;
+            let v = split(l.v.forward(&y)?)?;
+            let attn = candle_nn::ops::softmax_last_dim(&q.matmul(&k.t()?.contiguous()?)?)?;
+            let y = attn.matmul(&v)?.transpose(1, 2)?.reshape((1, n, c))?;
+            h = (h + l.o.forward(&y)?.broadcast_mul(&l.scale1)?)?;
+            let y = l.fc2.forward(&l.fc1.forward(&l.norm2.forward(&h)?)?.gelu_erf()?)?;
+            h = (h + y.broadcast_mul(&l.scale2)?)?;
+        }
+        Ok(self.layernorm.forward(&h)?.squeeze(0)?)
+    }
+
+    /// Dense features of an `H × W × 3` image in [0, 1]: `H × W × C` interleaved, and `C`.
+    pub fn features(&self, image: &[f32], width: usize, height: usize) -> Result<(Vec<f32>, usize), Error> {
+        if width == 0 || height == 0 || image.len() != width * height * 3 {
+            return Err(candle_core::Error::Msg(format!(
+                "DINOv2: image of {} values is not {width} x {height} x 3",
+                image.len()
+            ))
+            .into());
+        }
+        let p = self.config.patch_size;
+        let c = self.config.hidden_size;
+        let (gh, gw) = self.grid(width, height);
+        let planar = resample::hwc_to_chw(image, height, width, 3);
+        let mut x = resample::bicubic(&planar, 3, height, width, gh * p, gw * p);
+        for (k, plane) in x.chunks_exact_mut(gh * p * gw * p).enumerate() {
+            for v in plane {
+                *v = (*v - IMAGENET_MEAN[k]) / IMAGENET_STD[k];
+            }
+        }
+        let hidden = self.forward(x, gh, gw)?;
+        // Patch tokens as planar [C, gh, gw], upsampled to the image.
+        let grid = hidden.narrow(0, 1, gh * gw)?.t()?.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
+        let up = resample::bilinear(&grid, c, gh, gw, height, width);
+        let mut out = vec![0f32; height * width * c];
+        for (k, plane) in up.chunks_exact(height * width).enumerate() {
+            for (px, &v) in plane.iter().enumerate() {
+                out[px * c + k] = v;
+            }
+        }
+        Ok((out, c))
+    }
+}
