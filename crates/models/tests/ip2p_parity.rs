@@ -95,6 +95,7 @@ fn whole_edit_matches_diffusers() {
         .edit(&r["edit.image"], &prompt, &r["edit.noise"], span, &settings, &mut |i, n| {
             calls += 1;
             assert_eq!((i, n), (calls, settings.steps));
+            true
         })
         .unwrap();
     assert_eq!(calls, settings.steps);

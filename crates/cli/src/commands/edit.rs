@@ -20,6 +20,8 @@ pub enum EditorKind {
     Command,
     /// Ground-truth edits of a built-in scene, corrupted like a 2D editor's.
     Simulated,
+    /// InstructPix2Pix from a local diffusers folder (`--ip2p-weights DIR`).
+    Ip2p,
 }
 
 /// Arguments of `transsplat edit`.
@@ -44,6 +46,10 @@ pub struct EditArgs {
     /// Command line to run (`command` editor).
     #[arg(long)]
     pub command: Option<String>,
+    /// InstructPix2Pix pipeline folder (`ip2p` editor), as written by
+    /// `hf download timbrooks/instruct-pix2pix --local-dir DIR`.
+    #[arg(long, value_name = "DIR")]
+    pub ip2p_weights: Option<PathBuf>,
     /// Simulated editor severity (0 = perfect edits).
     #[arg(long, default_value_t = 1.0)]
     pub severity: f32,
@@ -137,7 +143,7 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         edit_views = (0..cams.len()).collect();
     }
     let staged = StagedDir::begin(&args.out, MARKER)?;
-    let mut editor: Box<dyn Editor> = match args.editor {
+    let mut editor: Box<dyn Editor + '_> = match args.editor {
         EditorKind::Folder => {
             let dir = args.edits.as_ref().context("--editor folder needs --edits DIR")?;
             Box::new(FolderEditor::new(dir))
@@ -152,6 +158,17 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
                 bail!("{}: the scene does not match its built-in source (labels.json)", scene_path.display());
             }
             Box::new(SimulatedEditor::new(&scene, args.severity, config.seed))
+        }
+        EditorKind::Ip2p => {
+            use transsplat_models::ip2p::{download_hint, Ip2pEditor, Settings};
+            let dir = args.ip2p_weights.as_deref().with_context(|| {
+                format!(
+                    "--editor ip2p needs --ip2p-weights DIR; get it with `{}`",
+                    download_hint(Path::new("DIR"))
+                )
+            })?;
+            let device = transsplat_models::default_device();
+            Box::new(Ip2pEditor::load(dir, Settings::default(), config.seed, &device)?.with_cancel(cancel))
         }
     };
     let semantic = |img: &[f32], w: usize, h: usize| transsplat_editors::semantic_fallback(img, w, h);
@@ -218,5 +235,6 @@ fn editor_name(k: EditorKind) -> &'static str {
         EditorKind::Folder => "folder",
         EditorKind::Command => "command",
         EditorKind::Simulated => "simulated",
+        EditorKind::Ip2p => "ip2p",
     }
 }

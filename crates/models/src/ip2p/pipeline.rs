@@ -141,7 +141,8 @@ impl Ip2p {
     /// Edits one image (`1 × 3 × H × W` in [0, 1], H and W multiples of the VAE's
     /// down-scaling) for `prompt`, starting from its latent noised with `noise`
     /// (`1 × 4 × h × w`) to the first of `settings.steps` DDIM timesteps over a span of
-    /// `span` training steps. `on_step(i, n)` is called after each step.
+    /// `span` training steps. `on_step(i, n)` is called after each step; returning false
+    /// stops the edit with an error.
     ///
     /// Each step runs the UNet on a batch of three — (text, image), (∅, image), (∅, ∅) —
     /// and combines ε = ε_u + s_T(ε_text − ε_img) + s_I(ε_img − ε_u) (SPEC "Editors").
@@ -155,7 +156,7 @@ impl Ip2p {
         noise: &Tensor,
         span: usize,
         settings: &Settings,
-        on_step: &mut dyn FnMut(usize, usize),
+        on_step: &mut dyn FnMut(usize, usize) -> bool,
     ) -> candle_core::Result<Edit> {
         let ts = self.ddim.timesteps(span, settings.steps).map_err(candle_core::Error::Msg)?;
         let ratio = span / settings.steps;
@@ -173,7 +174,9 @@ impl Ip2p {
                 + ((&e_img - &e_u)? * settings.image_guidance)?)?;
             attention = (attention + text_dir.abs()?.mean_keepdim(1)?)?;
             latents = self.ddim.step(&guided, t, ratio, &latents)?;
-            on_step(i + 1, ts.len());
+            if !on_step(i + 1, ts.len()) {
+                return Err(candle_core::Error::Msg("interrupted".into()));
+            }
         }
         let attention = (attention / ts.len() as f64)?;
         Ok(Edit { image: self.decode(&latents)?, attention })
