@@ -13,12 +13,14 @@ pub mod command;
 pub mod features;
 pub mod folder;
 pub mod resize;
+pub mod semantic;
 pub mod simulated;
 
 pub use command::CommandEditor;
 pub use features::{appearance, change_attention, complete, semantic_fallback};
 pub use folder::{export_views, export_views_with, FolderEditor, ViewEntry};
 pub use resize::resize_bilinear;
+pub use semantic::WithSemantic;
 pub use simulated::SimulatedEditor;
 
 use transsplat_scene::Camera;

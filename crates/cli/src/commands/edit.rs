@@ -50,6 +50,11 @@ pub struct EditArgs {
     /// `hf download timbrooks/instruct-pix2pix --local-dir DIR`.
     #[arg(long, value_name = "DIR")]
     pub ip2p_weights: Option<PathBuf>,
+    /// DINOv2 folder (`facebook/dinov2-small` or `-base`, Hugging Face layout): its
+    /// features become the semantic features E of the source renders and of every edited
+    /// view (the built-in fallback features otherwise).
+    #[arg(long, value_name = "DIR")]
+    pub dino_weights: Option<PathBuf>,
     /// Simulated editor severity (0 = perfect edits).
     #[arg(long, default_value_t = 1.0)]
     pub severity: f32,
@@ -142,6 +147,14 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
     if edit_views.is_empty() {
         edit_views = (0..cams.len()).collect();
     }
+    let dino = match &args.dino_weights {
+        Some(dir) => {
+            use transsplat_models::{dinov2::Dinov2, ModelDir};
+            let hint = format!("hf download facebook/dinov2-small --local-dir {}", dir.display());
+            Some(Dinov2::load(&ModelDir::open(dir, "DINOv2", &hint)?, &transsplat_models::default_device())?)
+        }
+        None => None,
+    };
     let staged = StagedDir::begin(&args.out, MARKER)?;
     let mut editor: Box<dyn Editor + '_> = match args.editor {
         EditorKind::Folder => {
@@ -171,7 +184,23 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
             Box::new(Ip2pEditor::load(dir, Settings::default(), config.seed, &device)?.with_cancel(cancel))
         }
     };
-    let semantic = |img: &[f32], w: usize, h: usize| transsplat_editors::semantic_fallback(img, w, h);
+    if let Some(m) = &dino {
+        // The model's tensors are shared, so the clone is cheap.
+        let m = m.clone();
+        let features = move |img: &[f32], w: usize, h: usize| {
+            m.features(img, w, h).map_err(|e| transsplat_editors::Error::Invalid(format!("DINOv2: {e}")))
+        };
+        editor = Box::new(transsplat_editors::WithSemantic::new(editor, Box::new(features)));
+    }
+    // The engine's feature callback cannot fail: render sizes match their cameras, so a
+    // DINOv2 error here is an internal fault; it is logged and the view gets zero features.
+    let semantic = move |img: &[f32], w: usize, h: usize| match &dino {
+        Some(m) => m.features(img, w, h).unwrap_or_else(|e| {
+            tracing::error!("DINOv2 on a {w}x{h} render: {e}");
+            (vec![0.0; w * h * m.channels()], m.channels())
+        }),
+        None => transsplat_editors::semantic_fallback(img, w, h),
+    };
     let job = EditJob {
         gaussians: &g,
         cameras: &cams,
