@@ -190,14 +190,45 @@ impl Attention {
     fn forward(&self, x: &Tensor, context: Option<&Tensor>) -> candle_core::Result<Tensor> {
         let (b, n, c) = x.dims3()?;
         let ctx = context.unwrap_or(x);
-        let q = self.split_heads(&self.to_q.forward(x)?)?;
-        let k = self.split_heads(&self.to_k.forward(ctx)?)?;
-        let v = self.split_heads(&self.to_v.forward(ctx)?)?;
-        let w = (q.matmul(&k.t()?)? * self.scale)?;
-        let w = nn::ops::softmax_last_dim(&w)?;
-        let o = w.matmul(&v)?.transpose(1, 2)?.reshape((b, n, c))?;
+        let bh = b * self.heads;
+        let flat = |t: Tensor| -> candle_core::Result<Tensor> {
+            let d = t.dim(3)?;
+            t.reshape((bh, t.dim(2)?, d))
+        };
+        let q = flat(self.split_heads(&self.to_q.forward(x)?)?)?;
+        let k = flat(self.split_heads(&self.to_k.forward(ctx)?)?)?;
+        let v = flat(self.split_heads(&self.to_v.forward(ctx)?)?)?;
+        let o = sliced_attention(&q, &k, &v, self.scale, ATTENTION_BUDGET)?;
+        let o = o.reshape((b, self.heads, n, c / self.heads))?.transpose(1, 2)?.reshape((b, n, c))?;
         self.to_out.forward(&o)
     }
+}
+
+/// Largest number of attention weights (f32) computed at once: 2²⁵ (128 MB).
+const ATTENTION_BUDGET: usize = 1 << 25;
+
+/// softmax(q kᵀ · scale) v for `q`: `S × n × d`, `k`, `v`: `S × m × d`, over slices of
+/// the S (batch × heads) axis holding at most `budget` weights, so the n × m weights of
+/// a 64 × 64 latent (4096 tokens) never exist for all heads at once. Each slice is
+/// computed exactly as the whole would be.
+fn sliced_attention(
+    q: &Tensor,
+    k: &Tensor,
+    v: &Tensor,
+    scale: f64,
+    budget: usize,
+) -> candle_core::Result<Tensor> {
+    let (s, n, _) = q.dims3()?;
+    let m = k.dim(1)?;
+    let per = (budget / (n * m).max(1)).clamp(1, s.max(1));
+    let mut outs = Vec::with_capacity(s.div_ceil(per));
+    for start in (0..s).step_by(per) {
+        let len = per.min(s - start);
+        let (q, k, v) = (q.narrow(0, start, len)?, k.narrow(0, start, len)?, v.narrow(0, start, len)?);
+        let w = (q.matmul(&k.t()?)? * scale)?;
+        outs.push(nn::ops::softmax_last_dim(&w)?.matmul(&v)?);
+    }
+    Tensor::cat(&outs, 0)
 }
 
 /// GEGLU feed-forward: `proj` to twice the inner width, value × GELU(gate), back.
@@ -529,5 +560,32 @@ impl UNet {
         }
         let x = nn::ops::silu(&self.conv_norm_out.forward(&x)?)?;
         self.conv_out.forward(&x)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::Device;
+
+    #[test]
+    fn sliced_attention_equals_whole() {
+        let d = Device::Cpu;
+        let q = Tensor::randn(0f32, 1.0, (6, 10, 4), &d).unwrap();
+        let k = Tensor::randn(0f32, 1.0, (6, 7, 4), &d).unwrap();
+        let v = Tensor::randn(0f32, 1.0, (6, 7, 4), &d).unwrap();
+        let whole = sliced_attention(&q, &k, &v, 0.5, usize::MAX).unwrap();
+        for budget in [1, 70, 140, 300] {
+            let sliced = sliced_attention(&q, &k, &v, 0.5, budget).unwrap();
+            let diff =
+                (&sliced - &whole).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
+            assert!(diff < 1e-6, "budget {budget}: {diff}");
+        }
+        // and against the direct formula
+        let w =
+            candle_nn::ops::softmax_last_dim(&(q.matmul(&k.t().unwrap()).unwrap() * 0.5).unwrap()).unwrap();
+        let direct = w.matmul(&v).unwrap();
+        let diff = (&direct - &whole).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
+        assert!(diff < 1e-6, "{diff}");
     }
 }

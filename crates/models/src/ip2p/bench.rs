@@ -1,0 +1,94 @@
+//! Benchmark cases for InstructPix2Pix at the real Stable Diffusion 1.5 sizes, with
+//! random weights (the real ones are not needed to time the arithmetic): one UNet step
+//! as the guidance runs it (batch 3, 8 input channels, 77 tokens of 768), VAE encode
+//! (posterior mode) and VAE decode, each at a given image size.
+//!
+//! The models are built once per size (`sd15_models`, a few GB of f32 weights) and
+//! every case times one call; the caller (`transsplat bench models`) repeats and reports.
+
+use candle_core::{DType, Device, Tensor};
+use candle_nn::{VarBuilder, VarMap};
+
+use super::unet::{UNet, UNetConfig};
+use super::vae::{Vae, VaeConfig};
+
+/// The `unet/config.json` of `timbrooks/instruct-pix2pix` (SD 1.5 with 8 input channels).
+pub const SD15_UNET: &str = r#"{
+  "in_channels": 8, "out_channels": 4,
+  "block_out_channels": [320, 640, 1280, 1280],
+  "down_block_types": ["CrossAttnDownBlock2D", "CrossAttnDownBlock2D", "CrossAttnDownBlock2D", "DownBlock2D"],
+  "up_block_types": ["UpBlock2D", "CrossAttnUpBlock2D", "CrossAttnUpBlock2D", "CrossAttnUpBlock2D"],
+  "layers_per_block": 2, "attention_head_dim": 8, "cross_attention_dim": 768,
+  "norm_num_groups": 32, "norm_eps": 1e-05, "use_linear_projection": false,
+  "flip_sin_to_cos": true, "freq_shift": 0, "downsample_padding": 1, "mid_block_scale_factor": 1
+}"#;
+
+/// The `vae/config.json` of Stable Diffusion 1.5.
+pub const SD15_VAE: &str = r#"{
+  "in_channels": 3, "out_channels": 3, "latent_channels": 4,
+  "block_out_channels": [128, 256, 512, 512], "layers_per_block": 2,
+  "norm_num_groups": 32, "scaling_factor": 0.18215
+}"#;
+
+/// SD 1.5 UNet and VAE with random weights.
+pub struct Sd15 {
+    pub unet: UNet,
+    pub vae: Vae,
+    _weights: VarMap,
+}
+
+/// Builds the SD 1.5 UNet (≈ 860 M parameters) and VAE (≈ 84 M) with random weights.
+pub fn sd15_models(device: &Device) -> candle_core::Result<Sd15> {
+    let map = VarMap::new();
+    let vb = VarBuilder::from_varmap(&map, DType::F32, device);
+    let parse = |e: serde_json::Error| candle_core::Error::Msg(e.to_string());
+    let unet = UNet::new(vb.pp("unet"), serde_json::from_str::<UNetConfig>(SD15_UNET).map_err(parse)?)?;
+    let vae = Vae::new(vb.pp("vae"), serde_json::from_str::<VaeConfig>(SD15_VAE).map_err(parse)?)?;
+    Ok(Sd15 { unet, vae, _weights: map })
+}
+
+/// What a case times.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Case {
+    /// One UNet evaluation on a batch of 3 (text, image, unconditional).
+    UnetStep,
+    /// VAE encoder to the posterior mode, one image.
+    VaeEncode,
+    /// VAE decoder, one image.
+    VaeDecode,
+}
+
+impl Case {
+    pub const ALL: [Case; 3] = [Case::UnetStep, Case::VaeEncode, Case::VaeDecode];
+
+    /// Name as reported, e.g. `ip2p unet step (batch 3) 512x512`.
+    pub fn name(self, size: usize) -> String {
+        let what = match self {
+            Case::UnetStep => "ip2p unet step (batch 3)",
+            Case::VaeEncode => "ip2p vae encode",
+            Case::VaeDecode => "ip2p vae decode",
+        };
+        format!("{what} {size}x{size}")
+    }
+
+    /// Runs the case once on `size × size` images (random inputs).
+    pub fn run(self, m: &Sd15, size: usize, device: &Device) -> candle_core::Result<()> {
+        let l = size / m.vae.config.downscale();
+        match self {
+            Case::UnetStep => {
+                let x = Tensor::randn(0f32, 1.0, (3, 8, l, l), device)?;
+                let ctx = Tensor::randn(0f32, 1.0, (3, 77, 768), device)?;
+                m.unet.forward(&x, 500.0, &ctx)?;
+            }
+            Case::VaeEncode => {
+                let x = Tensor::rand(-1f32, 1.0, (1, 3, size, size), device)?;
+                m.vae.encode_mode(&x)?;
+            }
+            Case::VaeDecode => {
+                let z = Tensor::randn(0f32, 1.0, (1, 4, l, l), device)?;
+                m.vae.decode(&z)?;
+            }
+        }
+        Ok(())
+    }
+}
