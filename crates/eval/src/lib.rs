@@ -1,5 +1,6 @@
 //! Evaluation of edits.
 //!
+//! - [`clip_metrics`]: CLIP-sim and CLIP-dir over folders of renders (ClipSimilarity protocol).
 //! - [`metrics`]: PSNR (optionally inside or outside a mask), SSIM, AUROC.
 //! - [`ground_truth`]: scores an edited scene of a built-in benchmark scene against
 //!   its ground-truth edit on the test views (SPEC "Evaluation": target PSNR inside
@@ -9,6 +10,7 @@
 //! - [`demo`]: the built-in benchmark: a scene, the simulated editor, TransSplat and
 //!   every baseline and ablation, `metrics.json` and `report.html` ([`report`]).
 
+pub mod clip_metrics;
 pub mod demo;
 pub mod edit_output;
 pub mod ground_truth;
