@@ -285,11 +285,32 @@ impl EditConfig {
                 return Err(format!("config value {k} is out of range"));
             }
         }
-        for (k, v) in
-            [("lambda_geo", t.lambda_geo), ("lambda_sem", t.lambda_sem), ("lambda_app", t.lambda_app)]
-        {
+        let (l, lr) = (&self.loss, &self.lr);
+        let non_negative = [
+            ("transport.lambda_geo", t.lambda_geo),
+            ("transport.lambda_sem", t.lambda_sem),
+            ("transport.lambda_app", t.lambda_app),
+            ("transport.delta", t.delta),
+            ("prototypes.min_area_fraction", self.prototypes.min_area_fraction),
+            ("fusion.min_support", self.fusion.min_support),
+            ("loss.img", l.img),
+            ("loss.dssim", l.dssim),
+            ("loss.sem", l.sem),
+            ("loss.uot", l.uot),
+            ("loss.leak", l.leak),
+            ("schedule.densify_gate", self.schedule.densify_gate),
+            ("lr.position", lr.position),
+            ("lr.sh_dc", lr.sh_dc),
+            ("lr.sh_rest", lr.sh_rest),
+            ("lr.opacity", lr.opacity),
+            ("lr.scale", lr.scale),
+            ("lr.rotation", lr.rotation),
+            ("lr.semantic", lr.semantic),
+            ("masklift_threshold", self.masklift_threshold),
+        ];
+        for (k, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("config value transport.{k} must be finite and >= 0"));
+                return Err(format!("config value {k} must be finite and >= 0, got {v}"));
             }
         }
         Ok(())
@@ -324,5 +345,25 @@ mod tests {
         assert!(c.with_overrides(&["transport.nope=1".into()]).unwrap_err().contains("unknown setting"));
         assert!(c.with_overrides(&["fusion.tau_r=-1".into()]).unwrap_err().contains("fusion.tau_r"));
         assert!(c.with_overrides(&["leak".into()]).unwrap_err().contains("KEY=VALUE"));
+    }
+
+    /// NaN, infinite or negative weights were accepted (and a NaN config did not
+    /// survive a TOML round trip, found by the `edit_config` fuzz target's invariant).
+    #[test]
+    fn non_finite_and_negative_weights_are_refused_by_name() {
+        for (toml, key) in [
+            ("[loss]\nleak = nan\n", "loss.leak"),
+            ("[lr]\nsh_dc = inf\n", "lr.sh_dc"),
+            ("[loss]\nimg = -1.0\n", "loss.img"),
+            ("masklift_threshold = nan\n", "masklift_threshold"),
+            ("[transport]\ndelta = -inf\n", "transport.delta"),
+            ("[fusion]\nmin_support = nan\n", "fusion.min_support"),
+        ] {
+            let e = EditConfig::from_toml(toml).unwrap_err();
+            assert!(e.contains(key), "{toml:?}: {e}");
+        }
+        // tau = inf (a hard marginal) stays allowed and round-trips.
+        let c = EditConfig::from_toml("[transport]\ntau_s = inf\n").unwrap();
+        assert_eq!(EditConfig::from_toml(&c.to_toml()).unwrap(), c);
     }
 }
