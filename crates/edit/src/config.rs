@@ -205,7 +205,7 @@ impl EditConfig {
 
     /// Parses TOML overrides on top of the defaults and validates them.
     pub fn from_toml(text: &str) -> Result<Self, String> {
-        let c: EditConfig = toml::from_str(text).map_err(|e| e.to_string())?;
+        let c: EditConfig = toml::from_str(text).map_err(|e| one_line(&e, text))?;
         c.validate()?;
         Ok(c)
     }
@@ -238,7 +238,7 @@ impl EditConfig {
                 node = table.get_mut(*part).expect("checked above");
             }
         }
-        let c: EditConfig = root.try_into().map_err(|e: toml::de::Error| e.to_string())?;
+        let c: EditConfig = root.try_into().map_err(|e: toml::de::Error| one_line(&e, ""))?;
         c.validate()?;
         Ok(c)
     }
@@ -317,6 +317,21 @@ impl EditConfig {
     }
 }
 
+/// A TOML error as one line, `line L, column C: message` (the TOML crate's own text
+/// spans several lines with a source excerpt, which does not fit a CLI error line).
+fn one_line(e: &toml::de::Error, text: &str) -> String {
+    let msg = e.message().split_whitespace().collect::<Vec<_>>().join(" ");
+    match e.span().filter(|s| s.start <= text.len() && text.is_char_boundary(s.start)) {
+        Some(span) if !text.is_empty() => {
+            let before = &text[..span.start];
+            let line = before.matches('\n').count() + 1;
+            let column = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+            format!("TOML error at line {line}, column {column}: {msg}")
+        }
+        _ => format!("TOML error: {msg}"),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -345,6 +360,21 @@ mod tests {
         assert!(c.with_overrides(&["transport.nope=1".into()]).unwrap_err().contains("unknown setting"));
         assert!(c.with_overrides(&["fusion.tau_r=-1".into()]).unwrap_err().contains("fusion.tau_r"));
         assert!(c.with_overrides(&["leak".into()]).unwrap_err().contains("KEY=VALUE"));
+    }
+
+    /// TOML errors are one line with the position (the CLI prints one error line).
+    #[test]
+    fn toml_errors_are_one_line_with_the_position() {
+        for (text, want) in [
+            ("[transport]\nepsilon = 1\n", "line 2, column 1: unknown field `epsilon`"),
+            ("[transport\neps = 1\n", "line 1, column 11: invalid table header"),
+            ("seed = -1\n", "line 1, column 8:"),
+        ] {
+            let e = EditConfig::from_toml(text).unwrap_err();
+            assert!(!e.contains('\n') && e.contains(want), "{text:?}: {e}");
+        }
+        let e = EditConfig::default().with_overrides(&["seed=\"x\"".into()]).unwrap_err();
+        assert!(!e.contains('\n') && e.contains("TOML error"), "{e}");
     }
 
     /// NaN, infinite or negative weights were accepted (and a NaN config did not
