@@ -216,9 +216,21 @@ fn parse_images_file(path: &Path, bytes: &[u8]) -> Result<Vec<Image>> {
     Ok(images)
 }
 
+/// The points of a `points3D` file; points with a NaN or infinite coordinate are
+/// dropped with a warning (as the PLY point cloud reader does).
 fn parse_points_file(path: &Path, bytes: &[u8]) -> Result<Vec<Point3D>> {
     let points = if is_bin(path) { parse_points_bin(bytes) } else { parse_points_txt(bytes) };
-    points.map_err(|m| Error::format(path, m))
+    let mut points = points.map_err(|m| Error::format(path, m))?;
+    let n = points.len();
+    points.retain(|p| p.xyz.iter().all(|v| v.is_finite()));
+    if points.len() < n {
+        tracing::warn!(
+            "{}: dropped {} points with NaN or infinite coordinates",
+            path.display(),
+            n - points.len()
+        );
+    }
+    Ok(points)
 }
 
 // ---------------------------------------------------------------------------------
