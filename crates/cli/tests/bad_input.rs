@@ -262,7 +262,36 @@ fn cases() -> Vec<Case> {
         .arg("make it blue")
         .with_scene()
         .expect(&["labels.json", "built-in scene"]),
+        Case::new("edit: folder editor without its folder", EDIT)
+            .arg("make it blue")
+            .with_scene()
+            .expect(&["edits", "the folder does not exist"]),
+        Case::new("edit: folder editor with no edited images", EDIT)
+            .arg("make it blue")
+            .with_scene()
+            .dir("edits")
+            .expect(&["edits", "no edited image for any of the 2 views"]),
+        Case::new("edit: corrupt edited image", EDIT)
+            .arg("make it blue")
+            .with_scene()
+            .file("edits/view_1.png", b"\x89PNG\r\n\x1a\nbroken".to_vec())
+            .file("edits/view_2.png", png(40, 30))
+            .expect(&["view_1.png", "bad PNG"]),
+        Case::new(
+            "edit: command editor that fails",
+            "edit --scene {d}/in/scene.ply --editor command --out {d}/out --prompt",
+        )
+        .arg("make it blue")
+        .arg("--command")
+        .arg("false")
+        .with_scene()
+        .expect(&["editor command `false` failed"]),
         // ---- train
+        Case::new("train: an image that is a folder", "train --data {d}/ds --out {d}/out --iters 1")
+            .file("ds/cameras.json", cameras_json(&cams(2)))
+            .file("ds/images/view_0.png", png(40, 30))
+            .dir("ds/images/view_1.png")
+            .expect(&["view_1", "missing"]),
         Case::new("train: not a dataset", "train --data {d}/empty --out {d}/out")
             .dir("empty")
             .expect(&["empty", "no dataset found"]),
