@@ -73,9 +73,15 @@ pub fn find_cameras_in(dir: &Path) -> Option<PathBuf> {
 }
 
 fn load_json(path: &Path) -> Result<Vec<Camera>> {
-    let bytes = crate::atomic::read(path)?;
+    parse_json(&crate::atomic::read(path)?, path)
+}
+
+/// Parses camera JSON bytes, an INRIA `cameras.json` or a `transforms.json` (as [`load`]
+/// does for a `.json` file); `path` names the file in errors and is the folder
+/// `transforms.json` image paths are relative to.
+pub fn parse_json(bytes: &[u8], path: &Path) -> Result<Vec<Camera>> {
     let value: serde_json::Value =
-        serde_json::from_slice(&bytes).map_err(|e| Error::format(path, format!("not valid JSON: {e}")))?;
+        serde_json::from_slice(bytes).map_err(|e| Error::format(path, format!("not valid JSON: {e}")))?;
     match &value {
         serde_json::Value::Array(_) => inria::from_value(&value, path),
         serde_json::Value::Object(m) if m.contains_key("frames") => {

@@ -9,12 +9,11 @@ pub enum Error {
     #[error("{}: {msg}", path.display())]
     Format { path: PathBuf, msg: String },
     /// The operating system refused (missing file, permission, disk full, ...).
-    #[error("{}: {source}", path.display())]
-    Io {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
+    ///
+    /// The I/O error is part of the message and deliberately not an error `source`:
+    /// chains printed with `{:#}` (the CLI) would otherwise repeat it.
+    #[error("{}: {err}", path.display())]
+    Io { path: PathBuf, err: std::io::Error },
 }
 
 impl Error {
@@ -24,7 +23,7 @@ impl Error {
     }
     /// An I/O error for `path`.
     pub fn io(path: impl AsRef<Path>, source: std::io::Error) -> Self {
-        Error::Io { path: path.as_ref().to_path_buf(), source }
+        Error::Io { path: path.as_ref().to_path_buf(), err: source }
     }
     /// The file this error is about.
     pub fn path(&self) -> &Path {
@@ -36,3 +35,27 @@ impl Error {
 
 /// Result with this crate's [`Error`].
 pub type Result<T> = std::result::Result<T, Error>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The CLI prints error chains with `{:#}`; an I/O error must appear once.
+    #[test]
+    fn io_error_is_reported_once_in_a_chain() {
+        let e = Error::io("a/b.ply", std::io::Error::from(std::io::ErrorKind::NotFound));
+        let chained = format!("{:#}", anyhow_like(&e));
+        assert_eq!(chained, "a/b.ply: entity not found");
+    }
+
+    /// What `anyhow`'s `{:#}` prints: the message and every source's message.
+    fn anyhow_like(e: &(dyn std::error::Error + 'static)) -> String {
+        let mut s = e.to_string();
+        let mut cur = e.source();
+        while let Some(c) = cur {
+            s.push_str(&format!(": {c}"));
+            cur = c.source();
+        }
+        s
+    }
+}

@@ -145,7 +145,7 @@ fn parse_descr(d: &str) -> Option<(char, char, usize)> {
         if matches!(first, '<' | '>' | '|' | '=') { (first, chars.as_str()) } else { ('<', d) };
     let endian = if endian == '>' { '>' } else { '<' };
     let kind = rest.chars().next()?;
-    let size: usize = rest[1..].parse().ok()?;
+    let size: usize = rest[kind.len_utf8()..].parse().ok()?;
     let ok = matches!((kind, size), ('f', 2 | 4 | 8) | ('i' | 'u', 1 | 2 | 4 | 8) | ('b', 1));
     ok.then_some((endian, kind, size))
 }
@@ -234,6 +234,22 @@ mod tests {
         assert!(e.to_string().contains("g.npy"));
         let e = parse(&bytes[..12], Path::new("h.npy")).unwrap_err();
         assert!(e.to_string().contains("truncated"), "{e}");
+    }
+
+    /// Found by the `npy` fuzz target: a dtype starting with a multi-byte character
+    /// panicked (a string slice inside a character).
+    #[test]
+    fn non_ascii_dtype_is_an_error_not_a_panic() {
+        for descr in ["\u{64a}u2", "<\u{e9}4", "\u{1f600}"] {
+            let header = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': (3,), }}");
+            let mut bytes = MAGIC.to_vec();
+            bytes.extend_from_slice(&[1, 0]);
+            bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+            bytes.extend_from_slice(header.as_bytes());
+            bytes.extend_from_slice(&[0; 24]);
+            let e = parse(&bytes, Path::new("d.npy")).unwrap_err().to_string();
+            assert!(e.starts_with("d.npy: unsupported dtype"), "{e}");
+        }
     }
 
     #[test]

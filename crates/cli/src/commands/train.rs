@@ -64,17 +64,18 @@ pub fn run(args: &TrainArgs) -> Result<()> {
     if !(args.opacity_lr.is_finite() && args.opacity_lr >= 0.0) {
         bail!("--opacity-lr must be a non-negative number");
     }
-    let out = prepare_out_dir(&args.out, &[&args.data])?;
     let load = LoadOptions {
         resolution: args.resolution,
         background: args.background,
         use_masks: !args.no_masks,
         ..Default::default()
     };
+    // The dataset is checked before the output folder is created: a bad dataset leaves nothing behind.
     let ds = dataset::load(&args.data, &load)?;
     if ds.train.is_empty() {
         bail!("{}: no training views", args.data.display());
     }
+    let out = prepare_out_dir(&args.out, &[&args.data])?;
     let (w, h) = (ds.train[0].camera.width, ds.train[0].camera.height);
     tracing::info!(
         "{}: {:?} dataset, {} training and {} test views at {w}x{h}",

@@ -81,14 +81,33 @@ pub fn run(args: &UotArgs) -> Result<()> {
     let a = read_npy(&args.source, "source masses", 1)?;
     let b = read_npy(&args.target, "target masses", 1)?;
     let (n, m) = (c.shape[0], c.shape[1]);
-    if a.shape[0] != n || b.shape[0] != m {
-        bail!("cost is {n} x {m} but there are {} source and {} target masses", a.shape[0], b.shape[0]);
+    for (arr, path, what, len) in [(&a, &args.source, "source", n), (&b, &args.target, "target", m)] {
+        if arr.shape[0] != len {
+            bail!(
+                "{}: {} {what} masses, but the cost {} is {n} x {m}",
+                path.display(),
+                arr.shape[0],
+                args.cost.display()
+            );
+        }
     }
     let params =
         Params { max_iters: args.iters, tol: args.tol, ..Params::new(args.eps, args.tau_s, args.tau_t) };
     params.validate()?;
     let t0 = Instant::now();
-    let p = Problem::top_k(&a.data, &b.data, &c.data, args.topk)?;
+    let p = Problem::top_k(&a.data, &b.data, &c.data, args.topk).map_err(|e| {
+        // Name the file a bad value came from.
+        let file = match &e {
+            transsplat_transport::Error::BadCost { .. } => Some(&args.cost),
+            transsplat_transport::Error::BadMass { which: "source", .. } => Some(&args.source),
+            transsplat_transport::Error::BadMass { .. } => Some(&args.target),
+            _ => None,
+        };
+        match file {
+            Some(f) => anyhow::anyhow!("{}: {e}", f.display()),
+            None => e.into(),
+        }
+    })?;
     let s = if args.reference { reference::solve_log_domain(&p, &params)? } else { solve(&p, &params)? };
     let ms = t0.elapsed().as_secs_f64() * 1e3;
     if let Some(out) = &args.out {

@@ -44,7 +44,6 @@ pub fn run(cmd: &ViewsCommand) -> Result<()> {
 pub fn export(args: &ExportArgs) -> Result<()> {
     let (g, scene_path) = load_scene(&args.scene)?;
     let (cams, cam_path) = load_cameras(args.cameras.as_deref(), &args.scene.scene)?;
-    let out = prepare_out_dir(&args.out, &[&scene_path, &cam_path])?;
     let edit: Vec<usize> = (0..cams.len()).filter(|&i| !transsplat_scenes::is_test(i)).collect();
     if edit.is_empty() {
         anyhow::bail!(
@@ -53,6 +52,7 @@ pub fn export(args: &ExportArgs) -> Result<()> {
             cams.len()
         );
     }
+    let out = prepare_out_dir(&args.out, &[&scene_path, &cam_path])?;
     // never overwrite images this command did not write (e.g. a dataset's own images)
     if !out.join("views.json").is_file() {
         if let Some(&i) = edit.iter().find(|&&i| out.join(format!("{}.png", cams[i].stem())).exists()) {

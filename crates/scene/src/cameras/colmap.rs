@@ -63,15 +63,46 @@ pub fn read_sparse(dir: &Path) -> Result<ColmapModel> {
         |stem: &str| Error::format(dir, format!("not a COLMAP model folder: no {stem}.bin or {stem}.txt"));
     let cam_path = pick("cameras").ok_or_else(|| missing("cameras"))?;
     let img_path = pick("images").ok_or_else(|| missing("images"))?;
-    let intrinsics = read_cameras_file(&cam_path)?;
-    let images = read_images_file(&img_path)?;
+    let cam_bytes = crate::atomic::read(&cam_path)?;
+    let img_bytes = crate::atomic::read(&img_path)?;
+    let points = match pick("points3D") {
+        Some(p) => {
+            let b = crate::atomic::read(&p)?;
+            Some((p, b))
+        }
+        None => {
+            tracing::warn!(
+                "{}: no points3D.bin or points3D.txt; continuing without sparse points",
+                dir.display()
+            );
+            None
+        }
+    };
+    parse_model(
+        (&cam_path, &cam_bytes),
+        (&img_path, &img_bytes),
+        points.as_ref().map(|(p, b)| (p.as_path(), b.as_slice())),
+    )
+}
+
+/// Parses a COLMAP model from the bytes of its files, each given with its path: the
+/// extension (`.bin` or anything else for text) picks the encoding, and errors name
+/// the path. `points` is `None` when there is no `points3D` file.
+pub fn parse_model(
+    cameras: (&Path, &[u8]),
+    images: (&Path, &[u8]),
+    points: Option<(&Path, &[u8])>,
+) -> Result<ColmapModel> {
+    let (cam_path, img_path) = (cameras.0, images.0);
+    let intrinsics = parse_cameras_file(cam_path, cameras.1)?;
+    let images = parse_images_file(img_path, images.1)?;
     let cam_name = cam_path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
 
     let mut cameras = Vec::with_capacity(images.len());
     for im in images {
         let k = intrinsics.get(&im.camera_id).ok_or_else(|| {
             Error::format(
-                &img_path,
+                img_path,
                 format!(
                     "image {:?} (id {}) refers to camera id {}, which is not in {cam_name}",
                     im.name, im.image_id, im.camera_id
@@ -79,7 +110,7 @@ pub fn read_sparse(dir: &Path) -> Result<ColmapModel> {
             )
         })?;
         let rotation = super::quat_to_matrix(im.q).ok_or_else(|| {
-            Error::format(&img_path, format!("image {:?} has an invalid quaternion {:?}", im.name, im.q))
+            Error::format(img_path, format!("image {:?} has an invalid quaternion {:?}", im.name, im.q))
         })?;
         cameras.push(Camera {
             name: im.name,
@@ -95,19 +126,12 @@ pub fn read_sparse(dir: &Path) -> Result<ColmapModel> {
     }
     cameras.sort_by(|a, b| a.name.cmp(&b.name));
     if let Some(w) = cameras.windows(2).find(|w| w[0].name == w[1].name) {
-        return Err(Error::format(&img_path, format!("image name {:?} appears twice", w[0].name)));
+        return Err(Error::format(img_path, format!("image name {:?} appears twice", w[0].name)));
     }
-    let cameras = super::validated(cameras, &img_path)?;
-
-    let points = match pick("points3D") {
-        Some(p) => read_points_file(&p)?,
-        None => {
-            tracing::warn!(
-                "{}: no points3D.bin or points3D.txt; continuing without sparse points",
-                dir.display()
-            );
-            Vec::new()
-        }
+    let cameras = super::validated(cameras, img_path)?;
+    let points = match points {
+        Some((p, b)) => parse_points_file(p, b)?,
+        None => Vec::new(),
     };
     Ok(ColmapModel { cameras, points })
 }
@@ -116,9 +140,8 @@ fn is_bin(path: &Path) -> bool {
     path.extension().is_some_and(|e| e == "bin")
 }
 
-fn read_cameras_file(path: &Path) -> Result<HashMap<u32, Intrinsics>> {
-    let bytes = crate::atomic::read(path)?;
-    let raw = if is_bin(path) { parse_cameras_bin(&bytes) } else { parse_cameras_txt(&bytes) };
+fn parse_cameras_file(path: &Path, bytes: &[u8]) -> Result<HashMap<u32, Intrinsics>> {
+    let raw = if is_bin(path) { parse_cameras_bin(bytes) } else { parse_cameras_txt(bytes) };
     let raw = raw.map_err(|m| Error::format(path, m))?;
     let mut out = HashMap::with_capacity(raw.len());
     for (id, model, width, height, params) in raw {
@@ -181,9 +204,8 @@ pub(crate) struct Image {
     name: String,
 }
 
-fn read_images_file(path: &Path) -> Result<Vec<Image>> {
-    let bytes = crate::atomic::read(path)?;
-    let images = if is_bin(path) { parse_images_bin(&bytes) } else { parse_images_txt(&bytes) };
+fn parse_images_file(path: &Path, bytes: &[u8]) -> Result<Vec<Image>> {
+    let images = if is_bin(path) { parse_images_bin(bytes) } else { parse_images_txt(bytes) };
     let images = images.map_err(|m| Error::format(path, m))?;
     let mut seen = std::collections::HashSet::with_capacity(images.len());
     for im in &images {
@@ -194,10 +216,21 @@ fn read_images_file(path: &Path) -> Result<Vec<Image>> {
     Ok(images)
 }
 
-fn read_points_file(path: &Path) -> Result<Vec<Point3D>> {
-    let bytes = crate::atomic::read(path)?;
-    let points = if is_bin(path) { parse_points_bin(&bytes) } else { parse_points_txt(&bytes) };
-    points.map_err(|m| Error::format(path, m))
+/// The points of a `points3D` file; points with a NaN or infinite coordinate are
+/// dropped with a warning (as the PLY point cloud reader does).
+fn parse_points_file(path: &Path, bytes: &[u8]) -> Result<Vec<Point3D>> {
+    let points = if is_bin(path) { parse_points_bin(bytes) } else { parse_points_txt(bytes) };
+    let mut points = points.map_err(|m| Error::format(path, m))?;
+    let n = points.len();
+    points.retain(|p| p.xyz.iter().all(|v| v.is_finite()));
+    if points.len() < n {
+        tracing::warn!(
+            "{}: dropped {} points with NaN or infinite coordinates",
+            path.display(),
+            n - points.len()
+        );
+    }
+    Ok(points)
 }
 
 // ---------------------------------------------------------------------------------

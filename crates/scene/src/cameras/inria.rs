@@ -9,9 +9,13 @@ use std::path::Path;
 
 /// Reads an INRIA `cameras.json`.
 pub fn read(path: &Path) -> Result<Vec<Camera>> {
-    let bytes = atomic::read(path)?;
+    parse(&atomic::read(path)?, path)
+}
+
+/// Parses the bytes of a file at `path` (named in errors).
+pub fn parse(bytes: &[u8], path: &Path) -> Result<Vec<Camera>> {
     let value: Value =
-        serde_json::from_slice(&bytes).map_err(|e| Error::format(path, format!("not valid JSON: {e}")))?;
+        serde_json::from_slice(bytes).map_err(|e| Error::format(path, format!("not valid JSON: {e}")))?;
     from_value(&value, path)
 }
 

@@ -168,6 +168,34 @@ fn colmap_without_points_is_allowed() {
     assert_eq!(m.cameras.len(), 3);
 }
 
+/// Points with NaN or infinite coordinates are dropped (bin and txt), the rest kept;
+/// the bytes entry point gives the same model as reading the folder.
+#[test]
+fn colmap_non_finite_points_are_dropped_and_bytes_match_files() {
+    let (cams, imgs, mut pts) = model();
+    pts.insert(0, ([f64::NAN, 0.0, 0.0], [9, 9, 9]));
+    pts.push(([0.0, f64::INFINITY, 0.0], [8, 8, 8]));
+    for (write, ext) in
+        [(write_bin as fn(&Path, &[Cam], &[Img], &[([f64; 3], [u8; 3])]), "bin"), (write_txt, "txt")]
+    {
+        let d = tempfile::tempdir().unwrap();
+        write(d.path(), &cams, &imgs, &pts);
+        let m = read_sparse(d.path()).unwrap();
+        let rgb: Vec<[u8; 3]> = m.points.iter().map(|p| p.rgb).collect();
+        assert_eq!(rgb, [[255, 0, 7], [1, 2, 3]], "{ext}");
+        let file = |stem: &str| {
+            (
+                d.path().join(format!("{stem}.{ext}")),
+                std::fs::read(d.path().join(format!("{stem}.{ext}"))).unwrap(),
+            )
+        };
+        let (c, i, p) = (file("cameras"), file("images"), file("points3D"));
+        let from_bytes =
+            colmap::parse_model((&c.0, &c.1), (&i.0, &i.1), Some((p.0.as_path(), p.1.as_slice()))).unwrap();
+        assert_eq!(from_bytes, m, "{ext}");
+    }
+}
+
 #[test]
 fn colmap_bad_inputs() {
     let (cams, imgs, pts) = model();

@@ -22,9 +22,13 @@ pub struct Transforms {
 
 /// Reads a `transforms.json`.
 pub fn read(path: &Path) -> Result<Transforms> {
-    let bytes = crate::atomic::read(path)?;
+    parse(&crate::atomic::read(path)?, path)
+}
+
+/// Parses the bytes of a file at `path` (named in errors).
+pub fn parse(bytes: &[u8], path: &Path) -> Result<Transforms> {
     let value: Value =
-        serde_json::from_slice(&bytes).map_err(|e| Error::format(path, format!("not valid JSON: {e}")))?;
+        serde_json::from_slice(bytes).map_err(|e| Error::format(path, format!("not valid JSON: {e}")))?;
     from_value(&value, path)
 }
 

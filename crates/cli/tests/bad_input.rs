@@ -1,0 +1,704 @@
+//! The bad-input contract, table-driven, through the binary: for every case the
+//! command exits with status 2, prints exactly one line on stderr (`error: ...`, no
+//! panic, no backtrace) that names the file and the problem, leaves every input file
+//! byte-identical, and leaves no output behind (the case folder's tree of files and
+//! folders is exactly what it was before the run).
+//!
+//! Adding a case: one more `Case::new(...)` row in [`cases`]. Arguments are split on
+//! whitespace unless given with `.arg(...)`; `{d}` stands for the case's folder. Files
+//! come from the input builders below (`.file(name, bytes)`).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use transsplat_raster::bench;
+use transsplat_scene::{cameras, npy, ply, Camera, Gaussians};
+
+// ---------------------------------------------------------------------------------
+// The table
+
+/// One bad-input case.
+struct Case {
+    name: &'static str,
+    args: Vec<String>,
+    files: Vec<(String, Vec<u8>)>,
+    dirs: Vec<String>,
+    /// Substrings the error line must contain (the file and the problem).
+    expect: Vec<&'static str>,
+    /// Runs after the files are written (e.g. chmod); returns false to skip the case.
+    setup: Option<fn(&Path) -> bool>,
+}
+
+impl Case {
+    fn new(name: &'static str, args: &str) -> Self {
+        Case {
+            name,
+            args: args.split_whitespace().map(String::from).collect(),
+            files: Vec::new(),
+            dirs: Vec::new(),
+            expect: Vec::new(),
+            setup: None,
+        }
+    }
+    /// One argument that may contain spaces.
+    fn arg(mut self, a: &str) -> Self {
+        self.args.push(a.to_string());
+        self
+    }
+    fn file(mut self, name: &str, bytes: impl Into<Vec<u8>>) -> Self {
+        self.files.push((name.to_string(), bytes.into()));
+        self
+    }
+    fn dir(mut self, name: &str) -> Self {
+        self.dirs.push(name.to_string());
+        self
+    }
+    fn expect(mut self, parts: &[&'static str]) -> Self {
+        self.expect.extend_from_slice(parts);
+        self
+    }
+    fn setup(mut self, f: fn(&Path) -> bool) -> Self {
+        self.setup = Some(f);
+        self
+    }
+    /// A valid scene and cameras.json in `in/`.
+    fn with_scene(self) -> Self {
+        self.file("in/scene.ply", scene_ply()).file("in/cameras.json", cameras_json(&cams(3)))
+    }
+}
+
+const UOT: &str = "uot --eps 0.1 --tau-s 1 --tau-t 1";
+const RENDER: &str = "render --scene {d}/in/scene.ply --out {d}/out --cameras";
+const EDIT: &str = "edit --scene {d}/in/scene.ply --cameras {d}/in/cameras.json --editor folder \
+                    --edits {d}/edits --out {d}/out --prompt";
+
+fn cases() -> Vec<Case> {
+    vec![
+        // ---- PLY scenes (info, render, views export)
+        Case::new("info: truncated binary PLY", "info {d}/scene.ply")
+            .file("scene.ply", truncated(scene_ply(), 100))
+            .expect(&["scene.ply", "truncated"]),
+        Case::new("info: wrong magic", "info {d}/scene.ply")
+            .file("scene.ply", b"PLY\nformat ascii 1.0\nend_header\n".to_vec())
+            .expect(&["scene.ply", "not a PLY file"]),
+        Case::new("info: vertex count that lies (huge count, small file)", "info {d}/scene.ply")
+            .file("scene.ply", lying_count())
+            .expect(&["scene.ply", "vertex count 1000000000000", "only"]),
+        Case::new("info: missing required property", "info {d}/scene.ply")
+            .file("scene.ply", ascii_ply(&props_without("opacity"), 2))
+            .expect(&["scene.ply", "missing required vertex property 'opacity'"]),
+        Case::new("info: NaN parameter names the Gaussian", "info {d}/scene.ply")
+            .file("scene.ply", nan_scene(&[7]))
+            .expect(&["scene.ply", "Gaussian 7", "--drop-invalid"]),
+        Case::new("info --drop-invalid: every Gaussian invalid", "info --drop-invalid {d}/scene.ply")
+            .file("scene.ply", nan_scene(&[0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11]))
+            .expect(&["scene.ply", "no Gaussians"]),
+        Case::new("info: unknown PLY format", "info {d}/scene.ply")
+            .file("scene.ply", b"ply\nformat binary_middle_endian 1.0\nend_header\n".to_vec())
+            .expect(&["scene.ply", "unknown PLY format \"binary_middle_endian\""]),
+        Case::new("info: empty file", "info {d}/scene.ply")
+            .file("scene.ply", Vec::new())
+            .expect(&["scene.ply", "not a PLY file"]),
+        Case::new("info: folder without a scene", "info {d}/empty").dir("empty").expect(&["empty"]),
+        Case::new("info: missing file", "info {d}/nope.ply").expect(&["nope.ply", "No such file"]),
+        Case::new("render: truncated PLY", "render --scene {d}/in/scene.ply --out {d}/out")
+            .file("in/scene.ply", truncated(scene_ply(), 3))
+            .file("in/cameras.json", cameras_json(&cams(3)))
+            .expect(&["scene.ply", "truncated"]),
+        // ---- cameras (render, views export, edit)
+        Case::new("render: malformed cameras.json", RENDER)
+            .arg("{d}/in/cameras.json")
+            .file("in/scene.ply", scene_ply())
+            .file("in/cameras.json", b"[{\"id\": 0, \"img_name\": ".to_vec())
+            .expect(&["cameras.json", "not valid JSON"]),
+        Case::new("render: zero image size in cameras.json", RENDER)
+            .arg("{d}/in/cameras.json")
+            .file("in/scene.ply", scene_ply())
+            .file("in/cameras.json", cameras_json_with(|c| c["width"] = 0.into()))
+            .expect(&["cameras.json", "image size 0x30"]),
+        Case::new("render: negative focal length", RENDER)
+            .arg("{d}/in/cameras.json")
+            .file("in/scene.ply", scene_ply())
+            .file("in/cameras.json", cameras_json_with(|c| c["fx"] = (-50.0).into()))
+            .expect(&["cameras.json", "focal length fx = -50"]),
+        Case::new("render: negative image size", RENDER)
+            .arg("{d}/in/cameras.json")
+            .file("in/scene.ply", scene_ply())
+            .file("in/cameras.json", cameras_json_with(|c| c["height"] = (-30).into()))
+            .expect(&["cameras.json", "\"height\" is not a non-negative integer"]),
+        Case::new("render: non-pinhole COLMAP camera", RENDER)
+            .arg("{d}/sparse")
+            .file("in/scene.ply", scene_ply())
+            .file("sparse/cameras.txt", "1 OPENCV 40 30 50 50 20 15 0.1 0 0 0\n")
+            .file("sparse/images.txt", "1 1 0 0 0 0 0 3 1 a.png\n\n")
+            .expect(&["cameras.txt", "non-zero distortion"]),
+        Case::new("render: fisheye COLMAP camera", RENDER)
+            .arg("{d}/sparse")
+            .file("in/scene.ply", scene_ply())
+            .file("sparse/cameras.bin", cameras_bin(5, &[50.0, 50.0, 20.0, 15.0, 0.0, 0.0, 0.0, 0.0], 1))
+            .file("sparse/images.bin", images_bin(&[(1, 1, "a.png")], 1))
+            .expect(&["cameras.bin", "fisheye"]),
+        Case::new("render: COLMAP camera count that lies", RENDER)
+            .arg("{d}/sparse")
+            .file("in/scene.ply", scene_ply())
+            .file("sparse/cameras.bin", cameras_bin(1, &[50.0, 50.0, 20.0, 15.0], 3))
+            .file("sparse/images.bin", images_bin(&[(1, 1, "a.png")], 1))
+            .expect(&["cameras.bin", "truncated: camera 1 of 3"]),
+        Case::new("render: truncated COLMAP images.bin", RENDER)
+            .arg("{d}/sparse")
+            .file("in/scene.ply", scene_ply())
+            .file("sparse/cameras.bin", cameras_bin(1, &[50.0, 50.0, 20.0, 15.0], 1))
+            .file("sparse/images.bin", truncated(images_bin(&[(1, 1, "a.png"), (2, 1, "b.png")], 2), 30))
+            .expect(&["images.bin", "truncated: image 1 of 2"]),
+        Case::new("render: COLMAP image of a camera that is not there", RENDER)
+            .arg("{d}/sparse")
+            .file("in/scene.ply", scene_ply())
+            .file("sparse/cameras.txt", "1 PINHOLE 40 30 50 50 20 15\n")
+            .file("sparse/images.txt", "1 1 0 0 0 0 0 3 1 a.png\n\n2 1 0 0 0 0 0 3 2 b.png\n\n")
+            .expect(&["images.txt", "camera id 2, which is not in cameras.txt"]),
+        Case::new("render: transforms.json without transform_matrix", RENDER)
+            .arg("{d}/in/transforms.json")
+            .file("in/scene.ply", scene_ply())
+            .file(
+                "in/transforms.json",
+                r#"{"fl_x": 50, "w": 40, "h": 30, "frames": [{"file_path": "a.png"}]}"#,
+            )
+            .expect(&["transforms.json", "frame 0 (\"a.png\")", "transform_matrix"]),
+        Case::new("render: transforms.json whose image is missing", RENDER)
+            .arg("{d}/in/transforms.json")
+            .file("in/scene.ply", scene_ply())
+            .file("in/transforms.json", transforms_without_size())
+            .expect(&["transforms.json", "a.png was not found"]),
+        Case::new("render: transforms.json whose image is corrupt", RENDER)
+            .arg("{d}/in/transforms.json")
+            .file("in/scene.ply", scene_ply())
+            .file("in/transforms.json", transforms_without_size())
+            .file("in/a.png", b"\x89PNG\r\n\x1a\n\0\0\0\rXXXX".to_vec())
+            .expect(&["a.png", "cannot read the image size"]),
+        Case::new(
+            "views export: two cameras with the same image name",
+            "views export --scene {d}/in/scene.ply --out {d}/out --cameras {d}/in/cameras.json",
+        )
+        .file("in/scene.ply", scene_ply())
+        .file("in/cameras.json", cameras_json(&[cams(1)[0].clone(), cams(1)[0].clone()]))
+        .expect(&["cameras.json", "two cameras share the image name"]),
+        Case::new(
+            "views export: only held-out test views",
+            "views export --scene {d}/in/scene.ply --out {d}/out --cameras {d}/in/cameras.json",
+        )
+        .file("in/scene.ply", scene_ply())
+        .file("in/cameras.json", cameras_json(&cams(1)))
+        .expect(&["cameras.json", "nothing to export"]),
+        // ---- output locations
+        Case::new(
+            "render: output folder is the input's folder",
+            "render --scene {d}/in/scene.ply --out {d}/in",
+        )
+        .with_scene()
+        .expect(&["output folder is the folder of the input"]),
+        Case::new(
+            "render: output path is an existing file",
+            "render --scene {d}/in/scene.ply --out {d}/in/cameras.json",
+        )
+        .with_scene()
+        .expect(&["cameras.json", "exists and is not a folder"]),
+        Case::new("render: read-only output location", "render --scene {d}/in/scene.ply --out {d}/ro/out")
+            .with_scene()
+            .dir("ro")
+            .setup(make_read_only)
+            .expect(&["ro/out", "cannot create output folder"]),
+        Case::new(
+            "edit: output folder contains the input",
+            "edit --scene {d}/in/scene.ply --editor folder --edits {d}/edits --out {d}/in --prompt",
+        )
+        .arg("make it blue")
+        .with_scene()
+        .dir("edits")
+        .expect(&["output folder would contain the input", "scene.ply"]),
+        // ---- edit settings
+        Case::new("edit: empty prompt", EDIT).arg("  ").with_scene().expect(&["--prompt is empty"]),
+        Case::new("edit: unknown config key", EDIT)
+            .arg("make it blue")
+            .args("--config {d}/config.toml")
+            .with_scene()
+            .file("config.toml", "[transport]\nepsilon = 0.1\n")
+            .expect(&["config.toml", "line 2, column 1: unknown field `epsilon`"]),
+        Case::new("edit: config that is not TOML", EDIT)
+            .arg("make it blue")
+            .args("--config {d}/config.toml")
+            .with_scene()
+            .file("config.toml", "[transport\neps = \n")
+            .expect(&["config.toml", "line 1, column 11: invalid table header"]),
+        Case::new("edit: NaN in the config", EDIT)
+            .arg("make it blue")
+            .args("--config {d}/config.toml")
+            .with_scene()
+            .file("config.toml", "[loss]\nleak = nan\n")
+            .expect(&["config.toml", "loss.leak must be finite"]),
+        Case::new("edit: eps <= 0 through --set", EDIT)
+            .arg("make it blue")
+            .args("--set transport.eps=0")
+            .with_scene()
+            .expect(&["transport.eps", "out of range"]),
+        Case::new("edit: unknown --set key", EDIT)
+            .arg("make it blue")
+            .args("--set transport.nope=1")
+            .with_scene()
+            .expect(&["unknown setting \"transport.nope\""]),
+        Case::new("edit: unknown method", EDIT)
+            .arg("make it blue")
+            .args("--method magic")
+            .with_scene()
+            .expect(&["unknown method \"magic\""]),
+        Case::new("edit: NaN scene", EDIT)
+            .arg("make it blue")
+            .file("in/scene.ply", nan_scene(&[3]))
+            .file("in/cameras.json", cameras_json(&cams(3)))
+            .expect(&["scene.ply", "Gaussian 3"]),
+        Case::new(
+            "edit: simulated editor on a scene that is not built in",
+            "edit --scene {d}/in/scene.ply --editor simulated --out {d}/out --prompt",
+        )
+        .arg("make it blue")
+        .with_scene()
+        .expect(&["labels.json", "built-in scene"]),
+        Case::new("edit: folder editor without its folder", EDIT)
+            .arg("make it blue")
+            .with_scene()
+            .expect(&["edits", "the folder does not exist"]),
+        Case::new("edit: folder editor with no edited images", EDIT)
+            .arg("make it blue")
+            .with_scene()
+            .dir("edits")
+            .expect(&["edits", "no edited image for any of the 2 views"]),
+        Case::new("edit: corrupt edited image", EDIT)
+            .arg("make it blue")
+            .with_scene()
+            .file("edits/view_1.png", b"\x89PNG\r\n\x1a\nbroken".to_vec())
+            .file("edits/view_2.png", png(40, 30))
+            .expect(&["view_1.png", "bad PNG"]),
+        Case::new(
+            "edit: command editor that fails",
+            "edit --scene {d}/in/scene.ply --editor command --out {d}/out --prompt",
+        )
+        .arg("make it blue")
+        .arg("--command")
+        .arg("false")
+        .with_scene()
+        .expect(&["editor command `false` failed"]),
+        // ---- train
+        Case::new("train: an image that is a folder", "train --data {d}/ds --out {d}/out --iters 1")
+            .file("ds/cameras.json", cameras_json(&cams(2)))
+            .file("ds/images/view_0.png", png(40, 30))
+            .dir("ds/images/view_1.png")
+            .expect(&["view_1", "missing"]),
+        Case::new("train: not a dataset", "train --data {d}/empty --out {d}/out")
+            .dir("empty")
+            .expect(&["empty", "no dataset found"]),
+        Case::new("train: corrupt image", "train --data {d}/ds --out {d}/out --iters 1")
+            .file("ds/cameras.json", cameras_json(&cams(2)))
+            .file("ds/images/view_0.png", png(40, 30))
+            .file("ds/images/view_1.png", b"\x89PNG\r\n\x1a\ngarbage".to_vec())
+            .expect(&["view_1.png", "bad PNG"]),
+        Case::new("train: more cameras than images", "train --data {d}/ds --out {d}/out --iters 1")
+            .file("ds/cameras.json", cameras_json(&cams(3)))
+            .file("ds/images/view_0.png", png(40, 30))
+            .file("ds/images/view_1.png", png(40, 30))
+            .expect(&["view_2", "image for camera \"view_2\" is missing"]),
+        Case::new("train: image size unlike its camera", "train --data {d}/ds --out {d}/out --iters 1")
+            .file("ds/cameras.json", cameras_json(&cams(2)))
+            .file("ds/images/view_0.png", png(40, 30))
+            .file("ds/images/view_1.png", png(30, 30))
+            .expect(&["view_1.png", "30x30"]),
+        Case::new("train: output folder is the dataset", "train --data {d}/ds --out {d}/ds --iters 1")
+            .file("ds/cameras.json", cameras_json(&cams(2)))
+            .file("ds/images/view_0.png", png(40, 30))
+            .file("ds/images/view_1.png", png(40, 30))
+            .expect(&["output folder is the folder of the input"]),
+        Case::new("train: zero focal length in COLMAP", "train --data {d}/ds --out {d}/out --iters 1")
+            .file("ds/sparse/0/cameras.txt", "1 PINHOLE 40 30 0 50 20 15\n")
+            .file("ds/sparse/0/images.txt", "1 1 0 0 0 0 0 3 1 view_0.png\n\n")
+            .file("ds/images/view_0.png", png(40, 30))
+            .expect(&["images.txt", "focal length fx = 0"]),
+        // ---- uot
+        Case::new("uot: cost is not a .npy", UOT)
+            .args("--cost {d}/cost.npy --source {d}/a.npy --target {d}/b.npy")
+            .file("cost.npy", b"garbage".to_vec())
+            .file("a.npy", npy_bytes(&[2], &[0.5, 0.5]))
+            .file("b.npy", npy_bytes(&[3], &[0.3, 0.3, 0.4]))
+            .expect(&["cost.npy", "bad magic"]),
+        Case::new("uot: truncated .npy", UOT)
+            .args("--cost {d}/cost.npy --source {d}/a.npy --target {d}/b.npy")
+            .file("cost.npy", truncated(npy_bytes(&[2, 3], &[1.0; 6]), 5))
+            .file("a.npy", npy_bytes(&[2], &[0.5, 0.5]))
+            .file("b.npy", npy_bytes(&[3], &[0.3, 0.3, 0.4]))
+            .expect(&["cost.npy", "data truncated"]),
+        Case::new("uot: non-ASCII dtype (found by fuzzing)", UOT)
+            .args("--cost {d}/cost.npy --source {d}/a.npy --target {d}/b.npy")
+            .file("cost.npy", npy_with_descr("\u{64a}u2", &[2, 3], &[0; 12]))
+            .file("a.npy", npy_bytes(&[2], &[0.5, 0.5]))
+            .file("b.npy", npy_bytes(&[3], &[0.3, 0.3, 0.4]))
+            .expect(&["cost.npy", "unsupported dtype"]),
+        Case::new("uot: NaN cost", UOT)
+            .args("--cost {d}/cost.npy --source {d}/a.npy --target {d}/b.npy --out {d}/plan.npy")
+            .file("cost.npy", npy_bytes(&[2, 3], &[1.0, 2.0, f32::NAN, 4.0, 5.0, 6.0]))
+            .file("a.npy", npy_bytes(&[2], &[0.5, 0.5]))
+            .file("b.npy", npy_bytes(&[3], &[0.3, 0.3, 0.4]))
+            .expect(&["cost.npy", "cost at source 0, target 2 is NaN"]),
+        Case::new("uot: negative mass", UOT)
+            .args("--cost {d}/cost.npy --source {d}/a.npy --target {d}/b.npy --out {d}/plan.npy")
+            .file("cost.npy", npy_bytes(&[2, 3], &[1.0; 6]))
+            .file("a.npy", npy_bytes(&[2], &[0.5, -0.5]))
+            .file("b.npy", npy_bytes(&[3], &[0.3, 0.3, 0.4]))
+            .expect(&["a.npy", "source mass 1 is -0.5"]),
+        Case::new("uot: NaN target mass", UOT)
+            .args("--cost {d}/cost.npy --source {d}/a.npy --target {d}/b.npy")
+            .file("cost.npy", npy_bytes(&[2, 3], &[1.0; 6]))
+            .file("a.npy", npy_bytes(&[2], &[0.5, 0.5]))
+            .file("b.npy", npy_bytes(&[3], &[0.3, f32::NAN, 0.4]))
+            .expect(&["b.npy", "target mass 1 is NaN"]),
+        Case::new("uot: mass count unlike the cost", UOT)
+            .args("--cost {d}/cost.npy --source {d}/a.npy --target {d}/b.npy")
+            .file("cost.npy", npy_bytes(&[2, 3], &[1.0; 6]))
+            .file("a.npy", npy_bytes(&[2], &[0.5, 0.5]))
+            .file("b.npy", npy_bytes(&[2], &[0.5, 0.5]))
+            .expect(&["b.npy", "2 target masses", "cost.npy is 2 x 3"]),
+        Case::new("uot: masses not a vector", UOT)
+            .args("--cost {d}/cost.npy --source {d}/a.npy --target {d}/b.npy")
+            .file("cost.npy", npy_bytes(&[2, 3], &[1.0; 6]))
+            .file("a.npy", npy_bytes(&[2, 1], &[0.5, 0.5]))
+            .file("b.npy", npy_bytes(&[3], &[0.3, 0.3, 0.4]))
+            .expect(&["a.npy", "shape [2, 1]"]),
+        Case::new("uot: eps <= 0", "uot --eps=-1 --tau-s 1 --tau-t 1")
+            .args("--cost {d}/cost.npy --source {d}/a.npy --target {d}/b.npy --out {d}/plan.npy")
+            .file("cost.npy", npy_bytes(&[2, 3], &[1.0; 6]))
+            .file("a.npy", npy_bytes(&[2], &[0.5, 0.5]))
+            .file("b.npy", npy_bytes(&[3], &[0.3, 0.3, 0.4]))
+            .expect(&["eps must be finite and > 0, got -1"]),
+        Case::new("uot: plan into a missing folder", UOT)
+            .args("--cost {d}/cost.npy --source {d}/a.npy --target {d}/b.npy --out {d}/nowhere/plan.npy")
+            .file("cost.npy", npy_bytes(&[2, 3], &[1.0; 6]))
+            .file("a.npy", npy_bytes(&[2], &[0.5, 0.5]))
+            .file("b.npy", npy_bytes(&[3], &[0.3, 0.3, 0.4]))
+            .expect(&["nowhere/plan.npy", "No such file or directory (os error 2)"]),
+        // ---- demo and scene
+        Case::new("demo: unknown method", "demo --quick --out {d}/demo --methods naive,magic")
+            .expect(&["unknown method \"magic\""]),
+        Case::new("demo: bad config file", "demo --quick --out {d}/demo --config {d}/c.toml")
+            .file("c.toml", "seed = -1\n")
+            .expect(&["c.toml", "line 1, column 8", "expected u64"]),
+        Case::new("demo: unknown scene", "demo --quick --out {d}/demo --scene nowhere")
+            .expect(&["unknown scene \"nowhere\""]),
+        Case::new("scene: zero width", "scene tabletop --quick --width 0 --out {d}/ds")
+            .expect(&["image size 0x96"]),
+    ]
+}
+
+impl Case {
+    /// Several whitespace-separated arguments.
+    fn args(mut self, a: &str) -> Self {
+        self.args.extend(a.split_whitespace().map(String::from));
+        self
+    }
+}
+
+// ---------------------------------------------------------------------------------
+// The runner
+
+/// Every file (with its bytes) and folder under `root`, relative to it.
+fn snapshot(root: &Path) -> BTreeMap<PathBuf, Option<Vec<u8>>> {
+    let mut out = BTreeMap::new();
+    let mut stack = vec![root.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            let rel = p.strip_prefix(root).unwrap().to_path_buf();
+            if p.is_dir() {
+                out.insert(rel, None);
+                stack.push(p);
+            } else {
+                out.insert(rel, Some(std::fs::read(&p).unwrap()));
+            }
+        }
+    }
+    out
+}
+
+/// Runs one case; `Err` describes how it broke the contract.
+fn run(case: &Case) -> Result<(), String> {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    for dir in &case.dirs {
+        std::fs::create_dir_all(d.join(dir)).unwrap();
+    }
+    for (name, bytes) in &case.files {
+        let p = d.join(name);
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        std::fs::write(&p, bytes).unwrap();
+    }
+    if let Some(setup) = case.setup {
+        if !setup(d) {
+            eprintln!("skipped (setup says not applicable here): {}", case.name);
+            return Ok(());
+        }
+    }
+    let before = snapshot(d);
+    let dir = d.to_str().unwrap();
+    let args: Vec<String> = case.args.iter().map(|a| a.replace("{d}", dir)).collect();
+    let out = Command::new(env!("CARGO_BIN_EXE_transsplat"))
+        .args(&args)
+        .env("RUST_LOG", "off")
+        .env("RUST_BACKTRACE", "1")
+        .output()
+        .unwrap();
+    let after = snapshot(d);
+    restore_permissions(d);
+    let stderr = String::from_utf8_lossy(&out.stderr).replace(dir, "{d}");
+    let mut problems = Vec::new();
+    if out.status.code() != Some(2) {
+        problems.push(format!("exit status {:?}, expected 2", out.status.code()));
+    }
+    let lines: Vec<&str> = stderr.lines().collect();
+    if lines.len() != 1 || !lines[0].starts_with("error: ") {
+        problems.push("stderr is not exactly one line starting with \"error: \"".into());
+    }
+    if stderr.contains("panicked") || stderr.contains("backtrace") {
+        problems.push("stderr shows a panic".into());
+    }
+    for part in &case.expect {
+        if !stderr.contains(part) {
+            problems.push(format!("the error does not contain {part:?}"));
+        }
+    }
+    for (path, content) in &before {
+        match after.get(path) {
+            None => problems.push(format!("{} was removed", path.display())),
+            Some(c) if c != content => problems.push(format!("input {} was modified", path.display())),
+            _ => {}
+        }
+    }
+    for path in after.keys().filter(|p| !before.contains_key(*p)) {
+        problems.push(format!("{} was left behind", path.display()));
+    }
+    if problems.is_empty() {
+        Ok(())
+    } else {
+        Err(format!("{}\n    args: {}\n    stderr: {stderr}", problems.join("; "), case.args.join(" ")))
+    }
+}
+
+#[test]
+fn every_bad_input_exits_2_with_one_line_naming_file_and_problem_and_changes_nothing() {
+    let cases = cases();
+    assert!(cases.len() >= 25, "the contract asks for at least 25 cases");
+    // Two workers: the cases are independent processes in their own folders.
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let failures = std::sync::Mutex::new(Vec::new());
+    std::thread::scope(|s| {
+        for _ in 0..2 {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+                let Some(case) = cases.get(i) else { break };
+                if let Err(e) = run(case) {
+                    failures.lock().unwrap().push(format!("{}: {e}", case.name));
+                }
+            });
+        }
+    });
+    let failures = failures.into_inner().unwrap();
+    assert!(
+        failures.is_empty(),
+        "{} of {} cases broke the contract:\n{}",
+        failures.len(),
+        cases.len(),
+        failures.join("\n")
+    );
+}
+
+/// The runner itself must be able to fail: a successful command, a second stderr
+/// line, a missing substring and a left-behind output are all reported.
+#[test]
+fn the_runner_catches_contract_breaches() {
+    let ok = Case::new("info on a valid scene", "info {d}/scene.ply").file("scene.ply", scene_ply());
+    assert!(run(&ok).unwrap_err().contains("exit status Some(0)"));
+    let wrong = Case::new("wrong substring", "info {d}/scene.ply")
+        .file("scene.ply", Vec::new())
+        .expect(&["no such words"]);
+    assert!(run(&wrong).unwrap_err().contains("does not contain \"no such words\""));
+    let clap = Case::new("usage error (several lines, status 2)", "info --no-such-flag");
+    assert!(run(&clap).unwrap_err().contains("not exactly one line"));
+    let leaves = Case::new("writes an output", UOT)
+        .args("--cost {d}/cost.npy --source {d}/a.npy --target {d}/b.npy --out {d}/plan.npy")
+        .file("cost.npy", npy_bytes(&[2, 3], &[1.0; 6]))
+        .file("a.npy", npy_bytes(&[2], &[0.5, 0.5]))
+        .file("b.npy", npy_bytes(&[3], &[0.3, 0.3, 0.4]));
+    assert!(run(&leaves).unwrap_err().contains("was left behind"));
+}
+
+// ---------------------------------------------------------------------------------
+// Output locations
+
+/// Makes `{d}/ro` read-only; false (skip) when that does not stop writes (root).
+fn make_read_only(d: &Path) -> bool {
+    use std::os::unix::fs::PermissionsExt;
+    let ro = d.join("ro");
+    std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o555)).unwrap();
+    let probe = ro.join("probe");
+    if std::fs::create_dir(&probe).is_ok() {
+        std::fs::remove_dir(&probe).unwrap();
+        return false;
+    }
+    true
+}
+
+fn restore_permissions(d: &Path) {
+    use std::os::unix::fs::PermissionsExt;
+    let ro = d.join("ro");
+    if ro.is_dir() {
+        let _ = std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o755));
+    }
+}
+
+// ---------------------------------------------------------------------------------
+// Input builders
+
+fn scene() -> Gaussians {
+    bench::bench_scene(12, 1)
+}
+
+fn scene_ply() -> Vec<u8> {
+    ply::to_bytes(&scene())
+}
+
+fn nan_scene(bad: &[usize]) -> Vec<u8> {
+    let mut g = scene();
+    for &i in bad {
+        g.opacity_logits[i] = f32::NAN;
+    }
+    ply::to_bytes(&g)
+}
+
+fn truncated(mut bytes: Vec<u8>, cut: usize) -> Vec<u8> {
+    bytes.truncate(bytes.len() - cut);
+    bytes
+}
+
+/// The INRIA degree-0 property list, without `skip`.
+fn props_without(skip: &str) -> Vec<&'static str> {
+    [
+        "x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2", "rot_0",
+        "rot_1", "rot_2", "rot_3",
+    ]
+    .into_iter()
+    .filter(|p| *p != skip)
+    .collect()
+}
+
+fn ascii_ply(props: &[&str], rows: usize) -> Vec<u8> {
+    let mut s = format!("ply\nformat ascii 1.0\nelement vertex {rows}\n");
+    for p in props {
+        s.push_str(&format!("property float {p}\n"));
+    }
+    s.push_str("end_header\n");
+    for _ in 0..rows {
+        s.push_str(&vec!["0.5"; props.len()].join(" "));
+        s.push('\n');
+    }
+    s.into_bytes()
+}
+
+/// A header claiming 10^12 vertices over a one-Gaussian body.
+fn lying_count() -> Vec<u8> {
+    let mut g = scene();
+    let keep: Vec<bool> = (0..g.len()).map(|i| i == 0).collect();
+    g.retain(&keep);
+    let bytes = ply::to_bytes(&g);
+    let text = String::from_utf8_lossy(&bytes);
+    let at = text.find("element vertex 1\n").unwrap();
+    let mut out = bytes[..at].to_vec();
+    out.extend_from_slice(b"element vertex 1000000000000\n");
+    out.extend_from_slice(&bytes[at + "element vertex 1\n".len()..]);
+    out
+}
+
+fn cams(n: usize) -> Vec<Camera> {
+    (0..n)
+        .map(|i| {
+            let mut c = bench::bench_camera(40, 30);
+            c.name = format!("view_{i}");
+            c.translation[0] += 0.1 * i as f32;
+            c
+        })
+        .collect()
+}
+
+fn cameras_json(cams: &[Camera]) -> Vec<u8> {
+    let tmp = tempfile::tempdir().unwrap();
+    let p = tmp.path().join("cameras.json");
+    cameras::inria::write(&p, cams).unwrap();
+    std::fs::read(p).unwrap()
+}
+
+/// A valid cameras.json with `edit` applied to its first camera.
+fn cameras_json_with(edit: fn(&mut serde_json::Value)) -> Vec<u8> {
+    let mut v: serde_json::Value = serde_json::from_slice(&cameras_json(&cams(3))).unwrap();
+    edit(&mut v[0]);
+    serde_json::to_vec(&v).unwrap()
+}
+
+fn transforms_without_size() -> Vec<u8> {
+    br#"{"camera_angle_x": 0.7, "frames": [{"file_path": "a.png",
+        "transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,3],[0,0,0,1]]}]}"#
+        .to_vec()
+}
+
+/// COLMAP cameras.bin holding `count` in its header and one camera of `model`.
+fn cameras_bin(model: i32, params: &[f64], count: u64) -> Vec<u8> {
+    let mut b = count.to_le_bytes().to_vec();
+    b.extend_from_slice(&1u32.to_le_bytes());
+    b.extend_from_slice(&model.to_le_bytes());
+    b.extend_from_slice(&40u64.to_le_bytes());
+    b.extend_from_slice(&30u64.to_le_bytes());
+    for p in params {
+        b.extend_from_slice(&p.to_le_bytes());
+    }
+    b
+}
+
+/// COLMAP images.bin with (image id, camera id, name) records and `count` in its header.
+fn images_bin(images: &[(u32, u32, &str)], count: u64) -> Vec<u8> {
+    let mut b = count.to_le_bytes().to_vec();
+    for (id, cam, name) in images {
+        b.extend_from_slice(&id.to_le_bytes());
+        for v in [1.0f64, 0.0, 0.0, 0.0, 0.0, 0.0, 3.0] {
+            b.extend_from_slice(&v.to_le_bytes());
+        }
+        b.extend_from_slice(&cam.to_le_bytes());
+        b.extend_from_slice(name.as_bytes());
+        b.push(0);
+        b.extend_from_slice(&0u64.to_le_bytes());
+    }
+    b
+}
+
+fn png(w: usize, h: usize) -> Vec<u8> {
+    let tmp = tempfile::tempdir().unwrap();
+    let p = tmp.path().join("a.png");
+    transsplat_scene::image::write_png(&p, w, h, &vec![0.5; w * h * 3]).unwrap();
+    std::fs::read(p).unwrap()
+}
+
+fn npy_bytes(shape: &[usize], data: &[f32]) -> Vec<u8> {
+    npy::to_bytes(shape, data)
+}
+
+fn npy_with_descr(descr: &str, shape: &[usize], payload: &[u8]) -> Vec<u8> {
+    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
+    let header =
+        format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': ({}), }}\n", dims.join(", "));
+    let mut b = b"\x93NUMPY\x01\x00".to_vec();
+    b.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    b.extend_from_slice(header.as_bytes());
+    b.extend_from_slice(payload);
+    b
+}
