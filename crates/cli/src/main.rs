@@ -22,6 +22,8 @@ enum Command {
     Demo(commands::demo::DemoArgs),
     /// Edit a scene from an instruction with a 2D editor (folder, command or simulated).
     Edit(commands::edit::EditArgs),
+    /// CLIP-sim and CLIP-dir of edited renders against source renders (any method).
+    Eval(commands::eval::EvalArgs),
     /// Render every camera of a scene to PNG (and raw .npy).
     Render(commands::render::RenderArgs),
     /// Print a summary of a scene: count, SH degree, bounding box, opacity and scale.
@@ -72,6 +74,7 @@ fn main() {
     let result = match &cli.command {
         Command::Demo(a) => commands::demo::run(a, &CANCEL),
         Command::Edit(a) => commands::edit::run(a, &CANCEL),
+        Command::Eval(a) => commands::eval::run(a, &CANCEL),
         Command::Render(a) => commands::render::run(a),
         Command::Info(a) => commands::info::run(a),
         Command::Uot(a) => commands::uot::run(a),

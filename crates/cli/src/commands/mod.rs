@@ -4,6 +4,7 @@ pub mod bench;
 pub mod common;
 pub mod demo;
 pub mod edit;
+pub mod eval;
 pub mod info;
 pub mod render;
 pub mod scene;
