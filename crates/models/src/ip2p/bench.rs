@@ -34,17 +34,32 @@ pub const SD15_VAE: &str = r#"{
 pub struct Sd15 {
     pub unet: UNet,
     pub vae: Vae,
-    _weights: VarMap,
 }
 
 /// Builds the SD 1.5 UNet (≈ 860 M parameters) and VAE (≈ 84 M) with random weights.
 pub fn sd15_models(device: &Device) -> candle_core::Result<Sd15> {
+    let parse = |e: serde_json::Error| candle_core::Error::Msg(e.to_string());
+    let unet_cfg = serde_json::from_str::<UNetConfig>(SD15_UNET).map_err(parse)?;
+    let vae_cfg = serde_json::from_str::<VaeConfig>(SD15_VAE).map_err(parse)?;
+    // A first build creates the randomly initialised variables; the models are then
+    // rebuilt from detached copies, because operations on variables record the graph
+    // for back-propagation and would keep every activation alive (weights loaded from
+    // files are plain tensors, like these).
     let map = VarMap::new();
     let vb = VarBuilder::from_varmap(&map, DType::F32, device);
-    let parse = |e: serde_json::Error| candle_core::Error::Msg(e.to_string());
-    let unet = UNet::new(vb.pp("unet"), serde_json::from_str::<UNetConfig>(SD15_UNET).map_err(parse)?)?;
-    let vae = Vae::new(vb.pp("vae"), serde_json::from_str::<VaeConfig>(SD15_VAE).map_err(parse)?)?;
-    Ok(Sd15 { unet, vae, _weights: map })
+    UNet::new(vb.pp("unet"), unet_cfg.clone())?;
+    Vae::new(vb.pp("vae"), vae_cfg.clone())?;
+    let tensors: std::collections::HashMap<String, Tensor> = map
+        .data()
+        .lock()
+        .map_err(|_| candle_core::Error::Msg("poisoned weight map".into()))?
+        .iter()
+        .map(|(k, v)| (k.clone(), v.as_tensor().detach()))
+        .collect();
+    let vb = VarBuilder::from_tensors(tensors, DType::F32, device);
+    let unet = UNet::new(vb.pp("unet"), unet_cfg)?;
+    let vae = Vae::new(vb.pp("vae"), vae_cfg)?;
+    Ok(Sd15 { unet, vae })
 }
 
 /// What a case times.
