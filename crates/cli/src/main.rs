@@ -48,6 +48,8 @@ enum BenchCommand {
     Transport(commands::uot::BenchArgs),
     /// Rasterizer: forward, backward and splat-back on a synthetic scene.
     Raster(commands::bench::RasterArgs),
+    /// Models: CLIP and DINOv2 forward passes at the real sizes (random weights).
+    Models(commands::bench::ModelsArgs),
     /// Training: time per step (render, loss, backward, Adam) against forward + backward.
     Train(commands::train::BenchArgs),
 }
@@ -82,6 +84,7 @@ fn main() {
         Command::Views(c) => commands::views::run(c),
         Command::Bench(BenchCommand::Transport(a)) => commands::uot::bench(a),
         Command::Bench(BenchCommand::Raster(a)) => commands::bench::raster(a),
+        Command::Bench(BenchCommand::Models(a)) => commands::bench::models(a),
         Command::Train(a) => commands::train::run(a),
         Command::Bench(BenchCommand::Train(a)) => commands::train::bench(a),
     };

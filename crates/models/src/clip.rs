@@ -405,7 +405,6 @@ pub struct Clip {
 impl Clip {
     /// Loads a `CLIPModel` folder (`config.json`, `model.safetensors`).
     pub fn load(dir: &ModelDir, device: &Device) -> Result<Self, Error> {
-        let config_path = dir.path.join("config.json");
         let config: ClipConfig = dir.config("config.json")?;
         let vb = dir.var_builder("model", DType::F32, device)?;
         if !vb.contains_tensor("visual_projection.weight") {
@@ -414,11 +413,22 @@ impl Clip {
                 msg: "no visual_projection weights: this is not a full CLIPModel (text and vision)".into(),
             });
         }
+        Self::new(vb, &config, &dir.path.join("config.json"))
+    }
+
+    /// Builds the model from weights in the `CLIPModel` layout.
+    pub fn new(vb: VarBuilder, config: &ClipConfig, config_path: &std::path::Path) -> Result<Self, Error> {
         let mut text_config = config.text_config.clone();
         text_config.projection_dim = config.projection_dim;
-        let text = ClipTextModel::new(vb.clone(), text_config, &config_path)?;
+        let mut text = ClipTextModel::new(vb.clone(), text_config, config_path)?;
+        // A whole CLIPModel always has its text projection.
+        text.projection = Some(linear_no_bias(
+            config.text_config.hidden_size,
+            config.projection_dim,
+            vb.pp("text_projection"),
+        )?);
         let vc = &config.vision_config;
-        let vision = ClipVisionModel::new(vb.pp("vision_model"), vc, &config_path)?;
+        let vision = ClipVisionModel::new(vb.pp("vision_model"), vc, config_path)?;
         let visual_projection =
             linear_no_bias(vc.hidden_size, config.projection_dim, vb.pp("visual_projection"))?;
         Ok(Self {
@@ -427,7 +437,7 @@ impl Clip {
             visual_projection,
             tokenizer: ClipTokenizer::bundled(),
             image_size: vc.image_size,
-            device: device.clone(),
+            device: vb.device().clone(),
         })
     }
 

@@ -7,12 +7,14 @@
 //! - [`clip`]: CLIP image and text features for the CLIP-sim / CLIP-dir metrics.
 //! - [`tokenizer`]: the CLIP byte-pair tokenizer with its vocabulary bundled.
 //! - [`resample`]: torch-exact bicubic / bilinear resizing for the models' preprocessing.
+//! - [`bench`]: the model cases of `transsplat bench models`.
 //! - [`weights`]: locating, validating and memory-mapping weight folders.
 //!
 //! Every model is proven against the reference Python implementation (diffusers,
 //! transformers) on tiny randomly initialised configurations; the fixtures are written by
 //! `tools/model_fixtures_*.py` and committed under `tests/fixtures`.
 
+pub mod bench;
 pub mod clip;
 pub mod dinov2;
 pub mod ip2p;

@@ -60,3 +60,26 @@ pub fn raster(args: &RasterArgs) -> anyhow::Result<()> {
     }
     Ok(())
 }
+
+/// Arguments of `transsplat bench models`.
+#[derive(clap::Args, Debug)]
+pub struct ModelsArgs {
+    /// Only the cases whose name contains this text.
+    #[arg(long)]
+    pub only: Option<String>,
+}
+
+/// `transsplat bench models`: one forward pass per model case (real architecture sizes,
+/// random weights), after one warm-up.
+pub fn models(args: &ModelsArgs) -> anyhow::Result<()> {
+    let device = transsplat_models::default_device();
+    println!("{:<28} {:>10}", "case", "seconds");
+    for case in transsplat_models::bench::cases() {
+        if args.only.as_deref().is_some_and(|o| !case.name.contains(o)) {
+            continue;
+        }
+        let s = (case.run)(&device)?;
+        println!("{:<28} {:>10.3}", case.name, s);
+    }
+    Ok(())
+}

@@ -1,0 +1,111 @@
+//! Model benchmarks for `transsplat bench models`: a list of named cases, each building a
+//! model with the real architecture sizes and random weights (real weights cannot be
+//! downloaded here; the arithmetic is the same) and timing one forward pass.
+
+use std::time::Instant;
+
+use candle_core::{DType, Device};
+use candle_nn::{VarBuilder, VarMap};
+
+use crate::clip::{Clip, ClipConfig, ClipTextConfig, ClipVisionConfig};
+use crate::dinov2::{Dinov2, Dinov2Config};
+use crate::Error;
+
+/// One benchmark: a name and a function that builds its model and returns the seconds
+/// of one timed run (after one untimed warm-up run).
+pub struct Case {
+    pub name: &'static str,
+    pub run: fn(&Device) -> Result<f64, Error>,
+}
+
+/// Every model case (CLIP and DINOv2; the InstructPix2Pix cases join this list).
+pub fn cases() -> Vec<Case> {
+    vec![
+        Case { name: "clip-vit-l14 image 224", run: clip_image },
+        Case { name: "clip-vit-l14 text 77", run: clip_text },
+        Case { name: "dinov2-small 256x256", run: |d| dinov2(d, 384, 6, 256) },
+        Case { name: "dinov2-small 512x512", run: |d| dinov2(d, 384, 6, 512) },
+        Case { name: "dinov2-base 256x256", run: |d| dinov2(d, 768, 12, 256) },
+        Case { name: "dinov2-base 512x512", run: |d| dinov2(d, 768, 12, 512) },
+    ]
+}
+
+fn random(device: &Device) -> (VarMap, VarBuilder<'static>) {
+    let map = VarMap::new();
+    let vb = VarBuilder::from_varmap(&map, DType::F32, device);
+    (map, vb)
+}
+
+fn time<T>(mut f: impl FnMut() -> Result<T, Error>) -> Result<f64, Error> {
+    f()?;
+    let t = Instant::now();
+    f()?;
+    Ok(t.elapsed().as_secs_f64())
+}
+
+/// `openai/clip-vit-large-patch14`.
+fn vit_l14() -> ClipConfig {
+    ClipConfig {
+        text_config: ClipTextConfig {
+            vocab_size: 49408,
+            hidden_size: 768,
+            intermediate_size: 3072,
+            num_hidden_layers: 12,
+            num_attention_heads: 12,
+            max_position_embeddings: 77,
+            hidden_act: "quick_gelu".into(),
+            layer_norm_eps: 1e-5,
+            eos_token_id: 49407,
+            projection_dim: 768,
+        },
+        vision_config: ClipVisionConfig {
+            hidden_size: 1024,
+            intermediate_size: 4096,
+            num_hidden_layers: 24,
+            num_attention_heads: 16,
+            image_size: 224,
+            patch_size: 14,
+            num_channels: 3,
+            hidden_act: "quick_gelu".into(),
+            layer_norm_eps: 1e-5,
+        },
+        projection_dim: 768,
+    }
+}
+
+fn clip(device: &Device) -> Result<(VarMap, Clip), Error> {
+    let (map, vb) = random(device);
+    let clip = Clip::new(vb, &vit_l14(), std::path::Path::new("(benchmark config)"))?;
+    Ok((map, clip))
+}
+
+fn clip_image(device: &Device) -> Result<f64, Error> {
+    let (_map, clip) = clip(device)?;
+    let (w, h) = (512, 512);
+    let img: Vec<f32> = (0..w * h * 3).map(|i| (i % 255) as f32 / 255.0).collect();
+    time(|| clip.image_features(&[(&img, w, h)]))
+}
+
+fn clip_text(device: &Device) -> Result<f64, Error> {
+    let (_map, clip) = clip(device)?;
+    time(|| clip.text_features(&["a photo of a man turned into a clown"]))
+}
+
+fn dinov2(device: &Device, hidden: usize, heads: usize, size: usize) -> Result<f64, Error> {
+    let (_map, vb) = random(device);
+    let config = Dinov2Config {
+        hidden_size: hidden,
+        num_hidden_layers: 12,
+        num_attention_heads: heads,
+        mlp_ratio: 4.0,
+        image_size: 518,
+        patch_size: 14,
+        hidden_act: "gelu".into(),
+        layer_norm_eps: 1e-6,
+        qkv_bias: true,
+        use_swiglu_ffn: false,
+    };
+    let model = Dinov2::new(vb, config)?;
+    let img: Vec<f32> = (0..size * size * 3).map(|i| (i % 251) as f32 / 251.0).collect();
+    time(|| model.features(&img, size, size))
+}
