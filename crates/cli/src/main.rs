@@ -79,7 +79,7 @@ fn main() {
         Command::Views(c) => commands::views::run(c),
         Command::Bench(BenchCommand::Transport(a)) => commands::uot::bench(a),
         Command::Bench(BenchCommand::Raster(a)) => commands::bench::raster(a),
-        Command::Train(a) => commands::train::run(a),
+        Command::Train(a) => commands::train::run(a, &CANCEL),
         Command::Bench(BenchCommand::Train(a)) => commands::train::bench(a),
     };
     if let Err(e) = result {
