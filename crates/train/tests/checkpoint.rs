@@ -190,3 +190,31 @@ fn a_poisoned_learning_rate_stops_naming_the_step_and_group() {
     assert!(e.contains("opacities") && e.contains("not written"), "{e}");
     assert!(!dir.path().join("point_cloud").exists());
 }
+
+#[test]
+fn a_failure_after_a_checkpoint_leaves_it_loadable_and_says_so() {
+    let ds = dataset();
+    let opts = options();
+    let dir = tempfile::tempdir().unwrap();
+    let ckdir = dir.path().join("ck");
+    let (mut t, mut state) = fresh(&ds, &opts);
+    let mut control = Control {
+        checkpoint: Some(checkpointer(&ckdir, &ds, &opts)),
+        stop_after: Some(20),
+        ..Default::default()
+    };
+    assert!(fit_with(&ds, &mut t, &mut state, 0, &mut control, |_| {}).is_err());
+    // Poison the run in flight: the rotations' learning rate becomes NaN at step 21.
+    control.stop_after = None;
+    t.config.lr.rotation = f32::NAN;
+    let e = fit_with(&ds, &mut t, &mut state, 0, &mut control, |_| {}).unwrap_err().to_string();
+    assert!(e.starts_with("step 21: the rotations became NaN or infinite"), "{e}");
+    let note = control.note();
+    assert!(
+        note.contains("last good checkpoint (step 20)") && note.contains(&ckdir.display().to_string()),
+        "{note}"
+    );
+    let (good, _) = checkpointer(&ckdir, &ds, &opts).load_train(opts.config.clone()).unwrap();
+    assert_eq!(good.step, 20);
+    assert!(transsplat_train::checkpoint::non_finite_parameters(&good.model).is_none());
+}
