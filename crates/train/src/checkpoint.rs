@@ -131,10 +131,17 @@ impl Checkpointer {
     /// Writes `w` as `name` in the folder (atomically: the previous checkpoint stays
     /// valid until the new one is complete) and records `step`; returns the checksum.
     pub fn write(&mut self, name: &str, w: &Writer, step: u64) -> Result<u64, TrainError> {
+        let t = std::time::Instant::now();
         std::fs::create_dir_all(&self.dir).map_err(|e| transsplat_scene::Error::io(&self.dir, e))?;
-        let sum = w.write(&self.file(name))?;
+        let path = self.file(name);
+        let sum = w.write(&path)?;
         self.last = Some(step);
-        tracing::debug!("checkpoint at step {step}: {}", self.file(name).display());
+        let mb = std::fs::metadata(&path).map_or(0.0, |m| m.len() as f64 / 1e6);
+        tracing::debug!(
+            "checkpoint at step {step}: {} ({mb:.1} MB in {:.2} s)",
+            path.display(),
+            t.elapsed().as_secs_f64()
+        );
         Ok(sum)
     }
 
