@@ -1,7 +1,8 @@
 //! The edit loop (SPEC Method 9; paper Sec. 3.5): edit the views once, then
 //! optimise the Gaussians one view per step with L_img + L_sem + L_uot + L_leak,
 //! running a transport round (prototypes → view-wise UOT → fusion → gate) every R
-//! steps. Baselines and ablations run in the same loop ([`Method`]).
+//! steps. Baselines and ablations run in the same loop ([`Method`]). [`run_with`]
+//! adds checkpoints, resuming ([`crate::checkpoint`]) and Ctrl-C.
 
 use crate::checkpoint::{self as ckpt, LoopState};
 use crate::config::{EditConfig, Method};

@@ -119,8 +119,8 @@ pub struct CheckpointArgs {
     /// (default 500 for train, 100 for edit; 0 = no checkpoints). Ctrl-C writes one too.
     #[arg(long, value_name = "N")]
     pub checkpoint_every: Option<u64>,
-    /// Continue an interrupted run from its checkpoint folder; give the same other
-    /// options (settings and inputs are checked against the checkpoint).
+    /// Continue an interrupted run from its checkpoint folder (or a file in it); give
+    /// the same other options (settings and inputs are checked against the checkpoint).
     #[arg(long, value_name = "DIR")]
     pub resume: Option<PathBuf>,
     /// Stop as if interrupted once this many steps are done (deterministic tests).
@@ -147,7 +147,12 @@ impl CheckpointArgs {
         cancel: &'a AtomicBool,
     ) -> Result<Control<'a>> {
         let every = self.checkpoint_every.unwrap_or(default_every);
-        let dir = self.resume.clone().unwrap_or_else(|| checkpoint_dir(out));
+        let dir = match &self.resume {
+            // The checkpoint file itself names its folder too.
+            Some(p) if p.is_file() => p.parent().map_or(PathBuf::from("."), Path::to_path_buf),
+            Some(p) => p.clone(),
+            None => checkpoint_dir(out),
+        };
         let has = dir.join(file).is_file();
         match &self.resume {
             Some(_) if !has => bail!("{}: no checkpoint ({file}) to resume from", dir.display()),
