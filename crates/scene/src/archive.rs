@@ -16,6 +16,7 @@
 use crate::{atomic, rng::mix, Error, Result};
 use std::borrow::Cow;
 use std::collections::HashMap;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 const MAGIC: &[u8; 8] = b"TSPLCKPT";
@@ -84,9 +85,78 @@ impl Hasher {
     }
 }
 
-/// Hash of a byte string.
-pub fn hash_bytes(b: &[u8]) -> u64 {
-    Hasher::default().bytes(b).finish()
+/// The file checksum, fed in pieces: [`Hasher`] over the bytes as 8-byte words
+/// (the last one zero-padded), then the length.
+#[derive(Clone, Debug, Default)]
+struct Checksum {
+    h: Hasher,
+    tail: [u8; 8],
+    n: usize,
+    len: u64,
+}
+
+impl Checksum {
+    fn update(&mut self, mut b: &[u8]) {
+        self.len += b.len() as u64;
+        if self.n > 0 {
+            let k = (8 - self.n).min(b.len());
+            self.tail[self.n..self.n + k].copy_from_slice(&b[..k]);
+            self.n += k;
+            b = &b[k..];
+            if self.n < 8 {
+                return;
+            }
+            self.h.u64(u64::from_le_bytes(self.tail));
+            self.n = 0;
+        }
+        let mut words = b.chunks_exact(8);
+        for w in &mut words {
+            self.h.u64(u64::from_le_bytes(w.try_into().expect("8 bytes")));
+        }
+        let rest = words.remainder();
+        self.tail[..rest.len()].copy_from_slice(rest);
+        self.n = rest.len();
+    }
+
+    fn finish(mut self) -> u64 {
+        if self.n > 0 {
+            self.tail[self.n..].fill(0);
+            self.h.u64(u64::from_le_bytes(self.tail));
+        }
+        self.h.u64(self.len).finish()
+    }
+}
+
+/// Checksum of a whole byte string.
+fn checksum(b: &[u8]) -> u64 {
+    let mut c = Checksum::default();
+    c.update(b);
+    c.finish()
+}
+
+/// A writer that feeds the checksum with everything it writes.
+struct Sink<'w> {
+    w: &'w mut dyn Write,
+    sum: Checksum,
+}
+
+impl Sink<'_> {
+    fn put(&mut self, b: &[u8]) -> std::io::Result<()> {
+        self.sum.update(b);
+        self.w.write_all(b)
+    }
+
+    /// Writes values in blocks (no copy of the whole array).
+    fn values<T: Copy, const N: usize>(&mut self, v: &[T], le: impl Fn(T) -> [u8; N]) -> std::io::Result<()> {
+        self.put(&(v.len() as u64).to_le_bytes())?;
+        let mut buf = Vec::with_capacity(N << 13);
+        for block in v.chunks(1 << 13) {
+            buf.clear();
+            block.iter().for_each(|&x| buf.extend_from_slice(&le(x)));
+            self.put(&buf)?;
+        }
+        Ok(())
+    }
 }
 
 /// Borrowed or owned array data of one entry.
@@ -146,65 +216,47 @@ impl<'a> Writer<'a> {
         self.u64(name, vec![v])
     }
 
-    /// The file's bytes.
-    pub fn to_bytes(&self) -> Vec<u8> {
-        let size: usize = self
-            .entries
-            .iter()
-            .map(|(n, s)| {
-                11 + n.len()
-                    + match s {
-                        Slot::F32(v) => v.len() * 4,
-                        Slot::U32(v) => v.len() * 4,
-                        Slot::U64(v) => v.len() * 8,
-                        Slot::F64(v) => v.len() * 8,
-                        Slot::Text(v) => v.len(),
-                    }
-            })
-            .sum();
-        let mut out = Vec::with_capacity(32 + size);
-        out.extend_from_slice(MAGIC);
-        out.extend_from_slice(&VERSION.to_le_bytes());
-        out.extend_from_slice(&(self.entries.len() as u32).to_le_bytes());
+    /// Streams the file into `w`; returns the checksum.
+    fn emit(&self, w: &mut dyn Write) -> std::io::Result<u64> {
+        let mut s = Sink { w, sum: Checksum::default() };
+        s.put(MAGIC)?;
+        s.put(&VERSION.to_le_bytes())?;
+        s.put(&(self.entries.len() as u32).to_le_bytes())?;
         for (name, slot) in &self.entries {
             assert!(name.len() <= u16::MAX as usize, "archive entry name too long");
-            out.extend_from_slice(&(name.len() as u16).to_le_bytes());
-            out.extend_from_slice(name.as_bytes());
-            out.push(slot.code());
+            s.put(&(name.len() as u16).to_le_bytes())?;
+            s.put(name.as_bytes())?;
+            s.put(&[slot.code()])?;
             match slot {
-                Slot::F32(v) => {
-                    out.extend_from_slice(&(v.len() as u64).to_le_bytes());
-                    v.iter().for_each(|x| out.extend_from_slice(&x.to_le_bytes()));
-                }
-                Slot::U32(v) => {
-                    out.extend_from_slice(&(v.len() as u64).to_le_bytes());
-                    v.iter().for_each(|x| out.extend_from_slice(&x.to_le_bytes()));
-                }
-                Slot::U64(v) => {
-                    out.extend_from_slice(&(v.len() as u64).to_le_bytes());
-                    v.iter().for_each(|x| out.extend_from_slice(&x.to_le_bytes()));
-                }
-                Slot::F64(v) => {
-                    out.extend_from_slice(&(v.len() as u64).to_le_bytes());
-                    v.iter().for_each(|x| out.extend_from_slice(&x.to_le_bytes()));
-                }
-                Slot::Text(v) => {
-                    out.extend_from_slice(&(v.len() as u64).to_le_bytes());
-                    out.extend_from_slice(v.as_bytes());
-                }
+                Slot::F32(v) => s.values(v, f32::to_le_bytes)?,
+                Slot::U32(v) => s.values(v, u32::to_le_bytes)?,
+                Slot::U64(v) => s.values(v, u64::to_le_bytes)?,
+                Slot::F64(v) => s.values(v, f64::to_le_bytes)?,
+                Slot::Text(v) => s.values(v.as_bytes(), |b: u8| [b])?,
             }
         }
-        let sum = hash_bytes(&out);
-        out.extend_from_slice(&sum.to_le_bytes());
-        out.extend_from_slice(END);
+        let Sink { w, sum } = s;
+        let sum = sum.finish();
+        w.write_all(&sum.to_le_bytes())?;
+        w.write_all(END)?;
+        Ok(sum)
+    }
+
+    /// The file's bytes.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut out = Vec::new();
+        self.emit(&mut out).expect("writing to memory");
         out
     }
 
-    /// Writes the file atomically (temporary name, then rename); returns its checksum.
+    /// Writes the file atomically (streamed to a temporary name, then renamed);
+    /// returns its checksum.
     pub fn write(&self, path: &Path) -> Result<u64> {
-        let bytes = self.to_bytes();
-        let sum = u64::from_le_bytes(bytes[bytes.len() - 16..bytes.len() - 8].try_into().expect("8 bytes"));
-        atomic::write_bytes(path, &bytes)?;
+        let mut sum = 0;
+        atomic::write_with(path, |w| {
+            sum = self.emit(w)?;
+            Ok(())
+        })?;
         Ok(sum)
     }
 }
@@ -257,7 +309,7 @@ impl Archive {
         }
         let body = &bytes[..bytes.len() - 16];
         let stored = u64::from_le_bytes(bytes[bytes.len() - 16..bytes.len() - 8].try_into().expect("8"));
-        if hash_bytes(body) != stored {
+        if checksum(body) != stored {
             return Err(err("checkpoint file is damaged (checksum mismatch)"));
         }
         let version = u32::from_le_bytes(body[8..12].try_into().expect("4"));
@@ -381,7 +433,7 @@ mod tests {
     use super::*;
 
     fn sample() -> Vec<u8> {
-        let v = vec![1.5f32, -2.0, f32::MIN_POSITIVE];
+        let v = [1.5f32, -2.0, f32::MIN_POSITIVE];
         let mut w = Writer::new();
         w.f32("a", &v[..])
             .u32("b", vec![7u32, 8])
@@ -431,6 +483,15 @@ mod tests {
         };
         assert_ne!(h(&["ab", "c"]), h(&["a", "bc"]));
         assert_ne!(Hasher::default().f32s(&[0.0]).finish(), Hasher::default().f32s(&[-0.0]).finish());
-        assert_eq!(hash_bytes(b"abc"), hash_bytes(b"abc"));
+        // The streamed checksum does not depend on how the bytes are split.
+        let bytes: Vec<u8> = (0..=255u8).collect();
+        for cut in [0, 1, 7, 8, 9, 100] {
+            let mut c = Checksum::default();
+            c.update(&bytes[..cut]);
+            c.update(&bytes[cut..cut.max(130)]);
+            c.update(&bytes[cut.max(130)..]);
+            assert_eq!(c.finish(), checksum(&bytes), "split at {cut}");
+        }
+        assert_ne!(checksum(b"abc"), checksum(b"abc\0"));
     }
 }
