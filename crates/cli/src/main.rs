@@ -54,7 +54,8 @@ enum BenchCommand {
     Train(commands::train::BenchArgs),
 }
 
-/// Set by SIGINT / Ctrl-C; long commands stop at the next step and write nothing partial.
+/// Set by SIGINT / Ctrl-C; long commands stop at the next step, write nothing partial, and
+/// `train` / `edit` write a checkpoint to resume from.
 static CANCEL: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
 fn main() {
@@ -63,7 +64,7 @@ fn main() {
         if CANCEL.swap(true, std::sync::atomic::Ordering::SeqCst) {
             std::process::exit(130);
         }
-        eprintln!("interrupt: stopping at the next step (press Ctrl-C again to quit at once)");
+        eprintln!("interrupt: stopping at the next step (train and edit save a checkpoint); Ctrl-C again quits at once");
     });
     let level = match cli.verbose {
         0 => "info",
@@ -85,7 +86,7 @@ fn main() {
         Command::Bench(BenchCommand::Transport(a)) => commands::uot::bench(a),
         Command::Bench(BenchCommand::Raster(a)) => commands::bench::raster(a),
         Command::Bench(BenchCommand::Models(a)) => commands::bench::models(a),
-        Command::Train(a) => commands::train::run(a),
+        Command::Train(a) => commands::train::run(a, &CANCEL),
         Command::Bench(BenchCommand::Train(a)) => commands::train::bench(a),
     };
     if let Err(e) = result {

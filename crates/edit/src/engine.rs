@@ -1,8 +1,10 @@
 //! The edit loop (SPEC Method 9; paper Sec. 3.5): edit the views once, then
 //! optimise the Gaussians one view per step with L_img + L_sem + L_uot + L_leak,
 //! running a transport round (prototypes → view-wise UOT → fusion → gate) every R
-//! steps. Baselines and ablations run in the same loop ([`Method`]).
+//! steps. Baselines and ablations run in the same loop ([`Method`]). [`run_with`]
+//! adds checkpoints, resuming ([`crate::checkpoint`]) and Ctrl-C.
 
+use crate::checkpoint::{self as ckpt, LoopState};
 use crate::config::{EditConfig, Method};
 use crate::prototypes::{self, Prototypes, ViewEvidence};
 use crate::view::{self, ViewTransport};
@@ -11,12 +13,12 @@ use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 use transsplat_editors::{EditedView, Editor, SourceView};
 use transsplat_raster::{backward, gaussian_stats, render, ImageGrads, RenderOptions, Splats};
 use transsplat_scene::{sigmoid, Camera, Gaussians};
-use transsplat_train::{DensifyConfig, Model, TrainConfig, Trainer};
+use transsplat_train::{Control, DensifyConfig, Model, TrainConfig, Trainer};
 
 /// Errors of an edit; messages are one line meant for the user.
 #[derive(Debug, thiserror::Error)]
@@ -33,6 +35,9 @@ pub enum EditError {
     Train(String),
     #[error("interrupted at step {0}")]
     Interrupted(usize),
+    /// A checkpoint cannot be written, read or used (the message names the file).
+    #[error("{0}")]
+    Checkpoint(String),
 }
 
 /// Semantic features of an image: `(image, w, h)` → `(H × W × d, d)`.
@@ -54,7 +59,7 @@ pub struct EditJob<'a> {
 }
 
 /// Statistics of one transport round.
-#[derive(Clone, Debug, Default, serde::Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
 pub struct RoundStats {
     pub round: usize,
     pub step: usize,
@@ -68,7 +73,7 @@ pub struct RoundStats {
 }
 
 /// Loss values of one step.
-#[derive(Clone, Debug, Default, serde::Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
 pub struct StepLosses {
     pub step: usize,
     pub img: f64,
@@ -202,6 +207,22 @@ pub fn run(
     cancel: Option<&AtomicBool>,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<EditResult, EditError> {
+    run_with(job, editor, cfg, &mut Control { cancel, ..Default::default() }, progress)
+}
+
+/// [`run`] steered by `control`: checkpoints every `every` steps and on a stop
+/// (Ctrl-C or `stop_after`, then [`EditError::Interrupted`]); with `resume`, the
+/// editor outputs and loop state come from the checkpoint folder (the editor is not
+/// called) and the run continues to the result an uninterrupted run would give.
+/// A NaN or infinite loss, gradient or parameter stops with [`EditError::Train`]
+/// naming the step and the parameter group.
+pub fn run_with(
+    job: &EditJob,
+    editor: &mut dyn Editor,
+    cfg: &EditConfig,
+    control: &mut Control,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<EditResult, EditError> {
     // The method's implied settings (ablations zero some weights), however the
     // config was assembled.
     let cfg = &cfg.for_method(cfg.method);
@@ -213,6 +234,18 @@ pub fn run(
         return Err(EditError::Input("no edit views".into()));
     }
     let t_total = Instant::now();
+    if let Some(ck) = control.checkpoint.as_mut() {
+        ck.id = ckpt::run_id(job, cfg, editor.name());
+    }
+    // Resuming: the editor outputs and the loop state from the checkpoint.
+    let mut resumed: Option<(Vec<Option<EditedView>>, u64)> = None;
+    if control.resume {
+        let ck = control
+            .checkpoint
+            .as_ref()
+            .ok_or_else(|| EditError::Input("resume without a checkpoint folder".into()))?;
+        resumed = Some(ckpt::load_edited(ck)?);
+    }
     let g0 = job.gaussians;
     let n = g0.len();
     let d = cfg.semantic_dim;
@@ -229,7 +262,10 @@ pub fn run(
         .zip(&sources)
         .map(|(&v, img)| SourceView { index: v, camera: &job.cameras[v], image: img })
         .collect();
-    let edited = editor.edit(&src_views, job.prompt)?;
+    let (edited, mut editor_sum) = match resumed {
+        Some((e, sum)) => (e, Some(sum)),
+        None => (editor.edit(&src_views, job.prompt)?, None),
+    };
     if edited.len() != src_views.len() {
         return Err(EditError::Input(format!(
             "editor {} returned {} views for {} inputs",
@@ -382,18 +418,29 @@ pub fn run(
     let extent = transsplat_train::trainer::scene_extent(job.cameras);
     let model = Model::with_features(g0.clone(), s_init, d).map_err(EditError::Train)?;
     let mut tr = Trainer::new(model, extent, tcfg).map_err(|e| EditError::Train(e.to_string()))?;
-    let mut sh0 = g0.sh.clone();
     let kc = g0.sh_coeffs() * 3;
-
-    let mut gamma: Vec<f32> = vec![1.0; n];
-    let mut zbar: Option<Vec<f32>> = None;
-    let mut cached: Vec<ViewTransport> = Vec::new();
-    let mut rounds = Vec::new();
-    let mut step_losses = Vec::new();
-    let mut transport_s = 0.0;
-    let mut order: Vec<usize> = Vec::new();
-    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0xED17);
-    let mut force_round = false;
+    let mut ls = LoopState {
+        step: 0,
+        sh0: g0.sh.clone(),
+        gamma: vec![1.0; n],
+        zbar: None,
+        cached: Vec::new(),
+        rounds: Vec::new(),
+        losses: Vec::new(),
+        order: Vec::new(),
+        rng: ChaCha8Rng::seed_from_u64(cfg.seed ^ 0xED17),
+        force_round: false,
+        lifted,
+        gate_report,
+        editor_s,
+        transport_s: 0.0,
+        elapsed_s: 0.0,
+    };
+    if let (true, Some(ck), Some(sum)) = (control.resume, control.checkpoint.as_mut(), editor_sum) {
+        (tr, ls) = ckpt::load_state(ck, tr.config.clone(), sum, views.len())?;
+    }
+    let start = ls.step;
+    let elapsed0 = ls.elapsed_s;
     // Geometry and opacity stay fixed when their learning rates are zero and nothing
     // is densified; then the per-view source statistics are computed once.
     let geometry_frozen = lr.position == 0.0
@@ -404,13 +451,25 @@ pub fn run(
     let mut sources: Vec<ViewSources> = Vec::new();
     let diag = |c: &Camera| ((c.width as f32).powi(2) + (c.height as f32).powi(2)).sqrt();
 
-    for step in 0..cfg.schedule.steps {
-        if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+    for step in start..cfg.schedule.steps {
+        ls.step = step;
+        let stop = control.should_stop(step as u64);
+        if let Some(ck) = control.checkpoint.as_mut() {
+            if ck.due(step as u64, start as u64) || (stop && ck.last != Some(step as u64)) {
+                let sum = match editor_sum {
+                    Some(s) => s,
+                    None => *editor_sum.insert(ckpt::save_edited(ck, &edited, step)?),
+                };
+                ls.elapsed_s = elapsed0 + t_total.elapsed().as_secs_f64();
+                ckpt::save_state(ck, &tr, &ls, sum)?;
+            }
+        }
+        if stop {
             return Err(EditError::Interrupted(step));
         }
         // Transport round.
-        if cfg.method.uses_transport() && (step % cfg.schedule.transport_every == 0 || force_round) {
-            force_round = false;
+        if cfg.method.uses_transport() && (step % cfg.schedule.transport_every == 0 || ls.force_round) {
+            ls.force_round = false;
             let t = Instant::now();
             let g = &tr.model.gaussians;
             let s = &tr.model.features;
@@ -463,35 +522,35 @@ pub fn run(
                     Ok(t)
                 })
                 .collect();
-            cached = results.into_iter().collect::<Result<_, _>>()?;
-            let acc = fusion::accumulate(tr.model.len(), d, &cached, cfg.fusion.min_support);
+            ls.cached = results.into_iter().collect::<Result<_, _>>()?;
+            let acc = fusion::accumulate(tr.model.len(), d, &ls.cached, cfg.fusion.min_support);
             let z = fusion::canonical_targets(&acc, &tr.model.features, cfg.fusion.rho);
-            zbar = Some(fusion::ema(zbar.as_deref(), &z, cfg.fusion.ema));
-            let r = gate::residuals(tr.model.len(), &cached, cfg.fusion.min_support);
-            gamma = gate::gate(&r, cfg.fusion.tau_r);
+            ls.zbar = Some(fusion::ema(ls.zbar.as_deref(), &z, cfg.fusion.ema));
+            let r = gate::residuals(tr.model.len(), &ls.cached, cfg.fusion.min_support);
+            ls.gamma = gate::gate(&r, cfg.fusion.tau_r);
             let secs = t.elapsed().as_secs_f64();
-            transport_s += secs;
+            ls.transport_s += secs;
             let rs = RoundStats {
-                round: rounds.len(),
+                round: ls.rounds.len(),
                 step,
-                views: cached.len(),
-                objective: cached.iter().map(|v| v.objective).sum(),
-                dual: cached.iter().map(|v| v.dual).sum(),
-                gap: cached.iter().map(|v| v.gap).sum(),
-                transported_mass: cached.iter().map(|v| v.transported_mass).sum(),
-                mean_gate: gamma.iter().map(|&x| x as f64).sum::<f64>() / gamma.len().max(1) as f64,
+                views: ls.cached.len(),
+                objective: ls.cached.iter().map(|v| v.objective).sum(),
+                dual: ls.cached.iter().map(|v| v.dual).sum(),
+                gap: ls.cached.iter().map(|v| v.gap).sum(),
+                transported_mass: ls.cached.iter().map(|v| v.transported_mass).sum(),
+                mean_gate: ls.gamma.iter().map(|&x| x as f64).sum::<f64>() / ls.gamma.len().max(1) as f64,
                 seconds: secs,
             };
             progress(Progress::Round(&rs));
-            rounds.push(rs);
+            ls.rounds.push(rs);
         }
 
         // One view per step, shuffled per epoch.
-        if order.is_empty() {
-            order = (0..views.len()).collect();
-            order.shuffle(&mut rng);
+        if ls.order.is_empty() {
+            ls.order = (0..views.len()).collect();
+            ls.order.shuffle(&mut ls.rng);
         }
-        let vd = &views[order.pop().expect("non-empty")];
+        let vd = &views[ls.order.pop().expect("non-empty")];
         let cam = &job.cameras[vd.cam];
         tr.begin_step();
         let (w, h) = (cam.width as usize, cam.height as usize);
@@ -508,7 +567,7 @@ pub fn run(
         match cfg.method {
             Method::Naive => {}
             Method::Masklift => {
-                let m = lifted.as_ref().expect("masklift mask");
+                let m = ls.lifted.as_ref().expect("masklift mask");
                 for (i, &keep) in m.iter().enumerate() {
                     if !keep {
                         grads.sh[i * kc..(i + 1) * kc].iter_mut().for_each(|g| *g = 0.0);
@@ -516,13 +575,19 @@ pub fn run(
                 }
             }
             _ => {
-                if let Some(z) = &zbar {
-                    rec.sem =
-                        losses::semantic(&tr.model.features, z, &gamma, d, cfg.loss.sem, &mut grads.features);
+                if let Some(z) = &ls.zbar {
+                    rec.sem = losses::semantic(
+                        &tr.model.features,
+                        z,
+                        &ls.gamma,
+                        d,
+                        cfg.loss.sem,
+                        &mut grads.features,
+                    );
                 }
                 // L_uot = Σ_v 𝒯_v: one view per step, like L_img (an unbiased estimate of
                 // the mean over views).
-                if let Some(v) = cached.iter().find(|t| t.view == vd.cam) {
+                if let Some(v) = ls.cached.iter().find(|t| t.view == vd.cam) {
                     losses::transport_semantic(
                         &tr.model.features,
                         &v.idx,
@@ -537,8 +602,8 @@ pub fn run(
                 if cfg.loss.leak > 0.0 {
                     rec.leak = losses::leakage(
                         &tr.model.gaussians.sh,
-                        &sh0,
-                        &gamma,
+                        &ls.sh0,
+                        &ls.gamma,
                         kc,
                         cfg.loss.leak,
                         &mut grads.sh,
@@ -546,55 +611,65 @@ pub fn run(
                 }
             }
         }
+        for (name, v) in
+            [("image", rec.img), ("semantic", rec.sem), ("transport", rec.uot), ("leakage", rec.leak)]
+        {
+            if !v.is_finite() {
+                return Err(EditError::Train(format!(
+                    "step {}: the {name} loss became NaN or infinite; lower the learning rates or check the inputs",
+                    tr.step
+                )));
+            }
+        }
         // Densification only among gated Gaussians (lifted mask for masklift; no
         // restriction for the ablation without leakage suppression, or for naive).
-        let mask: Option<Vec<bool>> = match (cfg.schedule.densify_every > 0, cfg.method, &lifted) {
+        let mask: Option<Vec<bool>> = match (cfg.schedule.densify_every > 0, cfg.method, &ls.lifted) {
             (false, _, _) | (true, Method::NoLeaksup | Method::Naive, _) => None,
             (true, _, Some(m)) => Some(m.clone()),
-            (true, _, None) => Some(gamma.iter().map(|&g| g >= cfg.schedule.densify_gate).collect()),
+            (true, _, None) => Some(ls.gamma.iter().map(|&g| g >= cfg.schedule.densify_gate).collect()),
         };
         let report =
             tr.finish_step(&grads, &frame, mask.as_deref()).map_err(|e| EditError::Train(e.to_string()))?;
         if let Some(r) = &report.reindex {
-            gamma = r.gather(&gamma, 1);
-            sh0 = r.gather(&sh0, kc);
-            zbar = zbar.map(|z| r.gather(&z, d));
-            if let Some(m) = lifted.as_mut() {
+            ls.gamma = r.gather(&ls.gamma, 1);
+            ls.sh0 = r.gather(&ls.sh0, kc);
+            ls.zbar = ls.zbar.map(|z| r.gather(&z, d));
+            if let Some(m) = ls.lifted.as_mut() {
                 *m = r.gather(m, 1);
             }
-            if let Some(gr) = gate_report.as_mut() {
+            if let Some(gr) = ls.gate_report.as_mut() {
                 *gr = r.gather(gr, 1);
             }
-            cached.clear();
+            ls.cached.clear();
             sources.clear();
-            force_round = cfg.method.uses_transport();
+            ls.force_round = cfg.method.uses_transport();
         }
         progress(Progress::Step {
             step: step + 1,
             steps: cfg.schedule.steps,
             loss: rec.img + rec.sem + rec.leak,
         });
-        step_losses.push(rec);
+        ls.losses.push(rec);
     }
 
     let mut out = tr.model.gaussians.clone();
     set_semantic_extras(&mut out, &tr.model.features, d);
     let gate = match cfg.method {
         Method::Naive => None,
-        Method::Masklift => gate_report,
-        _ => Some(gamma),
+        Method::Masklift => ls.gate_report,
+        _ => Some(ls.gamma),
     };
-    let total = t_total.elapsed().as_secs_f64();
+    let total = elapsed0 + t_total.elapsed().as_secs_f64();
     Ok(EditResult {
         gaussians: out,
         gate,
-        rounds,
-        losses: step_losses,
+        rounds: ls.rounds,
+        losses: ls.losses,
         timing: Timing {
             total,
-            editor: editor_s,
-            transport: transport_s,
-            optimise: total - editor_s - transport_s,
+            editor: ls.editor_s,
+            transport: ls.transport_s,
+            optimise: total - ls.editor_s - ls.transport_s,
         },
         edited,
         prototypes: proto_counts,

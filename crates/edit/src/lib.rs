@@ -9,8 +9,10 @@
 //! 4. [`gate`]: relative transport residual and the leakage gate γ (SPEC Method 6).
 //! 5. [`losses`]: L_sem, L_uot (through the cost at fixed T*) and L_leak gradients.
 //!
-//! [`config`] holds every hyperparameter with the paper's defaults.
+//! [`config`] holds every hyperparameter with the paper's defaults; [`engine`] runs
+//! the edit loop, which [`checkpoint`] saves and restores.
 
+pub mod checkpoint;
 pub mod config;
 pub mod engine;
 pub mod fusion;

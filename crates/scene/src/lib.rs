@@ -9,9 +9,11 @@
 //! - [`image`]: PNG and JPEG images as float RGB in [0, 1].
 //! - [`scene_paths`]: finding the scene and cameras in an INRIA 3DGS output folder.
 //! - [`atomic`]: write-to-temporary-then-rename for every output.
+//! - [`archive`]: named little-endian arrays with a checksum (checkpoints).
 //!
 //! Every error names the file it is about ([`Error`]).
 
+pub mod archive;
 pub mod atomic;
 pub mod camera;
 pub mod cameras;

@@ -45,15 +45,16 @@ impl Group {
         self as usize
     }
 
-    /// Human-readable name (for messages).
+    /// The parameters' name in messages (means, scales, rotations, opacities, sh,
+    /// features).
     pub fn name(self) -> &'static str {
         match self {
-            Group::Position => "position",
-            Group::ShDc => "SH DC colour",
-            Group::ShRest => "higher SH colour",
-            Group::Opacity => "opacity",
-            Group::Scaling => "scaling",
-            Group::Rotation => "rotation",
+            Group::Position => "means",
+            Group::ShDc => "sh",
+            Group::ShRest => "sh (higher degrees)",
+            Group::Opacity => "opacities",
+            Group::Scaling => "scales",
+            Group::Rotation => "rotations",
             Group::Features => "features",
         }
     }

@@ -2,6 +2,7 @@
 //! random training view per step, drawn without replacement per epoch), periodic
 //! test PSNR, and the INRIA output folder.
 
+use crate::checkpoint::Control;
 use crate::dataset::{Dataset, View};
 use crate::init::{gaussians_from_points, random_points};
 use crate::loss::psnr;
@@ -96,29 +97,75 @@ pub struct Progress {
     pub last: StepReport,
 }
 
+/// The training loop's own state: the view order (drawn without replacement per
+/// epoch) and the loss average. Part of a checkpoint.
+#[derive(Clone, Debug)]
+pub struct FitState {
+    pub order_rng: ChaCha8Rng,
+    /// Views left in this epoch (taken from the end).
+    pub stack: Vec<usize>,
+    pub ema_loss: f32,
+}
+
+impl FitState {
+    /// The state at step 0 of a run with `seed`.
+    pub fn new(seed: u64) -> Self {
+        FitState { order_rng: ChaCha8Rng::seed_from_u64(seed ^ 0x0DE5), stack: Vec::new(), ema_loss: 0.0 }
+    }
+}
+
 /// Trains `trainer` on `ds` for `config.iterations` steps from its current step,
 /// calling `on_progress` after every step. Returns the final test evaluation.
 pub fn fit(
     ds: &Dataset,
     trainer: &mut Trainer,
     eval_every: u64,
+    on_progress: impl FnMut(&Progress),
+) -> Result<Eval, TrainError> {
+    let mut state = FitState::new(trainer.config.seed);
+    fit_with(ds, trainer, &mut state, eval_every, &mut Control::default(), on_progress)
+}
+
+/// [`fit`] from a loop state (fresh or restored from a checkpoint), steered by
+/// `control`: a checkpoint at the top of every `every`-th step, and on a stop (Ctrl-C
+/// or `stop_after`) a final checkpoint and [`TrainError::Interrupted`].
+pub fn fit_with(
+    ds: &Dataset,
+    trainer: &mut Trainer,
+    state: &mut FitState,
+    eval_every: u64,
+    control: &mut Control,
     mut on_progress: impl FnMut(&Progress),
 ) -> Result<Eval, TrainError> {
     if ds.train.is_empty() {
         return Err(TrainError::Mismatch("the dataset has no training views".into()));
     }
-    let mut order_rng = ChaCha8Rng::seed_from_u64(trainer.config.seed ^ 0x0DE5);
-    let mut stack: Vec<usize> = Vec::new();
-    let mut progress = Progress { iterations: trainer.config.iterations, ..Default::default() };
+    if let Some(&bad) = state.stack.iter().find(|&&i| i >= ds.train.len()) {
+        return Err(TrainError::Mismatch(format!("view {bad} of the saved order is not in the dataset")));
+    }
+    let start = trainer.step;
+    let mut progress =
+        Progress { iterations: trainer.config.iterations, ema_loss: state.ema_loss, ..Default::default() };
     while trainer.step < trainer.config.iterations {
-        if stack.is_empty() {
-            stack = (0..ds.train.len()).collect();
-            stack.shuffle(&mut order_rng);
+        let step = trainer.step;
+        if let Some(ck) = control.checkpoint.as_mut().filter(|ck| ck.due(step, start)) {
+            ck.save_train(trainer, state)?;
         }
-        let v = &ds.train[stack.pop().expect("refilled")];
+        if control.should_stop(step) {
+            if let Some(ck) = control.checkpoint.as_mut().filter(|ck| ck.last != Some(step)) {
+                ck.save_train(trainer, state)?;
+            }
+            return Err(TrainError::Interrupted { step });
+        }
+        if state.stack.is_empty() {
+            state.stack = (0..ds.train.len()).collect();
+            state.stack.shuffle(&mut state.order_rng);
+        }
+        let v = &ds.train[state.stack.pop().expect("refilled")];
         let report = trainer.step(&v.camera, &v.image, v.weights.as_deref())?;
-        progress.ema_loss =
-            if progress.step == 0 { report.loss } else { 0.4 * report.loss + 0.6 * progress.ema_loss };
+        state.ema_loss =
+            if report.step == 1 { report.loss } else { 0.4 * report.loss + 0.6 * state.ema_loss };
+        progress.ema_loss = state.ema_loss;
         progress.step = report.step;
         progress.gaussians = report.gaussians;
         if eval_every > 0 && report.step % eval_every == 0 && !ds.test.is_empty() {
@@ -132,7 +179,14 @@ pub fn fit(
 
 /// Writes the INRIA output layout: `out/point_cloud/iteration_N/point_cloud.ply`
 /// and `out/cameras.json`, each file atomically. Returns the PLY path.
+/// Refuses (naming the parameter group) to write a model holding NaN or infinite values.
 pub fn write_output(out: &Path, trainer: &Trainer, cameras: &[Camera]) -> transsplat_scene::Result<PathBuf> {
+    if let Some(group) = crate::checkpoint::non_finite_parameters(&trainer.model) {
+        return Err(Error::format(
+            out,
+            format!("not written: the trained {group} hold NaN or infinite values"),
+        ));
+    }
     let dir = out.join("point_cloud").join(format!("iteration_{}", trainer.step));
     std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
     let ply_path = dir.join("point_cloud.ply");

@@ -16,6 +16,8 @@
 //!   folders at a chosen downscale, point-cloud initialisation (k-d tree nearest
 //!   neighbours) or random points in the cameras' view, the training loop with test
 //!   PSNR, and the INRIA output folder.
+//! - [`checkpoint`]: checkpoints of long runs (bit-identical resume), the run's
+//!   identity, and [`Control`] (Ctrl-C, checkpoint interval, deterministic stop).
 //! - [`bench`]: time per training step against forward + backward alone.
 //!
 //! Everything random is seeded (ChaCha8).
@@ -26,6 +28,7 @@
 
 pub mod adam;
 pub mod bench;
+pub mod checkpoint;
 pub mod dataset;
 pub mod densify;
 pub mod fit;
@@ -36,9 +39,12 @@ pub mod points;
 pub mod trainer;
 
 pub use adam::{Adam, Group, LearningRates};
+pub use checkpoint::{Checkpointer, Control, RunId};
 pub use dataset::{Dataset, LoadOptions, View};
 pub use densify::{DensifyConfig, DensifyCounts, DensifyStats};
-pub use fit::{evaluate, fit, initial_model, write_output, Eval, FitOptions, InitSource, Progress};
+pub use fit::{
+    evaluate, fit, fit_with, initial_model, write_output, Eval, FitOptions, FitState, InitSource, Progress,
+};
 pub use loss::{image_loss, psnr, ssim, ImageLoss};
 pub use model::{apply_reindex, Model, Reindex};
 pub use points::PointCloud;

@@ -59,15 +59,25 @@ impl Default for TrainConfig {
     }
 }
 
-/// Errors of an optimisation step.
+/// Errors of an optimisation step or run.
 #[derive(Debug, thiserror::Error)]
 pub enum TrainError {
-    /// A loss or gradient became NaN or infinite.
-    #[error("step {step}: the {what} became NaN or infinite; lower the learning rates or check the inputs")]
+    /// A loss, gradient or parameter became NaN or infinite; `what` names it and its
+    /// parameter group, e.g. "the gradient of the scales".
+    #[error("step {step}: {what} became NaN or infinite; lower the learning rates or check the inputs")]
     NonFinite { step: u64, what: String },
     /// Inputs that do not fit together (sizes, lengths).
     #[error("{0}")]
     Mismatch(String),
+    /// Stopped by the caller (Ctrl-C or a requested stop) with `step` steps done.
+    #[error("interrupted after step {step}")]
+    Interrupted { step: u64 },
+    /// A checkpoint that cannot be used to resume this run.
+    #[error("{0}")]
+    Resume(String),
+    /// Reading or writing a checkpoint failed (the message names the file).
+    #[error(transparent)]
+    Checkpoint(#[from] transsplat_scene::Error),
 }
 
 /// Rendering, loss and gradients of one view.
@@ -215,7 +225,9 @@ impl Trainer {
     /// Finishes a step begun with [`Trainer::begin_step`]: records densification
     /// statistics from `grads.means2d` and `frame`, takes the Adam step, then
     /// densifies / prunes / resets opacity on schedule. `densify_mask` restricts
-    /// which Gaussians may be cloned, split, pruned or reset.
+    /// which Gaussians may be cloned, split, pruned or reset. A NaN or infinite
+    /// gradient (before the update) or parameter (after it) is a
+    /// [`TrainError::NonFinite`] naming the step and the parameter group.
     pub fn finish_step(
         &mut self,
         grads: &Grads,
@@ -234,7 +246,10 @@ impl Trainer {
         let step = self.step;
         let lr = self.learning_rates();
         if let Some(group) = first_non_finite(grads, &lr) {
-            return Err(TrainError::NonFinite { step, what: format!("{} gradient", group.name()) });
+            return Err(TrainError::NonFinite {
+                step,
+                what: format!("the gradient of the {}", group.name()),
+            });
         }
         let d = self.config.densify.clone();
         if d.records(step) {
@@ -262,6 +277,9 @@ impl Trainer {
             report.opacity_reset = true;
         }
         report.gaussians = self.model.len();
+        if let Some(group) = crate::checkpoint::non_finite_parameters(&self.model) {
+            return Err(TrainError::NonFinite { step, what: format!("the {group}") });
+        }
         Ok(report)
     }
 
@@ -275,7 +293,7 @@ impl Trainer {
         self.begin_step();
         let pass = self.forward_backward(cam, target, weights)?;
         if !pass.loss.loss.is_finite() {
-            return Err(TrainError::NonFinite { step: self.step, what: "image loss".into() });
+            return Err(TrainError::NonFinite { step: self.step, what: "the image loss".into() });
         }
         let mut report = self.finish_step(&pass.grads, &pass.frame, None)?;
         report.loss = pass.loss.loss;

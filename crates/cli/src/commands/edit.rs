@@ -1,9 +1,10 @@
 //! `transsplat edit`: language-driven editing of a scene with any 2D editor.
 
-use super::common::{load_cameras, load_scene, parse_rgb, progress, SceneArgs};
+use super::common::{load_cameras, load_scene, parse_rgb, progress, CheckpointArgs, SceneArgs};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
+use transsplat_edit::checkpoint::STATE_FILE;
 use transsplat_edit::config::Method;
 use transsplat_edit::engine::{self, EditJob, Progress};
 use transsplat_edit::EditConfig;
@@ -76,6 +77,8 @@ pub struct EditArgs {
     /// Output folder (replaced only if it holds an earlier edit's output).
     #[arg(long)]
     pub out: PathBuf,
+    #[command(flatten)]
+    pub checkpoints: CheckpointArgs,
 }
 
 /// The built-in scene a dataset folder written by `transsplat scene` came from.
@@ -155,6 +158,7 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         }
         None => None,
     };
+    let mut control = args.checkpoints.control(&args.out, 100, STATE_FILE, cancel)?;
     let staged = StagedDir::begin(&args.out, MARKER)?;
     let mut editor: Box<dyn Editor + '_> = match args.editor {
         EditorKind::Folder => {
@@ -210,7 +214,7 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         source_semantic: &semantic,
     };
     let bar = progress(config.schedule.steps as u64, "edit");
-    let result = engine::run(&job, editor.as_mut(), &config, Some(cancel), &mut |p| match p {
+    let result = engine::run_with(&job, editor.as_mut(), &config, &mut control, &mut |p| match p {
         Progress::Step { step, loss, .. } => {
             bar.set_position(step as u64);
             if step % 10 == 0 {
@@ -230,7 +234,10 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
     bar.finish_and_clear();
     let result = result.map_err(|e| match e {
         engine::EditError::Interrupted(s) => {
-            anyhow::anyhow!("interrupted at step {s}; nothing was written to {}", args.out.display())
+            anyhow::anyhow!(args.checkpoints.interrupted(s as u64, &control, &args.out))
+        }
+        e @ engine::EditError::Train(_) => {
+            anyhow::anyhow!("{e}; no scene was written to {}; {}", args.out.display(), control.note())
         }
         e => e.into(),
     })?;
@@ -249,6 +256,9 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         },
     )?;
     let out = staged.commit()?;
+    if let Some(ck) = &control.checkpoint {
+        ck.remove();
+    }
     println!(
         "edited {} Gaussians in {:.1} s (transport {:.1} s); wrote {}",
         result.gaussians.len(),

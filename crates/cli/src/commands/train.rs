@@ -1,12 +1,14 @@
 //! `transsplat train`: 3DGS training from a COLMAP, transforms.json or INRIA-layout
 //! dataset into an INRIA output folder; and `transsplat bench train`.
 
-use super::common::{parse_rgb, prepare_out_dir, progress};
+use super::common::{parse_rgb, prepare_out_dir, progress, CheckpointArgs};
 use anyhow::{bail, Context, Result};
 use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use transsplat_train::checkpoint::{train_run_id, TRAIN_FILE};
 use transsplat_train::{
-    dataset, fit, initial_model, scene_extent, write_output, DensifyConfig, FitOptions, InitSource,
-    LearningRates, LoadOptions, TrainConfig, Trainer,
+    dataset, fit_with, initial_model, scene_extent, write_output, DensifyConfig, FitOptions, FitState,
+    InitSource, LearningRates, LoadOptions, TrainConfig, TrainError, Trainer,
 };
 
 /// Arguments of `transsplat train`.
@@ -48,10 +50,12 @@ pub struct TrainArgs {
     /// Densify until this step (INRIA: 15000).
     #[arg(long, default_value_t = 15_000)]
     pub densify_until: u64,
+    #[command(flatten)]
+    pub checkpoints: CheckpointArgs,
 }
 
 /// Runs `transsplat train`.
-pub fn run(args: &TrainArgs) -> Result<()> {
+pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
     if args.iters == 0 {
         bail!("--iters must be at least 1");
     }
@@ -97,37 +101,65 @@ pub fn run(args: &TrainArgs) -> Result<()> {
         random_points: args.random_points,
         eval_every: args.eval_every,
     };
-    let (model, source) = initial_model(&ds, &opts);
-    match source {
-        InitSource::Points { count } => tracing::info!("initialised {count} Gaussians from the point cloud"),
-        InitSource::Random { count } => {
-            tracing::warn!(
-                "no point cloud in the dataset: initialised {count} Gaussians at random in the cameras' view"
-            )
+    let mut control = args.checkpoints.control(&out, 500, TRAIN_FILE, cancel)?;
+    if let Some(ck) = control.checkpoint.as_mut() {
+        ck.id = train_run_id(&ds, &opts, &load);
+    }
+    let (mut trainer, mut state) = match control.checkpoint.as_mut().filter(|_| control.resume) {
+        Some(ck) => {
+            let (t, s) = ck.load_train(opts.config.clone())?;
+            tracing::info!("resuming at step {} from {}", t.step, ck.dir.display());
+            (t, s)
         }
-    }
-    if model.is_empty() {
-        bail!("{}: no initial Gaussians (empty point cloud and --random-points 0)", args.data.display());
-    }
-    let extent = scene_extent(&ds.cameras);
-    let mut trainer = Trainer::new(model, extent, opts.config.clone()).context("cannot start training")?;
+        None => {
+            let (model, source) = initial_model(&ds, &opts);
+            match source {
+                InitSource::Points { count } => {
+                    tracing::info!("initialised {count} Gaussians from the point cloud")
+                }
+                InitSource::Random { count } => tracing::warn!(
+                    "no point cloud in the dataset: initialised {count} Gaussians at random in the cameras' view"
+                ),
+            }
+            if model.is_empty() {
+                bail!(
+                    "{}: no initial Gaussians (empty point cloud and --random-points 0)",
+                    args.data.display()
+                );
+            }
+            let extent = scene_extent(&ds.cameras);
+            let t = Trainer::new(model, extent, opts.config.clone()).context("cannot start training")?;
+            (t, FitState::new(opts.config.seed))
+        }
+    };
     let pb = progress(args.iters, "train");
     pb.set_style(
         indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta}")
             .expect("valid template")
             .progress_chars("=> "),
     );
+    pb.set_position(trainer.step);
     let started = std::time::Instant::now();
-    let eval = fit(&ds, &mut trainer, args.eval_every, |p| {
+    let eval = fit_with(&ds, &mut trainer, &mut state, args.eval_every, &mut control, |p| {
         if p.step % 10 == 0 || p.step == p.iterations {
             let test = p.test.as_ref().map_or(String::from("-"), |e| format!("{:.2}", e.psnr));
             pb.set_message(format!("loss {:.4} test PSNR {test} Gaussians {}", p.ema_loss, p.gaussians));
             pb.set_position(p.step);
         }
-    })
-    .context("training stopped")?;
+    });
+    pb.finish_and_clear();
+    let eval = match eval {
+        Ok(e) => e,
+        Err(TrainError::Interrupted { step }) => bail!(args.checkpoints.interrupted(step, &control, &out)),
+        Err(e) => {
+            bail!("training stopped: {e}; no scene was written to {}; {}", out.display(), control.note())
+        }
+    };
     pb.finish_and_clear();
     let ply = write_output(&out, &trainer, &ds.cameras)?;
+    if let Some(ck) = &control.checkpoint {
+        ck.remove();
+    }
     tracing::info!(
         "{} steps in {:.1} s: {} Gaussians, test PSNR {:.2} dB over {} views; wrote {}",
         trainer.step,

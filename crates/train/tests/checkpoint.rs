@@ -1,0 +1,220 @@
+//! Checkpoints and numerical health of training, through the library: a run stopped
+//! at step k and resumed from its checkpoint ends bit-identical to an uninterrupted
+//! run (with densification, splits drawing random numbers, an opacity reset and the
+//! SH schedule inside the stopped span); a checkpoint from other settings or inputs,
+//! or a truncated one, is refused naming the file; a poisoned learning rate stops
+//! the run naming the step and the parameter group.
+
+use transsplat_raster::{render, RenderOptions, Splats};
+use transsplat_scenes::{build, is_test, SceneConfig};
+use transsplat_train::checkpoint::{train_run_id, TRAIN_FILE};
+use transsplat_train::dataset::{scale_camera, Dataset, DatasetKind, View};
+use transsplat_train::{
+    fit_with, initial_model, scene_extent, Checkpointer, Control, DensifyConfig, FitOptions, FitState,
+    LoadOptions, PointCloud, TrainConfig, TrainError, Trainer,
+};
+
+const ITERS: u64 = 48;
+
+fn dataset() -> Dataset {
+    let scene = build("tabletop", &SceneConfig::quick()).unwrap();
+    let splats = Splats::new(&scene.gaussians);
+    let mut ds = Dataset {
+        kind: DatasetKind::Inria,
+        cameras: scene.cameras.clone(),
+        train: Vec::new(),
+        test: Vec::new(),
+        points: None,
+        points_path: None,
+    };
+    for (k, cam) in scene.cameras.iter().enumerate() {
+        let camera = scale_camera(cam, 40, 30);
+        let (img, _) = render(&splats, &camera, &RenderOptions { background: scene.background });
+        let view = View { camera, image: img.rgb, weights: None, path: cam.name.clone().into() };
+        if is_test(k) {
+            ds.test.push(view)
+        } else {
+            ds.train.push(view)
+        }
+    }
+    let mut cloud = PointCloud::default();
+    for (i, m) in scene.gaussians.means.iter().enumerate().step_by(10) {
+        cloud.positions.push(*m);
+        cloud.colors.push([(i % 7) as f32 / 7.0, 0.5, 0.3]);
+    }
+    ds.points = Some(cloud);
+    ds
+}
+
+fn options() -> FitOptions {
+    FitOptions {
+        config: TrainConfig {
+            iterations: ITERS,
+            densify: DensifyConfig {
+                from_step: 5,
+                interval: 8,
+                until_step: 40,
+                opacity_reset_interval: 24,
+                sh_degree_interval: 12,
+                grad_threshold: 1e-5,
+                ..Default::default()
+            },
+            seed: 5,
+            ..Default::default()
+        },
+        max_sh_degree: 2,
+        random_points: 0,
+        eval_every: 0,
+    }
+}
+
+fn fresh(ds: &Dataset, opts: &FitOptions) -> (Trainer, FitState) {
+    let (model, _) = initial_model(ds, opts);
+    let t = Trainer::new(model, scene_extent(&ds.cameras), opts.config.clone()).unwrap();
+    (t, FitState::new(opts.config.seed))
+}
+
+fn checkpointer(dir: &std::path::Path, ds: &Dataset, opts: &FitOptions) -> Checkpointer {
+    let mut ck = Checkpointer::new(dir, 10);
+    ck.id = train_run_id(ds, opts, &LoadOptions::default());
+    ck
+}
+
+#[test]
+fn stopped_and_resumed_training_is_bit_identical() {
+    let ds = dataset();
+    let opts = options();
+    let (mut whole, mut state) = fresh(&ds, &opts);
+    let mut densified = 0;
+    fit_with(&ds, &mut whole, &mut state, 0, &mut Control::default(), |p| {
+        densified += p.last.densified.is_some() as usize
+    })
+    .unwrap();
+    assert!(densified >= 3, "densification must run inside the test span");
+    let dir = tempfile::tempdir().unwrap();
+    let ckdir = dir.path().join("ck");
+
+    // Stop after step 27 (a checkpoint at 10 and 20 on the way, a final one at 27).
+    let (mut t, mut state) = fresh(&ds, &opts);
+    let mut control = Control {
+        checkpoint: Some(checkpointer(&ckdir, &ds, &opts)),
+        stop_after: Some(27),
+        ..Default::default()
+    };
+    let e = fit_with(&ds, &mut t, &mut state, 0, &mut control, |_| {}).unwrap_err();
+    assert!(matches!(e, TrainError::Interrupted { step: 27 }), "{e}");
+    assert_eq!(control.checkpoint.as_ref().unwrap().last, Some(27));
+    drop(t);
+
+    // Resume in a fresh trainer and finish.
+    let mut ck = checkpointer(&ckdir, &ds, &opts);
+    let (mut t, mut state) = ck.load_train(opts.config.clone()).unwrap();
+    assert_eq!(t.step, 27);
+    let mut control = Control { checkpoint: Some(ck), ..Default::default() };
+    fit_with(&ds, &mut t, &mut state, 0, &mut control, |_| {}).unwrap();
+    assert_eq!(control.checkpoint.as_ref().unwrap().last, Some(40), "periodic checkpoints continue");
+
+    assert_eq!(t.step, whole.step);
+    assert!(t.model.len() != ds.points.as_ref().unwrap().len(), "the Gaussian count changed on the way");
+    let (a, b) = (&t.model.gaussians, &whole.model.gaussians);
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+    assert_eq!(bits(a.means.as_flattened()), bits(b.means.as_flattened()));
+    assert_eq!(bits(a.log_scales.as_flattened()), bits(b.log_scales.as_flattened()));
+    assert_eq!(bits(a.rotations.as_flattened()), bits(b.rotations.as_flattened()));
+    assert_eq!(bits(&a.opacity_logits), bits(&b.opacity_logits));
+    assert_eq!(bits(&a.sh), bits(&b.sh));
+    assert_eq!(t.adam, whole.adam);
+    assert_eq!(t.stats, whole.stats);
+    assert_eq!(t.active_sh_degree, whole.active_sh_degree);
+}
+
+#[test]
+fn checkpoints_of_other_runs_and_damaged_files_are_refused() {
+    let ds = dataset();
+    let opts = options();
+    let dir = tempfile::tempdir().unwrap();
+    let ckdir = dir.path().join("ck");
+    let (mut t, mut state) = fresh(&ds, &opts);
+    let mut control = Control {
+        checkpoint: Some(checkpointer(&ckdir, &ds, &opts)),
+        stop_after: Some(3),
+        ..Default::default()
+    };
+    assert!(fit_with(&ds, &mut t, &mut state, 0, &mut control, |_| {}).is_err());
+
+    // Other settings: the message names the differing line.
+    let mut other = options();
+    other.config.lambda_dssim = 0.3;
+    let e = checkpointer(&ckdir, &ds, &other).load_train(other.config.clone()).unwrap_err().to_string();
+    assert!(
+        e.contains("other settings") && e.contains("lambda_dssim: 0.2") && e.contains("lambda_dssim: 0.3"),
+        "{e}"
+    );
+    // Other inputs: one pixel changed.
+    let mut ds2 = ds.clone();
+    ds2.train[2].image[7] += 0.25;
+    let e = checkpointer(&ckdir, &ds2, &opts).load_train(opts.config.clone()).unwrap_err().to_string();
+    assert!(e.contains("other inputs") && e.contains(TRAIN_FILE), "{e}");
+    // Truncated: an error naming the file.
+    let file = ckdir.join(TRAIN_FILE);
+    let bytes = std::fs::read(&file).unwrap();
+    std::fs::write(&file, &bytes[..bytes.len() / 2]).unwrap();
+    let e = checkpointer(&ckdir, &ds, &opts).load_train(opts.config.clone()).unwrap_err().to_string();
+    assert!(e.contains(&file.display().to_string()) && e.contains("truncated"), "{e}");
+    // Missing.
+    std::fs::remove_file(&file).unwrap();
+    let e = checkpointer(&ckdir, &ds, &opts).load_train(opts.config.clone()).unwrap_err().to_string();
+    assert!(e.contains("no checkpoint"), "{e}");
+}
+
+#[test]
+fn a_poisoned_learning_rate_stops_naming_the_step_and_group() {
+    let ds = dataset();
+    let mut opts = options();
+    // Finite but absurd: the scales overflow to infinity within two updates.
+    opts.config.lr.scaling = 3e38;
+    let (mut t, mut state) = fresh(&ds, &opts);
+    let e = fit_with(&ds, &mut t, &mut state, 0, &mut Control::default(), |_| {}).unwrap_err();
+    let msg = e.to_string();
+    assert!(matches!(e, TrainError::NonFinite { step: 1 | 2, .. }), "{msg}");
+    assert!(msg.contains("scales") && msg.contains("NaN or infinite"), "{msg}");
+    // NaN learning rate on the opacities: caught at step 1 after the update.
+    let mut opts = options();
+    opts.config.lr.opacity = f32::NAN;
+    let (mut t, mut state) = fresh(&ds, &opts);
+    let e = fit_with(&ds, &mut t, &mut state, 0, &mut Control::default(), |_| {}).unwrap_err().to_string();
+    assert!(e.starts_with("step 1: the opacities became NaN"), "{e}");
+    // The output writer refuses such a model.
+    let dir = tempfile::tempdir().unwrap();
+    let e = transsplat_train::write_output(dir.path(), &t, &ds.cameras).unwrap_err().to_string();
+    assert!(e.contains("opacities") && e.contains("not written"), "{e}");
+    assert!(!dir.path().join("point_cloud").exists());
+}
+
+#[test]
+fn a_failure_after_a_checkpoint_leaves_it_loadable_and_says_so() {
+    let ds = dataset();
+    let opts = options();
+    let dir = tempfile::tempdir().unwrap();
+    let ckdir = dir.path().join("ck");
+    let (mut t, mut state) = fresh(&ds, &opts);
+    let mut control = Control {
+        checkpoint: Some(checkpointer(&ckdir, &ds, &opts)),
+        stop_after: Some(20),
+        ..Default::default()
+    };
+    assert!(fit_with(&ds, &mut t, &mut state, 0, &mut control, |_| {}).is_err());
+    // Poison the run in flight: the rotations' learning rate becomes NaN at step 21.
+    control.stop_after = None;
+    t.config.lr.rotation = f32::NAN;
+    let e = fit_with(&ds, &mut t, &mut state, 0, &mut control, |_| {}).unwrap_err().to_string();
+    assert!(e.starts_with("step 21: the rotations became NaN or infinite"), "{e}");
+    let note = control.note();
+    assert!(
+        note.contains("last good checkpoint (step 20)") && note.contains(&ckdir.display().to_string()),
+        "{note}"
+    );
+    let (good, _) = checkpointer(&ckdir, &ds, &opts).load_train(opts.config.clone()).unwrap();
+    assert_eq!(good.step, 20);
+    assert!(transsplat_train::checkpoint::non_finite_parameters(&good.model).is_none());
+}
