@@ -262,6 +262,49 @@ fn cases() -> Vec<Case> {
         .arg("make it blue")
         .with_scene()
         .expect(&["labels.json", "built-in scene"]),
+        Case::new(
+            "edit: ip2p weights folder missing",
+            "edit --scene {d}/in/scene.ply --cameras {d}/in/cameras.json --editor ip2p \
+             --ip2p-weights {d}/no-ip2p --out {d}/out --prompt",
+        )
+        .arg("make it blue")
+        .with_scene()
+        .expect(&["no-ip2p", "hf download timbrooks/instruct-pix2pix"]),
+        Case::new(
+            "edit: ip2p folder without its components",
+            "edit --scene {d}/in/scene.ply --cameras {d}/in/cameras.json --editor ip2p \
+             --ip2p-weights {d}/ip2p --out {d}/out --prompt",
+        )
+        .arg("make it blue")
+        .with_scene()
+        .dir("ip2p/unet")
+        .expect(&["ip2p/text_encoder", "not found", "hf download timbrooks/instruct-pix2pix"]),
+        Case::new("edit: DINOv2 weights folder missing", EDIT)
+            .arg("make it blue")
+            .args("--dino-weights {d}/no-dino")
+            .with_scene()
+            .dir("edits")
+            .expect(&["no-dino", "hf download facebook/dinov2"]),
+        Case::new(
+            "eval: CLIP weights folder missing",
+            "eval --clip {d}/no-clip --source {d}/src --edited {d}/edit --source-prompt a \
+             --target-prompt b --out {d}/out.json",
+        )
+        .dir("src")
+        .dir("edit")
+        .expect(&["no-clip", "hf download openai/clip-vit-large-patch14"]),
+        Case::new(
+            "eval: CLIP weights file that is not safetensors",
+            "eval --clip {d}/clip --source {d}/src --edited {d}/edit --source-prompt a \
+             --target-prompt b --out {d}/out.json",
+        )
+        .dir("src")
+        .dir("edit")
+        .file("src/v.png", png(4, 4))
+        .file("edit/v.png", png(4, 4))
+        .file("clip/config.json", "{}")
+        .file("clip/model.safetensors", "garbage")
+        .expect(&["clip/", "config.json"]),
         Case::new("edit: folder editor without its folder", EDIT)
             .arg("make it blue")
             .with_scene()

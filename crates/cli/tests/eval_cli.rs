@@ -109,3 +109,60 @@ fn missing_dino_weights_exit_2() {
     assert!(t.contains("no-dino") && t.contains("hf download facebook/dinov2-small"), "{t}");
     assert!(!out.exists());
 }
+
+#[test]
+fn scenes_with_cameras_are_rendered_then_scored_like_folders_of_renders() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dir.path().join("ds");
+    let o = bin().args(["scene", "tabletop", "--quick", "--out"]).arg(&ds).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    // The edited scene: the source with its base colour shifted.
+    let src_ply = transsplat_scene::scene_paths::resolve_scene(&ds).unwrap();
+    let mut g = transsplat_scene::ply::read(&src_ply).unwrap();
+    let k = g.sh.len() / g.len();
+    for i in 0..g.len() {
+        g.sh[i * k] += 0.8;
+    }
+    let edited = dir.path().join("edited.ply");
+    transsplat_scene::ply::write(&edited, &g).unwrap();
+    let cams = ds.join("cameras.json");
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/tests/fixtures/clip/full");
+
+    // Folders rendered by `transsplat render`...
+    for (scene, name) in [(ds.as_path(), "r_src"), (edited.as_path(), "r_edit")] {
+        let o = bin()
+            .args(["render", "--scene"])
+            .arg(scene)
+            .arg("--cameras")
+            .arg(&cams)
+            .arg("--out")
+            .arg(dir.path().join(name))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", text(&o));
+    }
+    let by_folder = dir.path().join("folders.json");
+    let o = eval(&fixture, &dir.path().join("r_src"), &dir.path().join("r_edit"), &by_folder);
+    assert!(o.status.success(), "{}", text(&o));
+    // ...score the same as the scenes rendered by `eval --cameras`.
+    let by_scene = dir.path().join("scenes.json");
+    let o = bin()
+        .arg("eval")
+        .arg("--clip")
+        .arg(&fixture)
+        .arg("--source")
+        .arg(&ds)
+        .arg("--edited")
+        .arg(&edited)
+        .arg("--cameras")
+        .arg(&cams)
+        .args(["--source-prompt", "a man", "--target-prompt", "a clown", "--every", "2", "--out"])
+        .arg(&by_scene)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let a: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&by_folder).unwrap()).unwrap();
+    let b: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&by_scene).unwrap()).unwrap();
+    assert!(!a["views"].as_array().unwrap().is_empty());
+    assert_eq!(a, b);
+}

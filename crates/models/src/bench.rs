@@ -9,6 +9,7 @@ use candle_nn::{VarBuilder, VarMap};
 
 use crate::clip::{Clip, ClipConfig, ClipTextConfig, ClipVisionConfig};
 use crate::dinov2::{Dinov2, Dinov2Config};
+use crate::ip2p::bench::{sd15_models, Case as Ip2pCase, Sd15};
 use crate::Error;
 
 /// One benchmark: a name and a function that builds its model and returns the seconds
@@ -27,13 +28,46 @@ pub fn cases() -> Vec<Case> {
         Case { name: "dinov2-small 512x512", run: |d| dinov2(d, 384, 6, 512) },
         Case { name: "dinov2-base 256x256", run: |d| dinov2(d, 768, 12, 256) },
         Case { name: "dinov2-base 512x512", run: |d| dinov2(d, 768, 12, 512) },
+        Case { name: "ip2p unet step (batch 3) 256x256", run: |d| ip2p(d, Ip2pCase::UnetStep, 256) },
+        Case { name: "ip2p vae encode 256x256", run: |d| ip2p(d, Ip2pCase::VaeEncode, 256) },
+        Case { name: "ip2p vae decode 256x256", run: |d| ip2p(d, Ip2pCase::VaeDecode, 256) },
+        Case { name: "ip2p unet step (batch 3) 512x512", run: |d| ip2p(d, Ip2pCase::UnetStep, 512) },
+        Case { name: "ip2p vae encode 512x512", run: |d| ip2p(d, Ip2pCase::VaeEncode, 512) },
+        Case { name: "ip2p vae decode 512x512", run: |d| ip2p(d, Ip2pCase::VaeDecode, 512) },
     ]
 }
 
-fn random(device: &Device) -> (VarMap, VarBuilder<'static>) {
+/// The SD 1.5 models are built once per process (about 4 GB of random f32 weights).
+fn ip2p(device: &Device, case: Ip2pCase, size: usize) -> Result<f64, Error> {
+    static MODELS: std::sync::Mutex<Option<std::sync::Arc<Sd15>>> = std::sync::Mutex::new(None);
+    let models = {
+        let mut slot = MODELS.lock().map_err(|_| candle_core::Error::Msg("poisoned".into()))?;
+        if slot.is_none() {
+            *slot = Some(std::sync::Arc::new(sd15_models(device)?));
+        }
+        slot.clone().expect("just built")
+    };
+    time(|| Ok(case.run(&models, size, device)?))
+}
+
+/// Random weights for a model built by `build`: a first build creates the randomly
+/// initialised variables, and the returned builder holds detached copies of them.
+/// Operations on variables record the graph for back-propagation and would keep every
+/// activation alive; weights loaded from files are plain tensors, like these.
+pub(crate) fn random_weights(
+    device: &Device,
+    build: impl FnOnce(VarBuilder) -> Result<(), Error>,
+) -> Result<VarBuilder<'static>, Error> {
     let map = VarMap::new();
-    let vb = VarBuilder::from_varmap(&map, DType::F32, device);
-    (map, vb)
+    build(VarBuilder::from_varmap(&map, DType::F32, device))?;
+    let tensors: std::collections::HashMap<String, candle_core::Tensor> = map
+        .data()
+        .lock()
+        .map_err(|_| candle_core::Error::Msg("poisoned weight map".into()))?
+        .iter()
+        .map(|(k, v)| (k.clone(), v.as_tensor().detach()))
+        .collect();
+    Ok(VarBuilder::from_tensors(tensors, DType::F32, device))
 }
 
 fn time<T>(mut f: impl FnMut() -> Result<T, Error>) -> Result<f64, Error> {
@@ -73,26 +107,25 @@ fn vit_l14() -> ClipConfig {
     }
 }
 
-fn clip(device: &Device) -> Result<(VarMap, Clip), Error> {
-    let (map, vb) = random(device);
-    let clip = Clip::new(vb, &vit_l14(), std::path::Path::new("(benchmark config)"))?;
-    Ok((map, clip))
+fn clip(device: &Device) -> Result<Clip, Error> {
+    let path = std::path::Path::new("(benchmark config)");
+    let vb = random_weights(device, |vb| Clip::new(vb, &vit_l14(), path).map(|_| ()))?;
+    Clip::new(vb, &vit_l14(), path)
 }
 
 fn clip_image(device: &Device) -> Result<f64, Error> {
-    let (_map, clip) = clip(device)?;
+    let clip = clip(device)?;
     let (w, h) = (512, 512);
     let img: Vec<f32> = (0..w * h * 3).map(|i| (i % 255) as f32 / 255.0).collect();
     time(|| clip.image_features(&[(&img, w, h)]))
 }
 
 fn clip_text(device: &Device) -> Result<f64, Error> {
-    let (_map, clip) = clip(device)?;
+    let clip = clip(device)?;
     time(|| clip.text_features(&["a photo of a man turned into a clown"]))
 }
 
 fn dinov2(device: &Device, hidden: usize, heads: usize, size: usize) -> Result<f64, Error> {
-    let (_map, vb) = random(device);
     let config = Dinov2Config {
         hidden_size: hidden,
         num_hidden_layers: 12,
@@ -105,6 +138,7 @@ fn dinov2(device: &Device, hidden: usize, heads: usize, size: usize) -> Result<f
         qkv_bias: true,
         use_swiglu_ffn: false,
     };
+    let vb = random_weights(device, |vb| Dinov2::new(vb, config.clone()).map(|_| ()))?;
     let model = Dinov2::new(vb, config)?;
     let img: Vec<f32> = (0..size * size * 3).map(|i| (i % 251) as f32 / 251.0).collect();
     time(|| model.features(&img, size, size))

@@ -49,3 +49,37 @@ fn bad_image_size_is_an_error() {
     let model = Dinov2::load(&dir, &Device::Cpu).unwrap();
     assert!(model.features(&[0.5; 10], 4, 4).is_err());
 }
+
+#[test]
+fn projected_features_are_the_projection_of_the_features() {
+    // The projected features are a random projection of the full ones: distances
+    // between pixels' features are kept on average (Johnson–Lindenstrauss).
+    let dir = ModelDir::open(&fixtures(), "DINOv2", "hf download facebook/dinov2-small").unwrap();
+    let model = Dinov2::load(&dir, &Device::Cpu).unwrap();
+    let (w, h) = (37, 23);
+    let img: Vec<f32> = (0..w * h * 3).map(|i| ((i * 7919) % 101) as f32 / 100.0).collect();
+    let (full, c) = model.features(&img, w, h).unwrap();
+    let d = c / 2;
+    let (proj, dp) = model.features_projected(&img, w, h, d).unwrap();
+    assert_eq!(dp, d);
+    assert_eq!(proj.len(), w * h * d);
+    let mut ratio = 0.0f64;
+    let mut count = 0;
+    for p in (0..w * h).step_by(13) {
+        let q = (p * 31 + 7) % (w * h);
+        let df: f64 = (0..c).map(|k| ((full[p * c + k] - full[q * c + k]) as f64).powi(2)).sum();
+        let dq: f64 = (0..d).map(|k| ((proj[p * d + k] - proj[q * d + k]) as f64).powi(2)).sum();
+        if df > 1e-6 {
+            ratio += dq / df;
+            count += 1;
+        }
+    }
+    let mean = ratio / count as f64;
+    assert!(
+        count > 10 && (0.5..1.5).contains(&mean),
+        "mean squared-distance ratio {mean} over {count} pairs"
+    );
+    // Projection is deterministic and channel count above C is a no-op.
+    assert_eq!(model.features_projected(&img, w, h, d).unwrap().0, proj);
+    assert_eq!(model.features_projected(&img, w, h, c + 10).unwrap().0, full);
+}

@@ -12,6 +12,11 @@ use transsplat_editors::{CommandEditor, Editor, FolderEditor, SimulatedEditor};
 use transsplat_eval::edit_output::{self, EditOutput, MARKER};
 use transsplat_scene::atomic::StagedDir;
 
+/// DINOv2 features are reduced to this many channels (a fixed random projection) before
+/// the engine's PCA to `semantic_dim`: 384 or 768 channels per pixel of every view would
+/// not fit in memory for a real capture.
+const DINO_CHANNELS: usize = 64;
+
 /// Which 2D editor produces the edits.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum EditorKind {
@@ -192,16 +197,18 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         // The model's tensors are shared, so the clone is cheap.
         let m = m.clone();
         let features = move |img: &[f32], w: usize, h: usize| {
-            m.features(img, w, h).map_err(|e| transsplat_editors::Error::Invalid(format!("DINOv2: {e}")))
+            m.features_projected(img, w, h, DINO_CHANNELS)
+                .map_err(|e| transsplat_editors::Error::Invalid(format!("DINOv2: {e}")))
         };
         editor = Box::new(transsplat_editors::WithSemantic::new(editor, Box::new(features)));
     }
     // The engine's feature callback cannot fail: render sizes match their cameras, so a
     // DINOv2 error here is an internal fault; it is logged and the view gets zero features.
     let semantic = move |img: &[f32], w: usize, h: usize| match &dino {
-        Some(m) => m.features(img, w, h).unwrap_or_else(|e| {
+        Some(m) => m.features_projected(img, w, h, DINO_CHANNELS).unwrap_or_else(|e| {
             tracing::error!("DINOv2 on a {w}x{h} render: {e}");
-            (vec![0.0; w * h * m.channels()], m.channels())
+            let c = DINO_CHANNELS.min(m.channels());
+            (vec![0.0; w * h * c], c)
         }),
         None => transsplat_editors::semantic_fallback(img, w, h),
     };

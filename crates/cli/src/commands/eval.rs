@@ -2,7 +2,7 @@
 //! (Instruct-NeRF2NeRF `ClipSimilarity` protocol, SPEC Evaluation), for the output of any
 //! method. Prints a table and writes per-view and mean values as JSON (atomically).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{bail, Context, Result};
@@ -12,7 +12,7 @@ use transsplat_models::clip::Clip;
 use transsplat_models::ModelDir;
 use transsplat_scene::{atomic, image};
 
-use super::common::progress;
+use super::common::{load_cameras, load_scene, progress, SceneArgs};
 
 /// Arguments of `transsplat eval`.
 #[derive(Args, Debug)]
@@ -21,12 +21,20 @@ pub struct EvalArgs {
     /// `hf download openai/clip-vit-large-patch14 --local-dir DIR`.
     #[arg(long, value_name = "DIR")]
     pub clip: PathBuf,
-    /// Folder of source renders (PNG/JPEG), paired with the edits by file stem.
-    #[arg(long, value_name = "DIR")]
+    /// Folder of source renders (PNG/JPEG), paired with the edits by file stem; with
+    /// `--cameras`, the source scene (PLY or INRIA output folder) to render first.
+    #[arg(long, value_name = "PATH")]
     pub source: PathBuf,
-    /// Folder of edited renders.
-    #[arg(long, value_name = "DIR")]
+    /// Folder of edited renders; with `--cameras`, the edited scene to render first.
+    #[arg(long, value_name = "PATH")]
     pub edited: PathBuf,
+    /// Cameras (cameras.json, transforms.json or a COLMAP folder): `--source` and
+    /// `--edited` are then scenes, rendered from every camera into a temporary folder.
+    #[arg(long, value_name = "PATH")]
+    pub cameras: Option<PathBuf>,
+    /// Background colour R,G,B in [0, 1] when rendering scenes.
+    #[arg(long, value_parser = super::common::parse_rgb, default_value = "0,0,0")]
+    pub background: [f32; 3],
     /// Caption of the source scene.
     #[arg(long)]
     pub source_prompt: String,
@@ -45,10 +53,25 @@ pub struct EvalArgs {
 pub fn run(args: &EvalArgs, cancel: &AtomicBool) -> Result<()> {
     let hint = format!("hf download openai/clip-vit-large-patch14 --local-dir {}", args.clip.display());
     let dir = ModelDir::open(&args.clip, "CLIP", &hint)?;
-    let pairs = pair_views(&args.source, &args.edited, args.every)?;
     if [&args.source, &args.edited].iter().any(|d| args.out.starts_with(d)) {
         bail!("{}: the output must not be inside an input folder", args.out.display());
     }
+    // With --cameras the inputs are scenes: render them first (kept until scoring ends).
+    let rendered = match &args.cameras {
+        Some(cams) => {
+            let tmp = tempfile::tempdir().context("creating a temporary folder for the renders")?;
+            for (scene, name) in [(&args.source, "source"), (&args.edited, "edited")] {
+                render_all(scene, cams, &tmp.path().join(name), args.background)?;
+            }
+            Some(tmp)
+        }
+        None => None,
+    };
+    let (source, edited) = match &rendered {
+        Some(tmp) => (tmp.path().join("source"), tmp.path().join("edited")),
+        None => (args.source.clone(), args.edited.clone()),
+    };
+    let pairs = pair_views(&source, &edited, args.every)?;
     let clip = Clip::load(&dir, &transsplat_models::default_device())?;
     let mut images = Vec::with_capacity(pairs.len());
     for (stem, src, edit) in &pairs {
@@ -80,5 +103,23 @@ pub fn run(args: &EvalArgs, cancel: &AtomicBool) -> Result<()> {
     let json = serde_json::to_string_pretty(&scores)?;
     atomic::write_bytes(&args.out, json.as_bytes())?;
     tracing::info!("wrote {}", args.out.display());
+    Ok(())
+}
+
+/// Renders `scene` from every camera of `cameras` to `out/<image name>.png`.
+fn render_all(scene: &Path, cameras: &Path, out: &Path, background: [f32; 3]) -> Result<()> {
+    use transsplat_raster::{render, RenderOptions, Splats};
+    let (g, _) = load_scene(&SceneArgs { scene: scene.to_path_buf(), drop_invalid: false })?;
+    let (cams, _) = load_cameras(Some(cameras), scene)?;
+    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    let splats = Splats::new(&g);
+    let opts = RenderOptions { background };
+    let bar = progress(cams.len() as u64, "render");
+    for cam in &cams {
+        let (img, _) = render(&splats, cam, &opts);
+        image::write_png(&out.join(format!("{}.png", cam.stem())), img.width, img.height, &img.rgb)?;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
     Ok(())
 }

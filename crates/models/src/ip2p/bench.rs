@@ -6,8 +6,7 @@
 //! The models are built once per size (`sd15_models`, a few GB of f32 weights) and
 //! every case times one call; the caller (`transsplat bench models`) repeats and reports.
 
-use candle_core::{DType, Device, Tensor};
-use candle_nn::{VarBuilder, VarMap};
+use candle_core::{Device, Tensor};
 
 use super::unet::{UNet, UNetConfig};
 use super::vae::{Vae, VaeConfig};
@@ -41,22 +40,13 @@ pub fn sd15_models(device: &Device) -> candle_core::Result<Sd15> {
     let parse = |e: serde_json::Error| candle_core::Error::Msg(e.to_string());
     let unet_cfg = serde_json::from_str::<UNetConfig>(SD15_UNET).map_err(parse)?;
     let vae_cfg = serde_json::from_str::<VaeConfig>(SD15_VAE).map_err(parse)?;
-    // A first build creates the randomly initialised variables; the models are then
-    // rebuilt from detached copies, because operations on variables record the graph
-    // for back-propagation and would keep every activation alive (weights loaded from
-    // files are plain tensors, like these).
-    let map = VarMap::new();
-    let vb = VarBuilder::from_varmap(&map, DType::F32, device);
-    UNet::new(vb.pp("unet"), unet_cfg.clone())?;
-    Vae::new(vb.pp("vae"), vae_cfg.clone())?;
-    let tensors: std::collections::HashMap<String, Tensor> = map
-        .data()
-        .lock()
-        .map_err(|_| candle_core::Error::Msg("poisoned weight map".into()))?
-        .iter()
-        .map(|(k, v)| (k.clone(), v.as_tensor().detach()))
-        .collect();
-    let vb = VarBuilder::from_tensors(tensors, DType::F32, device);
+    let to_candle = |e: crate::Error| candle_core::Error::Msg(e.to_string());
+    let vb = crate::bench::random_weights(device, |vb| {
+        UNet::new(vb.pp("unet"), unet_cfg.clone())?;
+        Vae::new(vb.pp("vae"), vae_cfg.clone())?;
+        Ok(())
+    })
+    .map_err(to_candle)?;
     let unet = UNet::new(vb.pp("unet"), unet_cfg)?;
     let vae = Vae::new(vb.pp("vae"), vae_cfg)?;
     Ok(Sd15 { unet, vae })
