@@ -4,28 +4,11 @@
 //! Ctrl-C (SIGINT to a child process) writes a checkpoint that resumes; NaN stops a
 //! run naming the step and parameter group and writes no scene.
 
+mod common;
+use common::*;
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
-use std::process::{Command, Output, Stdio};
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_transsplat"))
-}
-
-fn ok(o: &Output) {
-    assert!(
-        o.status.success(),
-        "{}\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-}
-
-fn quick_scene(dir: &Path) -> std::path::PathBuf {
-    let ds = dir.join("data");
-    ok(&bin().args(["scene", "tabletop", "--quick", "--out"]).arg(&ds).output().unwrap());
-    ds
-}
+use std::process::{Command, Stdio};
 
 /// Runs `args` with `--stop-after k` (expecting the stop message), then the printed
 /// command line; returns the stderr of the stop.
@@ -46,7 +29,7 @@ fn stop_and_resume(dir: &Path, args: &[&str], k: u64) -> String {
 #[test]
 fn stopped_train_resumed_with_the_printed_command_matches_an_uninterrupted_run() {
     let dir = tempfile::tempdir().unwrap();
-    quick_scene(dir.path());
+    quick_scene_in(dir.path(), "data");
     let run = |out: &str| -> Vec<String> {
         [
             "train",
@@ -98,7 +81,7 @@ fn stopped_train_resumed_with_the_printed_command_matches_an_uninterrupted_run()
 #[test]
 fn stopped_edit_resumed_with_the_printed_command_matches_an_uninterrupted_edit() {
     let dir = tempfile::tempdir().unwrap();
-    quick_scene(dir.path());
+    quick_scene_in(dir.path(), "data");
     let run = |out: &'static str| {
         [
             "edit",
@@ -133,7 +116,7 @@ fn stopped_edit_resumed_with_the_printed_command_matches_an_uninterrupted_edit()
 #[test]
 fn sigint_writes_a_checkpoint_that_resumes() {
     let dir = tempfile::tempdir().unwrap();
-    quick_scene(dir.path());
+    quick_scene_in(dir.path(), "data");
     let args = ["train", "--data", "data", "--iters", "1000000", "--resolution", "8", "--out", "out"];
     let mut child = bin().current_dir(dir.path()).args(args).stderr(Stdio::piped()).spawn().unwrap();
     let mut err = BufReader::new(child.stderr.take().unwrap());
@@ -171,7 +154,7 @@ fn sigint_writes_a_checkpoint_that_resumes() {
 #[test]
 fn nan_stops_train_and_edit_naming_step_and_group_and_writes_no_scene() {
     let dir = tempfile::tempdir().unwrap();
-    quick_scene(dir.path());
+    quick_scene_in(dir.path(), "data");
     let o = bin()
         .current_dir(dir.path())
         .args([

@@ -1,27 +1,8 @@
 //! End-to-end tests of `transsplat edit`, `transsplat views export` + the folder
 //! editor, and `transsplat demo --quick` through the binary.
 
-use std::path::Path;
-use std::process::{Command, Output};
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_transsplat"))
-}
-
-fn ok(o: &Output) {
-    assert!(
-        o.status.success(),
-        "{}\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-}
-
-fn quick_scene(dir: &Path) -> std::path::PathBuf {
-    let ds = dir.join("ds");
-    ok(&bin().args(["scene", "tabletop", "--quick", "--out"]).arg(&ds).output().unwrap());
-    ds
-}
+mod common;
+use common::*;
 
 #[test]
 fn simulated_edit_writes_the_scene_renders_and_report() {

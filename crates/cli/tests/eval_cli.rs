@@ -2,16 +2,10 @@
 //! command; exit 2, nothing written); with the tiny CLIP fixture it scores paired views
 //! and writes the JSON. Also `edit --dino-weights` with a missing folder.
 
+mod common;
+use common::*;
 use std::path::Path;
-use std::process::{Command, Output};
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_transsplat"))
-}
-
-fn text(o: &Output) -> String {
-    format!("{}\n{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
-}
+use std::process::Output;
 
 fn write_views(dir: &Path, shift: f32) {
     std::fs::create_dir_all(dir).unwrap();

@@ -2,23 +2,10 @@
 //! file, download command; exit 2, nothing written), and the tiny fixture pipeline of
 //! the models crate edits a quick scene end to end.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_transsplat"))
-}
-
-fn text(o: &Output) -> String {
-    format!("{}\n{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
-}
-
-fn quick_scene(dir: &Path) -> PathBuf {
-    let ds = dir.join("ds");
-    let o = bin().args(["scene", "tabletop", "--quick", "--out"]).arg(&ds).output().unwrap();
-    assert!(o.status.success(), "{}", text(&o));
-    ds
-}
+mod common;
+use common::*;
+use std::path::Path;
+use std::process::Output;
 
 fn edit(ds: &Path, out: &Path, extra: &[&str]) -> Output {
     bin()
