@@ -163,7 +163,8 @@ fn a_poisoned_learning_rate_stops_the_edit_naming_the_step_and_group() {
     let scene = scene();
     let calls = std::cell::Cell::new(0);
     let mut cfg = config(Method::Transsplat);
-    cfg.lr.sh_dc = f32::NAN;
+    // The settings refuse NaN learning rates, so poison with finite but absurd ones.
+    cfg.lr.sh_dc = 3e38;
     let e = edit(&scene, &cfg, PROMPT, &mut Control::default(), &calls).unwrap_err().to_string();
     assert!(e.contains("step 1: the sh became NaN or infinite"), "{e}");
     let mut cfg = config(Method::Transsplat);
