@@ -29,8 +29,10 @@ pub enum EditError {
     Editor(#[from] transsplat_editors::Error),
     #[error("the editor found nothing to edit: no view has attention above the support threshold")]
     NoEvidence,
+    /// The solver's message is part of this one (not a separate source), so an error
+    /// chain prints it once.
     #[error("transport failed: {0}")]
-    Transport(#[from] transsplat_transport::Error),
+    Transport(transsplat_transport::Error),
     #[error("optimisation failed: {0}")]
     Train(String),
     #[error("interrupted at step {0}")]
@@ -38,6 +40,12 @@ pub enum EditError {
     /// A checkpoint cannot be written, read or used (the message names the file).
     #[error("{0}")]
     Checkpoint(String),
+}
+
+impl From<transsplat_transport::Error> for EditError {
+    fn from(e: transsplat_transport::Error) -> Self {
+        EditError::Transport(e)
+    }
 }
 
 /// Semantic features of an image: `(image, w, h)` → `(H × W × d, d)`.
@@ -691,4 +699,18 @@ pub fn set_semantic_extras(g: &mut Gaussians, s: &[f32], d: usize) {
         values.extend_from_slice(&s[i * d..(i + 1) * d]);
     }
     g.extra = transsplat_scene::Extra { names, values };
+}
+
+#[cfg(test)]
+mod error_tests {
+    #[test]
+    fn transport_errors_carry_the_message_once() {
+        use std::error::Error as _;
+        let inner = transsplat_transport::Error::Shape { what: "source masses", got: 1, expected: 2 };
+        let e: super::EditError = inner.into();
+        // An error chain printer (anyhow's `{:#}`) appends every source; the solver's
+        // message is already in this one, so there must be no source.
+        assert!(e.source().is_none());
+        assert_eq!(e.to_string().matches("source masses has 1 entries").count(), 1, "{e}");
+    }
 }
