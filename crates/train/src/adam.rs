@@ -190,7 +190,12 @@ impl Adam {
 
     /// One Adam step of every group with a non-zero learning rate. `lr` is indexed by
     /// [`Group::index`]. Panics if `grads` does not match the model (a programming error).
-    pub fn step(&mut self, model: &mut Model, grads: &Grads, lr: &[f32; 7]) {
+    ///
+    /// Returns the first group in which an updated parameter is NaN or infinite (checked
+    /// in the same pass as the update, so the numerical-health check costs no extra pass
+    /// over the parameters); the update is still applied in full.
+    #[must_use]
+    pub fn step(&mut self, model: &mut Model, grads: &Grads, lr: &[f32; 7]) -> Option<Group> {
         let n = model.len();
         let kc = model.gaussians.sh_coeffs() * 3;
         let f = model.num_features;
@@ -204,6 +209,7 @@ impl Adam {
             "gradients do not match the model ({n} Gaussians, {kc} SH values, {f} features each)"
         );
         let (b1, b2, eps) = (self.betas.0, self.betas.1, self.eps);
+        let mut first_bad = None;
         for group in Group::ALL {
             let rate = lr[group.index()];
             let st = &mut self.groups[group.index()];
@@ -234,8 +240,12 @@ impl Adam {
                 Group::Rotation => (gs.rotations.as_flattened_mut(), grads.rotations.as_flattened(), 4, 0),
                 Group::Features => (&mut model.features, &grads.features, f, 0),
             };
-            update_block(params, grad, &mut st.m, &mut st.v, row, off, st.width, &h);
+            let bad = update_block(params, grad, &mut st.m, &mut st.v, row, off, st.width, &h);
+            if bad && first_bad.is_none() {
+                first_bad = Some(group);
+            }
         }
+        first_bad
     }
 }
 
@@ -248,7 +258,8 @@ struct Hyper {
     sqrt_bc2: f32,
 }
 
-/// Updates columns `off..off + w` of a row-major array with rows of `row` values.
+/// Updates columns `off..off + w` of a row-major array with rows of `row` values;
+/// true if any updated value is NaN or infinite.
 #[allow(clippy::too_many_arguments)]
 fn update_block(
     p: &mut [f32],
@@ -259,12 +270,13 @@ fn update_block(
     off: usize,
     w: usize,
     h: &Hyper,
-) {
+) -> bool {
     const ROWS: usize = 2048;
     p.par_chunks_mut(row * ROWS)
         .zip(g.par_chunks(row * ROWS))
         .zip(m.par_chunks_mut(w * ROWS).zip(v.par_chunks_mut(w * ROWS)))
-        .for_each(|((p, g), (m, v))| {
+        .map(|((p, g), (m, v))| {
+            let mut bad = false;
             for ((pr, gr), (mr, vr)) in p
                 .chunks_exact_mut(row)
                 .zip(g.chunks_exact(row))
@@ -276,10 +288,14 @@ fn update_block(
                     let vk = h.b2 * vr[k] + (1.0 - h.b2) * gk * gk;
                     mr[k] = mk;
                     vr[k] = vk;
-                    pr[off + k] -= h.step_size * mk / (vk.sqrt() / h.sqrt_bc2 + h.eps);
+                    let pk = pr[off + k] - h.step_size * mk / (vk.sqrt() / h.sqrt_bc2 + h.eps);
+                    pr[off + k] = pk;
+                    bad |= !pk.is_finite();
                 }
             }
-        });
+            bad
+        })
+        .reduce(|| false, |a, b| a || b)
 }
 
 #[cfg(test)]
@@ -311,7 +327,7 @@ mod tests {
         grads.sh[3] = -1.0; // first rest coefficient, red
         grads.features[1] = 3.0;
         let lr = [0.1, 0.01, 0.001, 0.05, 0.0, 0.0, 0.2];
-        adam.step(&mut model, &grads, &lr);
+        assert!(adam.step(&mut model, &grads, &lr).is_none());
         // Step 1: m = 0.1 g, v = 0.001 g², m̂ = g, v̂ = g² -> p -= lr · sign(g) (eps negligible).
         let g = &model.gaussians;
         assert!((g.means[0][0] - (1.0 - 0.1)).abs() < 1e-6);
@@ -325,7 +341,7 @@ mod tests {
         assert!(adam.groups[Group::Scaling.index()].m.is_empty());
         // Step 2 with gradient g2 = -1 on x: hand computation.
         grads.means[0] = [-1.0, 0.0, 0.0];
-        adam.step(&mut model, &grads, &lr);
+        assert!(adam.step(&mut model, &grads, &lr).is_none());
         let (b1, b2) = (0.9f64, 0.999f64);
         let m = b1 * (0.1 * 0.5) - 0.1;
         let v = b2 * (0.001 * 0.25) + 0.001 * 1.0;

@@ -80,7 +80,9 @@ pub fn run(n: usize, width: u32, height: u32, reps: usize) -> TrainBench {
     let mut adam_model = trainer.model.clone();
     let mut adam = Adam::new(&adam_model);
     let lr = trainer.learning_rates();
-    let adam_t = best_time(reps, || adam.step(&mut adam_model, &grads, &lr));
+    let adam_t = best_time(reps, || {
+        let _ = adam.step(&mut adam_model, &grads, &lr);
+    });
     drop(adam_model);
     // One densification pass with realistic statistics: about 5 % above threshold.
     let mut stats = DensifyStats::new(trainer.model.len());

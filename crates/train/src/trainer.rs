@@ -260,7 +260,11 @@ impl Trainer {
                 frame.binned.height as u32,
             );
         }
-        self.adam.step(&mut self.model, grads, &lr);
+        // Densification and the opacity reset copy or set finite values, so the update is
+        // the only place a finite model can turn NaN or infinite.
+        if let Some(group) = self.adam.step(&mut self.model, grads, &lr) {
+            return Err(TrainError::NonFinite { step, what: format!("the {}", group.name()) });
+        }
         let mut report = StepReport { step, ..Default::default() };
         if d.densifies(step) {
             let (r, counts) = self.densify_and_prune(densify_mask);
@@ -277,9 +281,6 @@ impl Trainer {
             report.opacity_reset = true;
         }
         report.gaussians = self.model.len();
-        if let Some(group) = crate::checkpoint::non_finite_parameters(&self.model) {
-            return Err(TrainError::NonFinite { step, what: format!("the {group}") });
-        }
         Ok(report)
     }
 
