@@ -269,12 +269,17 @@ impl Dinov2 {
     }
 }
 
-/// Projects `c` planes of `n` values onto `d` planes with a fixed seeded Gaussian matrix
-/// scaled by `1/√d` (see [`Dinov2::features_projected`]).
-fn project_planes(planes: &[f32], c: usize, n: usize, d: usize) -> Vec<f32> {
+/// The fixed `C × d` projection of [`Dinov2::features_projected`] (row-major): seeded
+/// Gaussian entries scaled by `1/√d`.
+pub fn projection(c: usize, d: usize) -> Vec<f32> {
     let mut rng = transsplat_scene::rng::SplitMix64::new(0x0D1A_0002);
     let scale = 1.0 / (d as f32).sqrt();
-    let m: Vec<f32> = (0..c * d).map(|_| rng.normal() * scale).collect();
+    (0..c * d).map(|_| rng.normal() * scale).collect()
+}
+
+/// Projects `c` planes of `n` values onto `d` planes with [`projection`].
+fn project_planes(planes: &[f32], c: usize, n: usize, d: usize) -> Vec<f32> {
+    let m = projection(c, d);
     let mut out = vec![0f32; d * n];
     for (k, row) in out.chunks_exact_mut(n).enumerate() {
         for ch in 0..c {

@@ -61,7 +61,7 @@ pub fn run(args: &EvalArgs, cancel: &AtomicBool) -> Result<()> {
         Some(cams) => {
             let tmp = tempfile::tempdir().context("creating a temporary folder for the renders")?;
             for (scene, name) in [(&args.source, "source"), (&args.edited, "edited")] {
-                render_all(scene, cams, &tmp.path().join(name), args.background)?;
+                render_all(scene, cams, &tmp.path().join(name), args.background, args.every)?;
             }
             Some(tmp)
         }
@@ -71,7 +71,8 @@ pub fn run(args: &EvalArgs, cancel: &AtomicBool) -> Result<()> {
         Some(tmp) => (tmp.path().join("source"), tmp.path().join("edited")),
         None => (args.source.clone(), args.edited.clone()),
     };
-    let pairs = pair_views(&source, &edited, args.every)?;
+    // Rendered folders hold only the scored views already.
+    let pairs = pair_views(&source, &edited, if rendered.is_some() { 1 } else { args.every })?;
     let clip = Clip::load(&dir, &transsplat_models::default_device())?;
     let mut images = Vec::with_capacity(pairs.len());
     for (stem, src, edit) in &pairs {
@@ -106,20 +107,16 @@ pub fn run(args: &EvalArgs, cancel: &AtomicBool) -> Result<()> {
     Ok(())
 }
 
-/// Renders `scene` from every camera of `cameras` to `out/<image name>.png`.
-fn render_all(scene: &Path, cameras: &Path, out: &Path, background: [f32; 3]) -> Result<()> {
-    use transsplat_raster::{render, RenderOptions, Splats};
-    let (g, _) = load_scene(&SceneArgs { scene: scene.to_path_buf(), drop_invalid: false })?;
-    let (cams, _) = load_cameras(Some(cameras), scene)?;
-    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
-    let splats = Splats::new(&g);
-    let opts = RenderOptions { background };
-    let bar = progress(cams.len() as u64, "render");
-    for cam in &cams {
-        let (img, _) = render(&splats, cam, &opts);
-        image::write_png(&out.join(format!("{}.png", cam.stem())), img.width, img.height, &img.rgb)?;
-        bar.inc(1);
+/// Renders `scene` to `out/<image name>.png` from the cameras that are scored: every
+/// `every`-th by image name, the order `pair_views` uses for folders.
+fn render_all(scene: &Path, cameras: &Path, out: &Path, background: [f32; 3], every: usize) -> Result<()> {
+    if every == 0 {
+        bail!("--every must be at least 1");
     }
-    bar.finish_and_clear();
-    Ok(())
+    let (g, _) = load_scene(&SceneArgs { scene: scene.to_path_buf(), drop_invalid: false })?;
+    let (mut cams, _) = load_cameras(Some(cameras), scene)?;
+    cams.sort_by_key(|c| c.stem());
+    let cams: Vec<_> = cams.into_iter().step_by(every).collect();
+    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    super::render::render_views(&g, &cams, out, background, false)
 }
