@@ -136,7 +136,8 @@ fn resuming_with_other_settings_or_instruction_is_refused() {
         stop_after: Some(4),
         ..Default::default()
     };
-    assert!(edit(&scene, &cfg, PROMPT, &mut control, &calls).is_err());
+    let e = edit(&scene, &cfg, PROMPT, &mut control, &calls).unwrap_err();
+    assert!(matches!(e, EditError::Interrupted(4)), "{e}");
     let mut other = cfg.clone();
     other.loss.leak = 0.3;
     let mut control =

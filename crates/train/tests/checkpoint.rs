@@ -74,6 +74,21 @@ fn fresh(ds: &Dataset, opts: &FitOptions) -> (Trainer, FitState) {
     (t, FitState::new(opts.config.seed))
 }
 
+/// A fresh run stopped (as if interrupted) after `k` steps, checkpointing into `dir`.
+fn stopped_at(
+    ds: &Dataset,
+    opts: &FitOptions,
+    dir: &std::path::Path,
+    k: u64,
+) -> (Trainer, FitState, Control<'static>) {
+    let (mut t, mut state) = fresh(ds, opts);
+    let mut control =
+        Control { checkpoint: Some(checkpointer(dir, ds, opts)), stop_after: Some(k), ..Default::default() };
+    let e = fit_with(ds, &mut t, &mut state, 0, &mut control, |_| {}).unwrap_err();
+    assert!(matches!(e, TrainError::Interrupted { step } if step == k), "{e}");
+    (t, state, control)
+}
+
 fn checkpointer(dir: &std::path::Path, ds: &Dataset, opts: &FitOptions) -> Checkpointer {
     let mut ck = Checkpointer::new(dir, 10);
     ck.id = train_run_id(ds, opts, &LoadOptions::default());
@@ -134,13 +149,7 @@ fn checkpoints_of_other_runs_and_damaged_files_are_refused() {
     let opts = options();
     let dir = tempfile::tempdir().unwrap();
     let ckdir = dir.path().join("ck");
-    let (mut t, mut state) = fresh(&ds, &opts);
-    let mut control = Control {
-        checkpoint: Some(checkpointer(&ckdir, &ds, &opts)),
-        stop_after: Some(3),
-        ..Default::default()
-    };
-    assert!(fit_with(&ds, &mut t, &mut state, 0, &mut control, |_| {}).is_err());
+    stopped_at(&ds, &opts, &ckdir, 3);
 
     // Other settings: the message names the differing line.
     let mut other = options();
@@ -197,13 +206,7 @@ fn a_failure_after_a_checkpoint_leaves_it_loadable_and_says_so() {
     let opts = options();
     let dir = tempfile::tempdir().unwrap();
     let ckdir = dir.path().join("ck");
-    let (mut t, mut state) = fresh(&ds, &opts);
-    let mut control = Control {
-        checkpoint: Some(checkpointer(&ckdir, &ds, &opts)),
-        stop_after: Some(20),
-        ..Default::default()
-    };
-    assert!(fit_with(&ds, &mut t, &mut state, 0, &mut control, |_| {}).is_err());
+    let (mut t, mut state, mut control) = stopped_at(&ds, &opts, &ckdir, 20);
     // Poison the run in flight: the rotations' learning rate becomes NaN at step 21.
     control.stop_after = None;
     t.config.lr.rotation = f32::NAN;
