@@ -26,7 +26,15 @@ impl PerBlock {
     fn get(&self, i: usize) -> usize {
         match self {
             PerBlock::One(v) => *v,
-            PerBlock::Each(v) => v.get(i).copied().unwrap_or_else(|| *v.last().unwrap_or(&1)),
+            // `check` guarantees one entry per block.
+            PerBlock::Each(v) => v[i],
+        }
+    }
+
+    fn fits(&self, n: usize) -> bool {
+        match self {
+            PerBlock::One(_) => true,
+            PerBlock::Each(v) => v.len() == n,
         }
     }
 }
@@ -106,6 +114,17 @@ impl UNetConfig {
             return Err("block_out_channels, down_block_types and up_block_types must have one \
                         entry per resolution"
                 .into());
+        }
+        let lists = [
+            ("layers_per_block", Some(&self.layers_per_block)),
+            ("attention_head_dim", Some(&self.attention_head_dim)),
+            ("num_attention_heads", self.num_attention_heads.as_ref()),
+            ("transformer_layers_per_block", Some(&self.transformer_layers_per_block)),
+        ];
+        for (name, list) in lists {
+            if list.is_some_and(|l| !l.fits(n)) {
+                return Err(format!("{name} must be one number or one per resolution ({n})"));
+            }
         }
         for t in self.down_block_types.iter() {
             if t != "CrossAttnDownBlock2D" && t != "DownBlock2D" {
@@ -567,6 +586,20 @@ impl UNet {
 mod tests {
     use super::*;
     use candle_core::Device;
+
+    #[test]
+    fn per_block_lists_must_match_the_block_count() {
+        let text = include_str!("../../tests/fixtures/ip2p/unet/config.json");
+        let good: UNetConfig = serde_json::from_str(text).unwrap();
+        assert!(good.check().is_ok());
+        let n = good.block_out_channels.len();
+        let mut bad = good.clone();
+        bad.layers_per_block = PerBlock::Each(vec![1; n + 1]);
+        assert!(bad.check().unwrap_err().contains("layers_per_block"));
+        let mut bad = good;
+        bad.attention_head_dim = PerBlock::Each(vec![2; n - 1]);
+        assert!(bad.check().unwrap_err().contains("attention_head_dim"));
+    }
 
     #[test]
     fn sliced_attention_equals_whole() {
