@@ -2,6 +2,14 @@
 
 mod commands;
 
+/// mimalloc keeps freed memory mapped and reuses it. With the system allocator every
+/// large buffer (a render's binning arrays, the backward accumulators, a 1M-Gaussian
+/// gradient, a transport kernel) is a fresh `mmap`: a page fault per 4 KiB on first
+/// touch and TLB shootdowns on `munmap`, which cost more than the rasterizer's own work
+/// at 1M Gaussians (`transsplat bench raster`).
+#[global_allocator]
+static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use clap::{Parser, Subcommand};
 
 /// Language-driven editing of 3D Gaussian Splatting scenes by unbalanced semantic transport.
