@@ -110,18 +110,35 @@ impl Binned {
 
 fn tile_span(p: &Packed, tiles_x: usize, tiles_y: usize) -> (usize, usize, usize, usize) {
     let t = TILE as f32;
-    let x0 = ((p.x - p.ex) / t).floor().max(0.0) as usize;
-    let y0 = ((p.y - p.ey) / t).floor().max(0.0) as usize;
-    let x1 = (((p.x + p.ex) / t).ceil().max(0.0) as usize).min(tiles_x);
-    let y1 = (((p.y + p.ey) / t).ceil().max(0.0) as usize).min(tiles_y);
+    // Floor and ceiling by conversion (x as usize truncates, and saturates below 0):
+    // libm's floorf / ceilf are calls on baseline x86-64.
+    let lo = |v: f32| (v / t).max(0.0) as usize;
+    let hi = |v: f32| {
+        let q = (v / t).max(0.0);
+        let c = q as usize;
+        c + ((c as f32) < q) as usize
+    };
+    let (x1, y1) = (hi(p.x + p.ex).min(tiles_x), hi(p.y + p.ey).min(tiles_y));
     // A splat inside the culling radius can have its opacity-aware support wholly
     // off the image (x0 past the last tile): an empty span, never a reversed one.
-    (x0.min(x1), y0.min(y1), x1, y1)
+    (lo(p.x - p.ex).min(x1), lo(p.y - p.ey).min(y1), x1, y1)
+}
+
+/// Calls `f(tile)` for every tile of `p`'s span.
+#[inline(always)]
+fn for_each_tile(p: &Packed, tiles_x: usize, tiles_y: usize, mut f: impl FnMut(usize)) {
+    let (x0, y0, x1, y1) = tile_span(p, tiles_x, tiles_y);
+    for ty in y0..y1 {
+        for t in ty * tiles_x + x0..ty * tiles_x + x1 {
+            f(t);
+        }
+    }
 }
 
 /// Projects, sorts and bins the splats for `view`.
 pub fn bin(splats: &Splats, view: &View) -> Binned {
     let n = splats.len();
+    let prof = Profile::start();
     let (width, height) = (view.width as usize, view.height as usize);
     let tiles_x = width.div_ceil(TILE);
     let tiles_y = height.div_ceil(TILE);
@@ -149,9 +166,11 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
                 (ids, pk)
             })
             .collect();
+    prof.lap("project");
     let (visible_ids, visible): (Vec<Vec<u32>>, Vec<Vec<Packed>>) = parts.into_iter().unzip();
     let visible_ids: Vec<u32> = visible_ids.concat();
     let visible: Vec<Packed> = visible.concat();
+    prof.lap("concat");
     // Stable sort by depth; ties keep index order, as the slots are in index order.
     let mut keys: Vec<(u32, u32)> = visible
         .par_iter()
@@ -160,9 +179,11 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
         .map(|(k, p)| (p.depth.to_bits(), k as u32))
         .collect();
     radix_sort(&mut keys);
+    prof.lap("keys+sort");
     let ids: Vec<u32> = keys.par_iter().with_min_len(4096).map(|k| visible_ids[k.1 as usize]).collect();
     let packed: Vec<Packed> = keys.par_iter().with_min_len(4096).map(|k| visible[k.1 as usize]).collect();
     drop((keys, visible, visible_ids));
+    prof.lap("gather");
     let f = splats.num_features;
     let mut feats = vec![0.0f32; ids.len() * f];
     if f > 0 {
@@ -179,16 +200,12 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
         .map(|ch| {
             let mut c = vec![0u32; num_tiles];
             for p in ch {
-                let (x0, y0, x1, y1) = tile_span(p, tiles_x, tiles_y);
-                for ty in y0..y1 {
-                    for cnt in &mut c[ty * tiles_x + x0..ty * tiles_x + x1] {
-                        *cnt += 1;
-                    }
-                }
+                for_each_tile(p, tiles_x, tiles_y, |t| c[t] += 1);
             }
             c
         })
         .collect();
+    prof.lap("count");
     // starts[c][t] = offset of chunk c's first entry in tile t.
     let mut offsets = vec![0u32; num_tiles + 1];
     let mut starts = vec![vec![0u32; num_tiles]; counts.len()];
@@ -206,16 +223,16 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
     packed.par_chunks(chunk).zip(starts.into_par_iter()).enumerate().for_each(|(c, (ch, mut start))| {
         let base = (c * chunk) as u32;
         for (k, p) in ch.iter().enumerate() {
-            let (x0, y0, x1, y1) = tile_span(p, tiles_x, tiles_y);
-            for ty in y0..y1 {
-                for s in &mut start[ty * tiles_x + x0..ty * tiles_x + x1] {
-                    // SAFETY: each (chunk, tile) owns the disjoint range reserved by the prefix sum.
-                    unsafe { *out.get().add(*s as usize) = base + k as u32 };
-                    *s += 1;
-                }
-            }
+            for_each_tile(p, tiles_x, tiles_y, |t| {
+                let s = &mut start[t];
+                // SAFETY: each (chunk, tile) owns the disjoint range reserved by the prefix sum
+                // (the same tiles are visited as when counting).
+                unsafe { *out.get().add(*s as usize) = base + k as u32 };
+                *s += 1;
+            });
         }
     });
+    prof.lap("lists");
 
     Binned {
         width,
@@ -232,6 +249,22 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
         radii,
         offsets,
         lists,
+    }
+}
+
+/// Stage timings on stderr when `TRANSSPLAT_RASTER_PROFILE` is set.
+pub(crate) struct Profile(Option<std::cell::Cell<std::time::Instant>>);
+
+impl Profile {
+    pub(crate) fn start() -> Self {
+        Profile(std::env::var_os("TRANSSPLAT_RASTER_PROFILE").map(|_| std::cell::Cell::new(std::time::Instant::now())))
+    }
+    pub(crate) fn lap(&self, what: &str) {
+        if let Some(t) = &self.0 {
+            let now = std::time::Instant::now();
+            eprintln!("raster-profile: {what} {:.2} ms", (now - t.get()).as_secs_f64() * 1e3);
+            t.set(now);
+        }
     }
 }
 

@@ -44,6 +44,13 @@ fn halves(s: &Packed, dy: f32, x0: usize) -> (usize, usize) {
     (lo, hi)
 }
 
+/// The bits of [`forward_tile`]'s live mask for tile rows `[r0, r1)` (both halves).
+#[inline(always)]
+fn half_mask(r0: usize, r1: usize) -> u32 {
+    let upto = |r: usize| if r >= TILE { u32::MAX } else { (1u32 << (2 * r)) - 1 };
+    upto(r1) & !upto(r0)
+}
+
 /// How many list entries ahead the splat data is prefetched.
 const PREFETCH: usize = 12;
 
@@ -131,14 +138,27 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
     };
     let need_weights = f > 0 || acc.is_some();
     let px: Row = std::array::from_fn(|x| (x0 + x) as f32 + 0.5);
+    // Bit 2r + h: half h of row r still has a live pixel. A splat whose rows are all
+    // stopped is skipped before any per-row work, and the tile ends when none is live.
+    let mut live = 0u32;
+    for r in 0..TILE {
+        for h in 0..TILE / HALF {
+            if half(&out.t[r], h).iter().any(|&v| v > 0.0) {
+                live |= 1 << (2 * r + h);
+            }
+        }
+    }
     let list = b.tile_list(tile);
     for (li, &j) in list.iter().enumerate() {
-        if li % 32 == 31 && out.t.iter().flatten().all(|&t| t <= 0.0) {
+        if live == 0 {
             break;
         }
         prefetch(b, list, li + PREFETCH);
         let s = &b.splats[j as usize];
         let (r0, r1) = rows(s, y0, y1);
+        if live & half_mask(r0 - y0, r1 - y0) == 0 {
+            continue;
+        }
         let mut sums = [0.0f32; 3];
         let (sx, sa, sb, sc, so) = (s.x, s.a, s.b, s.c, s.opacity);
         let [cr, cg, cb] = s.color;
@@ -146,17 +166,22 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
         let lnext = li as u32 + 1;
         for py in r0..r1 {
             let r = py - y0;
+            if (live >> (2 * r)) & 3 == 0 {
+                continue;
+            }
             let dy = s.y - (py as f32 + 0.5);
             let (h0, h1) = halves(s, dy, x0);
             let cdy = 0.5 * sc * dy * dy;
             let bdy = sb * dy;
             for h in h0..h1 {
-                let t = half_mut(&mut out.t[r], h);
-                if t.iter().all(|&v| v <= 0.0) {
+                let bit = 1u32 << (2 * r + h);
+                if live & bit == 0 {
                     continue;
                 }
+                let t = half_mut(&mut out.t[r], h);
                 let mut wrow = [0.0f32; HALF];
                 let mut arow = [0.0f32; HALF];
+                let mut any_stop = false;
                 {
                     let [o0, o1, o2] = &mut out.rgb;
                     let (o0, o1, o2) =
@@ -188,6 +213,10 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
                         ol[x] = if blend { lnext } else { ol[x] };
                         wrow[x] = w;
                         arow[x] = if blend { alpha } else { 0.0 };
+                        any_stop |= stop;
+                    }
+                    if any_stop && t.iter().all(|&v| v <= 0.0) {
+                        live &= !bit;
                     }
                 }
                 if !need_weights {

@@ -169,6 +169,7 @@ pub fn render(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Image, Fr
     validate(splats, cam);
     let view = View::new(cam);
     let binned = bin::bin(splats, &view);
+    let prof = bin::Profile::start();
     let (w, h, f) = (binned.width, binned.height, binned.num_features);
     let mut img = Image {
         width: w,
@@ -218,6 +219,7 @@ pub fn render(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Image, Fr
             }
         },
     );
+    prof.lap("tiles");
     (img, Frame { binned, final_t, last, background: bg })
 }
 
