@@ -135,6 +135,67 @@ fn for_each_tile(p: &Packed, tiles_x: usize, tiles_y: usize, mut f: impl FnMut(u
     }
 }
 
+/// Gaussians per projection chunk (a power of two: sort values are chunk << bits | index).
+const PCH_BITS: usize = 12;
+const PCH: usize = 1 << PCH_BITS;
+
+/// Projects Gaussians `i0..i0 + m2.len()`: writes their 2D means, depths and radii and
+/// returns the ids and packed splats of those that can blend somewhere.
+#[inline(always)]
+fn project_chunk(
+    splats: &Splats,
+    view: &View,
+    i0: usize,
+    m2: &mut [[f32; 2]],
+    dp: &mut [f32],
+    rd: &mut [[u32; 2]],
+) -> (Vec<u32>, Vec<Packed>) {
+    let (mut ids, mut pk) = (Vec::with_capacity(m2.len()), Vec::with_capacity(m2.len()));
+    for k in 0..m2.len() {
+        let i = i0 + k;
+        let Some((s, r)) = project(view, &splats.params(i)) else { continue };
+        (m2[k], dp[k], rd[k]) = (s.xy, s.depth, r);
+        if let Some((ex, ey, thr)) = support(&s) {
+            ids.push(i as u32);
+            pk.push(pack(&s, ex, ey, thr));
+        }
+    }
+    (ids, pk)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn project_chunk_avx2(
+    splats: &Splats,
+    view: &View,
+    i0: usize,
+    m2: &mut [[f32; 2]],
+    dp: &mut [f32],
+    rd: &mut [[u32; 2]],
+) -> (Vec<u32>, Vec<Packed>) {
+    project_chunk(splats, view, i0, m2, dp, rd)
+}
+
+/// [`project_chunk`], compiled for AVX2 + FMA when the CPU has them (same results: no
+/// fused operations are formed, only the instruction encoding and rounding calls change).
+fn project_chunk_dispatch(
+    avx2: bool,
+    splats: &Splats,
+    view: &View,
+    i0: usize,
+    m2: &mut [[f32; 2]],
+    dp: &mut [f32],
+    rd: &mut [[u32; 2]],
+) -> (Vec<u32>, Vec<Packed>) {
+    #[cfg(target_arch = "x86_64")]
+    if avx2 {
+        // SAFETY: the CPU has AVX2 and FMA (checked by the caller at run time).
+        return unsafe { project_chunk_avx2(splats, view, i0, m2, dp, rd) };
+    }
+    let _ = avx2;
+    project_chunk(splats, view, i0, m2, dp, rd)
+}
+
 /// Projects, sorts and bins the splats for `view`.
 pub fn bin(splats: &Splats, view: &View) -> Binned {
     let n = splats.len();
@@ -144,45 +205,43 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
     let tiles_y = height.div_ceil(TILE);
     // One pass in index order: per-Gaussian outputs written in place, the splats that
     // can blend somewhere packed compactly (chunk by chunk, so still in index order).
-    const PCH: usize = 4096;
     let mut means2d = vec![[0.0f32; 2]; n];
     let mut depths = vec![0.0f32; n];
     let mut radii = vec![[0u32; 2]; n];
+    let avx2 = crate::kernel::has_avx2();
     let parts: Vec<(Vec<u32>, Vec<Packed>)> =
         (means2d.par_chunks_mut(PCH), depths.par_chunks_mut(PCH), radii.par_chunks_mut(PCH))
             .into_par_iter()
             .enumerate()
-            .map(|(c, (m2, dp, rd))| {
-                let (mut ids, mut pk) = (Vec::new(), Vec::new());
-                for k in 0..m2.len() {
-                    let i = c * PCH + k;
-                    let Some((s, r)) = project(view, &splats.params(i)) else { continue };
-                    (m2[k], dp[k], rd[k]) = (s.xy, s.depth, r);
-                    if let Some((ex, ey, thr)) = support(&s) {
-                        ids.push(i as u32);
-                        pk.push(pack(&s, ex, ey, thr));
-                    }
-                }
-                (ids, pk)
-            })
+            .map(|(c, (m2, dp, rd))| project_chunk_dispatch(avx2, splats, view, c * PCH, m2, dp, rd))
             .collect();
     prof.lap("project");
-    let (visible_ids, visible): (Vec<Vec<u32>>, Vec<Vec<Packed>>) = parts.into_iter().unzip();
-    let visible_ids: Vec<u32> = visible_ids.concat();
-    let visible: Vec<Packed> = visible.concat();
-    prof.lap("concat");
     // Stable sort by depth; ties keep index order, as the slots are in index order.
-    let mut keys: Vec<(u32, u32)> = visible
-        .par_iter()
-        .enumerate()
-        .with_min_len(4096)
-        .map(|(k, p)| (p.depth.to_bits(), k as u32))
-        .collect();
+    // The value is the slot (chunk << PCH_BITS | position in the chunk).
+    let mut keys: Vec<(u32, u32)> = Vec::with_capacity(parts.iter().map(|p| p.0.len()).sum());
+    for (c, (_, pk)) in parts.iter().enumerate() {
+        keys.extend(pk.iter().enumerate().map(|(k, p)| (p.depth.to_bits(), ((c << PCH_BITS) | k) as u32)));
+    }
     radix_sort(&mut keys);
     prof.lap("keys+sort");
-    let ids: Vec<u32> = keys.par_iter().with_min_len(4096).map(|k| visible_ids[k.1 as usize]).collect();
-    let packed: Vec<Packed> = keys.par_iter().with_min_len(4096).map(|k| visible[k.1 as usize]).collect();
-    drop((keys, visible, visible_ids));
+    let slot = |v: u32| (v as usize >> PCH_BITS, v as usize & (PCH - 1));
+    let ids: Vec<u32> = keys
+        .par_iter()
+        .with_min_len(4096)
+        .map(|k| {
+            let (c, i) = slot(k.1);
+            parts[c].0[i]
+        })
+        .collect();
+    let packed: Vec<Packed> = keys
+        .par_iter()
+        .with_min_len(4096)
+        .map(|k| {
+            let (c, i) = slot(k.1);
+            parts[c].1[i]
+        })
+        .collect();
+    drop((keys, parts));
     prof.lap("gather");
     let f = splats.num_features;
     let mut feats = vec![0.0f32; ids.len() * f];
@@ -257,7 +316,10 @@ pub(crate) struct Profile(Option<std::cell::Cell<std::time::Instant>>);
 
 impl Profile {
     pub(crate) fn start() -> Self {
-        Profile(std::env::var_os("TRANSSPLAT_RASTER_PROFILE").map(|_| std::cell::Cell::new(std::time::Instant::now())))
+        Profile(
+            std::env::var_os("TRANSSPLAT_RASTER_PROFILE")
+                .map(|_| std::cell::Cell::new(std::time::Instant::now())),
+        )
     }
     pub(crate) fn lap(&self, what: &str) {
         if let Some(t) = &self.0 {

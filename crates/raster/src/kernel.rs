@@ -492,7 +492,7 @@ fn backward_tile_avx2(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads
     backward_tile_impl(b, tile, st, g, buf)
 }
 
-fn has_avx2() -> bool {
+pub(crate) fn has_avx2() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")

@@ -208,12 +208,14 @@ fn forward_internals(view: &View, p: &GaussianParams) -> Fwd {
     }
 }
 
+#[inline(always)]
 fn view_dir(view: &View, mean: [f32; 3]) -> ([f32; 3], f32) {
     let d = [mean[0] - view.centre[0], mean[1] - view.centre[1], mean[2] - view.centre[2]];
     let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-12);
     ([d[0] / n, d[1] / n, d[2] / n], n)
 }
 
+#[inline(always)]
 /// SH colour before the clamp (`Σ_k sh_k Y_k(d) + 0.5`).
 fn sh_color(view: &View, p: &GaussianParams) -> [f32; 3] {
     let (d, _) = view_dir(view, p.mean);
@@ -231,6 +233,7 @@ fn sh_color(view: &View, p: &GaussianParams) -> [f32; 3] {
 /// Projects one Gaussian. Returns `None` when it is culled (behind the near plane,
 /// degenerate covariance, or a bounding box that misses the image), else the splat
 /// and its per-axis pixel radius.
+#[inline(always)]
 pub fn project(view: &View, p: &GaussianParams) -> Option<(Splat2d, [u32; 2])> {
     let t = view.to_camera(p.mean);
     let tz = t[2];

@@ -8,6 +8,7 @@ const C3: [f32; 7] =
     [-0.590_043_6, 2.890_611_4, -0.457_045_8, 0.373_176_33, -0.457_045_8, 1.445_305_7, -0.590_043_6];
 
 /// The SH basis `Y_k(d)` for a unit direction `d`, `k < (degree+1)²`.
+#[inline(always)]
 pub fn basis(degree: u32, d: [f32; 3]) -> [f32; 16] {
     let [x, y, z] = d;
     let mut b = [0.0f32; 16];
