@@ -139,22 +139,23 @@ fn for_each_tile(p: &Packed, tiles_x: usize, tiles_y: usize, mut f: impl FnMut(u
 const PCH_BITS: usize = 12;
 const PCH: usize = 1 << PCH_BITS;
 
-/// Projects Gaussians `i0..i0 + m2.len()`: writes their 2D means, depths and radii and
-/// returns the ids and packed splats of those that can blend somewhere.
+/// One chunk of the per-Gaussian outputs of the projection pass.
+struct Slots<'a> {
+    means2d: &'a mut [[f32; 2]],
+    depths: &'a mut [f32],
+    radii: &'a mut [[u32; 2]],
+}
+
+/// Projects Gaussians `i0..i0 + out.depths.len()`: writes their 2D means, depths and
+/// radii and returns the ids and packed splats of those that can blend somewhere.
 #[inline(always)]
-fn project_chunk(
-    splats: &Splats,
-    view: &View,
-    i0: usize,
-    m2: &mut [[f32; 2]],
-    dp: &mut [f32],
-    rd: &mut [[u32; 2]],
-) -> (Vec<u32>, Vec<Packed>) {
-    let (mut ids, mut pk) = (Vec::with_capacity(m2.len()), Vec::with_capacity(m2.len()));
-    for k in 0..m2.len() {
+fn project_chunk(splats: &Splats, view: &View, i0: usize, out: Slots) -> (Vec<u32>, Vec<Packed>) {
+    let len = out.depths.len();
+    let (mut ids, mut pk) = (Vec::with_capacity(len), Vec::with_capacity(len));
+    for k in 0..len {
         let i = i0 + k;
         let Some((s, r)) = project(view, &splats.params(i)) else { continue };
-        (m2[k], dp[k], rd[k]) = (s.xy, s.depth, r);
+        (out.means2d[k], out.depths[k], out.radii[k]) = (s.xy, s.depth, r);
         if let Some((ex, ey, thr)) = support(&s) {
             ids.push(i as u32);
             pk.push(pack(&s, ex, ey, thr));
@@ -165,15 +166,8 @@ fn project_chunk(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn project_chunk_avx2(
-    splats: &Splats,
-    view: &View,
-    i0: usize,
-    m2: &mut [[f32; 2]],
-    dp: &mut [f32],
-    rd: &mut [[u32; 2]],
-) -> (Vec<u32>, Vec<Packed>) {
-    project_chunk(splats, view, i0, m2, dp, rd)
+fn project_chunk_avx2(splats: &Splats, view: &View, i0: usize, out: Slots) -> (Vec<u32>, Vec<Packed>) {
+    project_chunk(splats, view, i0, out)
 }
 
 /// [`project_chunk`], compiled for AVX2 + FMA when the CPU has them (same results: no
@@ -183,17 +177,15 @@ fn project_chunk_dispatch(
     splats: &Splats,
     view: &View,
     i0: usize,
-    m2: &mut [[f32; 2]],
-    dp: &mut [f32],
-    rd: &mut [[u32; 2]],
+    out: Slots,
 ) -> (Vec<u32>, Vec<Packed>) {
     #[cfg(target_arch = "x86_64")]
     if avx2 {
         // SAFETY: the CPU has AVX2 and FMA (checked by the caller at run time).
-        return unsafe { project_chunk_avx2(splats, view, i0, m2, dp, rd) };
+        return unsafe { project_chunk_avx2(splats, view, i0, out) };
     }
     let _ = avx2;
-    project_chunk(splats, view, i0, m2, dp, rd)
+    project_chunk(splats, view, i0, out)
 }
 
 /// Projects, sorts and bins the splats for `view`.
@@ -213,7 +205,9 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
         (means2d.par_chunks_mut(PCH), depths.par_chunks_mut(PCH), radii.par_chunks_mut(PCH))
             .into_par_iter()
             .enumerate()
-            .map(|(c, (m2, dp, rd))| project_chunk_dispatch(avx2, splats, view, c * PCH, m2, dp, rd))
+            .map(|(c, (means2d, depths, radii))| {
+                project_chunk_dispatch(avx2, splats, view, c * PCH, Slots { means2d, depths, radii })
+            })
             .collect();
     prof.lap("project");
     // Stable sort by depth; ties keep index order, as the slots are in index order.
@@ -225,22 +219,14 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
     radix_sort(&mut keys);
     prof.lap("keys+sort");
     let slot = |v: u32| (v as usize >> PCH_BITS, v as usize & (PCH - 1));
-    let ids: Vec<u32> = keys
+    let (ids, packed): (Vec<u32>, Vec<Packed>) = keys
         .par_iter()
         .with_min_len(4096)
         .map(|k| {
             let (c, i) = slot(k.1);
-            parts[c].0[i]
+            (parts[c].0[i], parts[c].1[i])
         })
-        .collect();
-    let packed: Vec<Packed> = keys
-        .par_iter()
-        .with_min_len(4096)
-        .map(|k| {
-            let (c, i) = slot(k.1);
-            parts[c].1[i]
-        })
-        .collect();
+        .unzip();
     drop((keys, parts));
     prof.lap("gather");
     let f = splats.num_features;
