@@ -39,7 +39,7 @@
 //! maps of the current views, and `request.json`) are removed from `WORK`; nothing else
 //! in it is touched.
 
-use crate::folder::{read_edits, view_entries, IMAGE_EXTENSIONS};
+use crate::folder::{read_edits, view_entries};
 use crate::{EditedView, Editor, Error, SourceView};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -103,7 +103,7 @@ impl CommandEditor {
         remove_if_present(&request)?;
         for e in &entries {
             remove_if_present(&input.join(&e.file))?;
-            for ext in IMAGE_EXTENSIONS {
+            for ext in image::EXTENSIONS {
                 remove_if_present(&output.join(format!("{}.{ext}", e.name)))?;
             }
             remove_if_present(&output.join("masks").join(format!("{}.png", e.name)))?;

@@ -22,12 +22,9 @@ use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 use transsplat_scene::{atomic, image, npy, Camera};
 
-/// Extensions tried for edited images, in order.
-pub const IMAGE_EXTENSIONS: &[&str] = &["png", "jpg", "jpeg", "PNG", "JPG", "JPEG"];
-
 /// The edited image for `stem` in `dir`, if any.
 fn find_image(dir: &Path, stem: &str) -> Option<PathBuf> {
-    IMAGE_EXTENSIONS.iter().map(|e| dir.join(format!("{stem}.{e}"))).find(|p| p.is_file())
+    image::find_with_extension(&dir.join(stem))
 }
 
 /// Reads an image as grey `H × W` (mean of RGB), resized to `w × h`, with a warning

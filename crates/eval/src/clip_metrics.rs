@@ -13,6 +13,7 @@
 use std::path::{Path, PathBuf};
 
 use transsplat_models::clip::{l2_normalize, Clip};
+use transsplat_scene::image;
 
 /// Score of one view.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -46,16 +47,13 @@ pub enum Error {
     Candle(#[from] candle_core::Error),
 }
 
-const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
-
 fn images_by_stem(dir: &Path) -> Result<Vec<(String, PathBuf)>, Error> {
     let entries = std::fs::read_dir(dir)
         .map_err(|e| Error::Input(format!("{}: cannot read folder: {e}", dir.display())))?;
     let mut out = Vec::new();
     for entry in entries.flatten() {
         let path = entry.path();
-        let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-        if path.is_file() && ext.is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.as_str())) {
+        if path.is_file() && image::has_image_extension(&path) {
             if let Some(stem) = path.file_stem().and_then(|s| s.to_str()) {
                 out.push((stem.to_string(), path));
             }

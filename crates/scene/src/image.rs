@@ -32,6 +32,31 @@ impl RgbImage {
     }
 }
 
+/// Extensions tried, in this order, for an image named without one (the readers go by
+/// content, not by extension).
+pub const EXTENSIONS: &[&str] = &["png", "jpg", "jpeg", "PNG", "JPG", "JPEG"];
+
+/// `stem_path` with the first of [`EXTENSIONS`] appended (`a/b` → `a/b.png`, `a/b.c` →
+/// `a/b.c.png`) that names a file.
+pub fn find_with_extension(stem_path: &Path) -> Option<std::path::PathBuf> {
+    EXTENSIONS
+        .iter()
+        .map(|e| {
+            let mut s = stem_path.as_os_str().to_os_string();
+            s.push(".");
+            s.push(e);
+            std::path::PathBuf::from(s)
+        })
+        .find(|p| p.is_file())
+}
+
+/// Whether `path` ends in one of [`EXTENSIONS`] (any case).
+pub fn has_image_extension(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| EXTENSIONS.iter().any(|x| x.eq_ignore_ascii_case(e)))
+}
+
 /// Largest accepted image side, to refuse absurd headers before allocating.
 const MAX_SIDE: usize = 1 << 15;
 
@@ -164,6 +189,25 @@ pub fn write_png(path: &Path, width: usize, height: usize, rgb: &[f32]) -> Resul
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn extensions_are_appended_in_order_and_matched_in_any_case() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        assert_eq!(find_with_extension(&d.join("a")), None);
+        std::fs::write(d.join("a.JPG"), b"x").unwrap();
+        assert_eq!(find_with_extension(&d.join("a")), Some(d.join("a.JPG")));
+        std::fs::write(d.join("a.png"), b"x").unwrap();
+        assert_eq!(find_with_extension(&d.join("a")), Some(d.join("a.png")));
+        // Appended, not replaced: `b.v1` looks for `b.v1.png`.
+        std::fs::write(d.join("b.png"), b"x").unwrap();
+        assert_eq!(find_with_extension(&d.join("b.v1")), None);
+        // A folder with an image name is not an image.
+        std::fs::create_dir(d.join("c.png")).unwrap();
+        assert_eq!(find_with_extension(&d.join("c")), None);
+        assert!(has_image_extension(Path::new("x/y.JpEg")) && has_image_extension(Path::new("y.png")));
+        assert!(!has_image_extension(Path::new("y.npy")) && !has_image_extension(Path::new("png")));
+    }
 
     fn png_bytes(w: u32, h: u32, ct: png::ColorType, depth: png::BitDepth, data: &[u8]) -> Vec<u8> {
         let mut out = Vec::new();

@@ -225,8 +225,6 @@ fn placeholder() -> Camera {
     }
 }
 
-const EXTS: [&str; 6] = ["png", "jpg", "jpeg", "PNG", "JPG", "JPEG"];
-
 /// `base/name`, or with an image extension added, or with its extension replaced.
 fn find_image(base: &Path, name: &str) -> PathBuf {
     let p = base.join(name);
@@ -237,24 +235,20 @@ fn find_image(base: &Path, name: &str) -> PathBuf {
         Some(_) => base.join(Path::new(name).with_extension("")),
         None => base.join(name),
     };
-    EXTS.iter()
-        .map(|e| {
-            let mut s = base.join(name).into_os_string();
-            s.push(format!(".{e}"));
-            PathBuf::from(s)
-        })
-        .chain(EXTS.iter().map(|e| stem_path.with_extension(e)))
-        .find(|q| q.is_file())
-        .unwrap_or(p)
+    image::find_with_extension(&p).or_else(|| image::find_with_extension(&stem_path)).unwrap_or(p)
 }
 
 fn find_mask(masks: &Path, name: &str) -> Option<PathBuf> {
     let file = Path::new(name).file_name()?;
     let stem = Path::new(file).file_stem()?.to_string_lossy().into_owned();
-    std::iter::once(masks.join(file))
-        .chain(["png", "jpg", "jpeg"].iter().map(|e| masks.join(format!("{stem}.{e}"))))
-        .chain(std::iter::once(masks.join(format!("{}.png", file.to_string_lossy()))))
-        .find(|q| q.is_file())
+    let exact = masks.join(file);
+    if exact.is_file() {
+        return Some(exact);
+    }
+    image::find_with_extension(&masks.join(stem)).or_else(|| {
+        let png = masks.join(format!("{}.png", file.to_string_lossy()));
+        png.is_file().then_some(png)
+    })
 }
 
 /// The camera for an image of `w × h`: unchanged when the sizes agree, rescaled when

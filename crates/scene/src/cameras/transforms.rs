@@ -169,8 +169,5 @@ fn find_image(base: &Path, file_path: &str) -> Option<PathBuf> {
     if p.is_file() {
         return Some(p);
     }
-    ["png", "jpg", "jpeg", "PNG", "JPG", "JPEG"]
-        .iter()
-        .map(|e| base.join(format!("{file_path}.{e}")))
-        .find(|p| p.is_file())
+    crate::image::find_with_extension(&p)
 }
