@@ -86,7 +86,7 @@ fn main() {
         Command::Demo(a) => commands::demo::run(a, &CANCEL),
         Command::Edit(a) => commands::edit::run(a, &CANCEL),
         Command::Eval(a) => commands::eval::run(a, &CANCEL),
-        Command::Render(a) => commands::render::run(a),
+        Command::Render(a) => commands::render::run(a, &CANCEL),
         Command::Info(a) => commands::info::run(a),
         Command::Uot(a) => commands::uot::run(a),
         Command::Scene(a) => commands::scene::run(a),

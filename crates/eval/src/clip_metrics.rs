@@ -10,6 +10,7 @@
 //! stem and every `every`-th view (sorted by name, index % every == 0) is scored, the
 //! llffhold = 8 test views of the compared papers.
 
+use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
 use transsplat_models::clip::{l2_normalize, Clip};
@@ -45,6 +46,9 @@ pub enum Error {
     Model(#[from] transsplat_models::Error),
     #[error(transparent)]
     Candle(#[from] candle_core::Error),
+    /// The progress callback asked to stop.
+    #[error("interrupted")]
+    Interrupted,
 }
 
 fn images_by_stem(dir: &Path) -> Result<Vec<(String, PathBuf)>, Error> {
@@ -107,7 +111,9 @@ fn normalized_rows(x: &candle_core::Tensor) -> Result<Vec<Vec<f32>>, Error> {
 }
 
 /// Scores `(name, source image, edited image)` triples; images `H × W × 3` in [0, 1]
-/// with their width and height (source and edit may differ in size).
+/// with their width and height (source and edit may differ in size). `progress` is
+/// called with the number of views done after each; `Break` stops with
+/// [`Error::Interrupted`].
 #[allow(clippy::type_complexity)]
 pub fn score(
     clip: &Clip,
@@ -115,7 +121,7 @@ pub fn score(
     source_prompt: &str,
     target_prompt: &str,
     every: usize,
-    progress: &mut dyn FnMut(usize),
+    progress: &mut dyn FnMut(usize) -> ControlFlow<()>,
 ) -> Result<ClipScores, Error> {
     let text = normalized_rows(&clip.text_features(&[source_prompt, target_prompt])?)?;
     let text_dir: Vec<f32> = text[1].iter().zip(&text[0]).map(|(t, s)| t - s).collect();
@@ -128,7 +134,9 @@ pub fn score(
             clip_sim: cosine(&f[1], &text[1]),
             clip_dir: cosine(&img_dir, &text_dir),
         });
-        progress(i + 1);
+        if progress(i + 1).is_break() {
+            return Err(Error::Interrupted);
+        }
     }
     let n = scores.len().max(1) as f32;
     Ok(ClipScores {

@@ -43,7 +43,11 @@ fn scores_match_the_reference_clip_similarity() {
         .map(|(i, (s, e))| (format!("v{i}"), (s.0.as_slice(), s.1, s.2), (e.0.as_slice(), e.1, e.2)))
         .collect();
     let mut done = 0;
-    let got = score(&clip, &views, &r.source_prompt, &r.target_prompt, 1, &mut |n| done = n).unwrap();
+    let got = score(&clip, &views, &r.source_prompt, &r.target_prompt, 1, &mut |n| {
+        done = n;
+        std::ops::ControlFlow::Continue(())
+    })
+    .unwrap();
     assert_eq!(done, 3);
     for i in 0..3 {
         assert!(
@@ -61,6 +65,15 @@ fn scores_match_the_reference_clip_similarity() {
     }
     assert!((got.mean_clip_sim - r.mean_clip_sim).abs() < 1e-4);
     assert!((got.mean_clip_dir - r.mean_clip_dir).abs() < 1e-4);
+
+    // A stop request after the first view ends the scoring there.
+    let mut calls = 0;
+    let stopped = score(&clip, &views, &r.source_prompt, &r.target_prompt, 1, &mut |_| {
+        calls += 1;
+        std::ops::ControlFlow::Break(())
+    });
+    assert!(matches!(stopped, Err(transsplat_eval::clip_metrics::Error::Interrupted)), "{stopped:?}");
+    assert_eq!(calls, 1);
 }
 
 #[test]

@@ -2,12 +2,13 @@
 //! (Instruct-NeRF2NeRF `ClipSimilarity` protocol, SPEC Evaluation), for the output of any
 //! method. Prints a table and writes per-view and mean values as JSON (atomically).
 
+use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use transsplat_eval::clip_metrics::{pair_views, score};
+use transsplat_eval::clip_metrics::{pair_views, score, Error as ClipError};
 use transsplat_models::clip::Clip;
 use transsplat_models::ModelDir;
 use transsplat_scene::{atomic, image};
@@ -61,7 +62,7 @@ pub fn run(args: &EvalArgs, cancel: &AtomicBool) -> Result<()> {
         Some(cams) => {
             let tmp = tempfile::tempdir().context("creating a temporary folder for the renders")?;
             for (scene, name) in [(&args.source, "source"), (&args.edited, "edited")] {
-                render_all(scene, cams, &tmp.path().join(name), args.background, args.every)?;
+                render_all(scene, cams, &tmp.path().join(name), args.background, args.every, cancel)?;
             }
             Some(tmp)
         }
@@ -87,15 +88,19 @@ pub fn run(args: &EvalArgs, cancel: &AtomicBool) -> Result<()> {
         })
         .collect();
     let bar = progress(views.len() as u64, "CLIP");
-    let mut cancelled = false;
     let scores = score(&clip, &views, &args.source_prompt, &args.target_prompt, args.every, &mut |n| {
         bar.set_position(n as u64);
-        cancelled |= cancel.load(Ordering::SeqCst);
-    })?;
+        if cancel.load(Ordering::SeqCst) {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    });
     bar.finish_and_clear();
-    if cancelled {
-        bail!("interrupted: nothing written");
-    }
+    let scores = match scores {
+        Err(ClipError::Interrupted) => bail!("interrupted: nothing written"),
+        other => other?,
+    };
     println!("{:<24} {:>9} {:>9}", "view", "CLIP-sim", "CLIP-dir");
     for v in &scores.views {
         println!("{:<24} {:>9.4} {:>9.4}", v.view, v.clip_sim, v.clip_dir);
@@ -109,7 +114,14 @@ pub fn run(args: &EvalArgs, cancel: &AtomicBool) -> Result<()> {
 
 /// Renders `scene` to `out/<image name>.png` from the cameras that are scored: every
 /// `every`-th by image name, the order `pair_views` uses for folders.
-fn render_all(scene: &Path, cameras: &Path, out: &Path, background: [f32; 3], every: usize) -> Result<()> {
+fn render_all(
+    scene: &Path,
+    cameras: &Path,
+    out: &Path,
+    background: [f32; 3],
+    every: usize,
+    cancel: &AtomicBool,
+) -> Result<()> {
     if every == 0 {
         bail!("--every must be at least 1");
     }
@@ -118,5 +130,5 @@ fn render_all(scene: &Path, cameras: &Path, out: &Path, background: [f32; 3], ev
     cams.sort_by_key(|c| c.stem());
     let cams: Vec<_> = cams.into_iter().step_by(every).collect();
     std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
-    super::render::render_views(&g, &cams, out, background, false)
+    super::render::render_views(&g, &cams, out, background, false, cancel)
 }

@@ -1,8 +1,9 @@
 //! `transsplat render`: renders every camera of a scene to PNG (and raw `.npy`).
 
 use super::common::{load_cameras, load_scene, parse_rgb, prepare_out_dir, progress, SceneArgs};
-use anyhow::Result;
+use anyhow::{bail, Result};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use transsplat_raster::{render, RenderOptions, Splats};
 use transsplat_scene::{image, npy, Camera, Gaussians};
 
@@ -26,27 +27,38 @@ pub struct RenderArgs {
 }
 
 /// Runs `transsplat render`.
-pub fn run(args: &RenderArgs) -> Result<()> {
+pub fn run(args: &RenderArgs, cancel: &AtomicBool) -> Result<()> {
     let (g, scene_path) = load_scene(&args.scene)?;
     let (cams, cam_path) = load_cameras(args.cameras.as_deref(), &args.scene.scene)?;
     let out = prepare_out_dir(&args.out, &[&scene_path, &cam_path])?;
-    render_views(&g, &cams, &out, args.background, args.raw)?;
+    render_views(&g, &cams, &out, args.background, args.raw, cancel)?;
     tracing::info!("rendered {} views to {}", cams.len(), out.display());
     Ok(())
 }
 
 /// Renders `g` from every camera to `out/<image name>.png` (and `.npy` with `raw`).
+/// Stops between views when `cancel` is set; every file written is complete (each is
+/// written to a temporary name and renamed).
 pub fn render_views(
     g: &Gaussians,
     cams: &[Camera],
     out: &Path,
     background: [f32; 3],
     raw: bool,
+    cancel: &AtomicBool,
 ) -> Result<()> {
     let splats = Splats::new(g);
     let opts = RenderOptions { background };
     let pb = progress(cams.len() as u64, "render");
-    for cam in cams {
+    for (i, cam) in cams.iter().enumerate() {
+        if cancel.load(Ordering::SeqCst) {
+            pb.finish_and_clear();
+            bail!(
+                "interrupted after {i} of {} views; the views in {} are complete",
+                cams.len(),
+                out.display()
+            );
+        }
         let (img, _) = render(&splats, cam, &opts);
         let stem = cam.stem();
         image::write_png(&out.join(format!("{stem}.png")), img.width, img.height, &img.rgb)?;
@@ -57,4 +69,24 @@ pub fn render_views(
     }
     pb.finish_and_clear();
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_stop_request_ends_rendering_between_views() {
+        let config = transsplat_scenes::SceneConfig { views: 3, ..transsplat_scenes::SceneConfig::quick() };
+        let scene = transsplat_scenes::build("tabletop", &config).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let stop = AtomicBool::new(true);
+        let err =
+            render_views(&scene.gaussians, &scene.cameras, dir.path(), [0.0; 3], false, &stop).unwrap_err();
+        assert!(err.to_string().starts_with("interrupted after 0 of 3 views"), "{err}");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+        stop.store(false, Ordering::SeqCst);
+        render_views(&scene.gaussians, &scene.cameras, dir.path(), [0.0; 3], false, &stop).unwrap();
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 3);
+    }
 }
