@@ -68,12 +68,22 @@ static CANCEL: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::ne
 
 fn main() {
     let cli = Cli::parse();
-    let _ = ctrlc::set_handler(|| {
-        if CANCEL.swap(true, std::sync::atomic::Ordering::SeqCst) {
-            std::process::exit(130);
-        }
-        eprintln!("interrupt: stopping at the next step (train and edit save a checkpoint); Ctrl-C again quits at once");
-    });
+    // Commands that poll CANCEL stop cleanly at their next step; the others (short, and
+    // writing each output atomically) keep the default: Ctrl-C ends them at once.
+    let polls_cancel = matches!(
+        cli.command,
+        Command::Demo(_) | Command::Edit(_) | Command::Eval(_) | Command::Render(_) | Command::Train(_)
+    );
+    if polls_cancel {
+        let _ = ctrlc::set_handler(|| {
+            if CANCEL.swap(true, std::sync::atomic::Ordering::SeqCst) {
+                std::process::exit(130);
+            }
+            eprintln!(
+                "interrupt: stopping at the next step (train and edit save a checkpoint); Ctrl-C again quits at once"
+            );
+        });
+    }
     let level = match cli.verbose {
         0 => "info",
         1 => "debug",
