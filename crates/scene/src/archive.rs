@@ -48,17 +48,20 @@ impl Hasher {
     /// Adds bytes (length-prefixed, so `"ab","c"` and `"a","bc"` differ).
     pub fn bytes(&mut self, b: &[u8]) -> &mut Self {
         self.u64(b.len() as u64);
+        let rest = self.words(b);
+        if !rest.is_empty() {
+            self.u64(padded_word(rest));
+        }
+        self
+    }
+
+    /// Adds the whole little-endian 8-byte words of `b`; returns the bytes left over.
+    fn words<'b>(&mut self, b: &'b [u8]) -> &'b [u8] {
         let mut chunks = b.chunks_exact(8);
         for c in &mut chunks {
             self.u64(u64::from_le_bytes(c.try_into().expect("8 bytes")));
         }
-        let rest = chunks.remainder();
-        if !rest.is_empty() {
-            let mut w = [0u8; 8];
-            w[..rest.len()].copy_from_slice(rest);
-            self.u64(u64::from_le_bytes(w));
-        }
-        self
+        chunks.remainder()
     }
 
     /// Adds text.
@@ -109,22 +112,24 @@ impl Checksum {
             self.h.u64(u64::from_le_bytes(self.tail));
             self.n = 0;
         }
-        let mut words = b.chunks_exact(8);
-        for w in &mut words {
-            self.h.u64(u64::from_le_bytes(w.try_into().expect("8 bytes")));
-        }
-        let rest = words.remainder();
+        let rest = self.h.words(b);
         self.tail[..rest.len()].copy_from_slice(rest);
         self.n = rest.len();
     }
 
     fn finish(mut self) -> u64 {
         if self.n > 0 {
-            self.tail[self.n..].fill(0);
-            self.h.u64(u64::from_le_bytes(self.tail));
+            self.h.u64(padded_word(&self.tail[..self.n]));
         }
         self.h.u64(self.len).finish()
     }
+}
+
+/// Up to 8 bytes as a little-endian word, zero-padded.
+fn padded_word(b: &[u8]) -> u64 {
+    let mut w = [0u8; 8];
+    w[..b.len()].copy_from_slice(b);
+    u64::from_le_bytes(w)
 }
 
 /// Checksum of a whole byte string.
@@ -470,6 +475,23 @@ mod tests {
             b[i] ^= 0x10;
             assert!(Archive::parse(&b, Path::new("f.ckpt")).is_err(), "flipped byte {i} went unnoticed");
         }
+    }
+
+    /// Pinned values: checkpoints and input fingerprints written by earlier builds must
+    /// still verify, so the hash of given bytes must never change.
+    #[test]
+    fn hash_values_are_stable() {
+        let bytes: Vec<u8> = (0..=20u8).collect();
+        let got = [
+            checksum(&bytes),
+            checksum(b""),
+            Hasher::default().bytes(&bytes).finish(),
+            Hasher::default().str("abc").f32s(&[1.5, -2.0, 3.0]).u64(7).finish(),
+        ];
+        assert_eq!(
+            got,
+            [0x8884_69d7_6de8_97db, 0x32bb_040a_f63c_0964, 0xfbd9_afb3_ad88_bf8e, 0x513c_6e54_1881_19a1]
+        );
     }
 
     #[test]
