@@ -329,13 +329,15 @@ fn backward_tile_impl(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads
             }
         }
     }
-    // Highest `last` per half row: a half row is skipped while the list position is past it.
+    // Highest `last` per half row and per row: a half row (a row, a splat whose rows all
+    // are) is skipped while the list position is past it.
     let mut half_last = [[0u32; 2]; TILE];
     for (hl, row) in half_last.iter_mut().zip(&last) {
         for (h, v) in hl.iter_mut().enumerate() {
             *v = half(row, h).iter().copied().max().unwrap_or(0);
         }
     }
+    let row_last: [u32; TILE] = std::array::from_fn(|r| half_last[r][0].max(half_last[r][1]));
     let px: Row = std::array::from_fn(|x| (x0 + x) as f32 + 0.5);
     let list = b.tile_list(tile);
     let mut gfeat = vec![0.0f32; f];
@@ -346,7 +348,8 @@ fn backward_tile_impl(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads
         let j = list[li] as usize;
         let s = &b.splats[j];
         let (r0, r1) = rows(s, y0, y1);
-        if r0 >= r1 {
+        let li32 = li as u32;
+        if row_last[r0 - y0..r1 - y0].iter().all(|&l| li32 >= l) {
             continue;
         }
         let (sx, sa, sb, sc, so, sz) = (s.x, s.a, s.b, s.c, s.opacity, s.depth);
@@ -362,9 +365,11 @@ fn backward_tile_impl(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads
         let mut touched = false;
         gfeat.iter_mut().for_each(|v| *v = 0.0);
         let fj = &b.feats[j * f..(j + 1) * f];
-        let li32 = li as u32;
         for py in r0..r1 {
             let r = py - y0;
+            if li32 >= row_last[r] {
+                continue;
+            }
             let dy = s.y - (py as f32 + 0.5);
             let (h0, h1) = halves(s, dy, x0);
             for h in h0..h1 {
