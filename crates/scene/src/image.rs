@@ -60,6 +60,16 @@ pub fn has_image_extension(path: &Path) -> bool {
 /// Largest accepted image side, to refuse absurd headers before allocating.
 const MAX_SIDE: usize = 1 << 15;
 
+/// Deflate packs at most 1032 bytes into one (a 258-byte match coded in 2 bits), so a
+/// PNG whose header needs more raw scanline bytes than 1032 times the file size cannot
+/// hold its pixels: refused before allocating for them.
+const DEFLATE_MAX_RATIO: usize = 1032;
+
+/// A JPEG spends at least one bit per 8×8 luma block (its DC code), at most 512 pixels a
+/// byte; twice that is allowed. The decoder fills missing data with grey, so without
+/// this a few hundred damaged bytes claiming 32767×32767 would allocate gigabytes.
+const JPEG_MAX_PIXELS_PER_BYTE: usize = 1024;
+
 /// Reads a PNG or JPEG file (by content, not extension).
 pub fn read(path: &Path) -> Result<RgbImage> {
     let bytes = atomic::read(path)?;
@@ -84,6 +94,9 @@ fn decode_png(bytes: &[u8], path: &Path) -> Result<RgbImage> {
     let mut reader = dec.read_info().map_err(err)?;
     let (w, h) = (reader.info().width as usize, reader.info().height as usize);
     check_size(w, h, path)?;
+    if reader.info().raw_bytes() > bytes.len().saturating_mul(DEFLATE_MAX_RATIO) {
+        return Err(too_small(w, h, bytes.len(), path));
+    }
     let mut buf = vec![0u8; reader.output_buffer_size()];
     let frame = reader.next_frame(&mut buf).map_err(err)?;
     let (ct, depth) = (frame.color_type, frame.bit_depth);
@@ -111,6 +124,9 @@ fn decode_jpeg(bytes: &[u8], path: &Path) -> Result<RgbImage> {
     let info = dec.info().ok_or_else(|| Error::format(path, "bad JPEG: no header"))?;
     let (w, h) = (info.width as usize, info.height as usize);
     check_size(w, h, path)?;
+    if w * h > bytes.len().saturating_mul(JPEG_MAX_PIXELS_PER_BYTE) {
+        return Err(too_small(w, h, bytes.len(), path));
+    }
     let px = dec.decode().map_err(|e| Error::format(path, format!("bad JPEG: {e}")))?;
     let (channels, samples): (usize, Vec<f32>) = match info.pixel_format {
         jpeg_decoder::PixelFormat::L8 => (1, px.iter().map(|&v| v as f32 / 255.0).collect()),
@@ -143,6 +159,13 @@ fn check_size(w: usize, h: usize, path: &Path) -> Result<()> {
         ));
     }
     Ok(())
+}
+
+fn too_small(w: usize, h: usize, len: usize, path: &Path) -> Error {
+    Error::format(
+        path,
+        format!("image header says {w}x{h} pixels, more than its {len} bytes can hold (damaged file)"),
+    )
 }
 
 fn from_samples(w: usize, h: usize, channels: usize, s: &[f32], path: &Path) -> Result<RgbImage> {
@@ -263,5 +286,43 @@ mod tests {
         assert!(e.contains("bad.png"), "{e}");
         let e = decode(&[0xFF, 0xD8, 0xFF, 0x00], Path::new("bad.jpg")).unwrap_err().to_string();
         assert!(e.contains("bad.jpg") && e.contains("JPEG"), "{e}");
+    }
+
+    /// Found by the `image` fuzz target: 68 bytes of PNG claiming 32768x32768 RGBA16
+    /// made the decoder allocate 8 GB before reading the data, and a damaged 646-byte
+    /// JPEG claiming 32767x32767 allocated 3 GB (the decoder fills missing data with grey).
+    #[test]
+    fn tiny_files_claiming_huge_sizes_are_refused_before_allocating() {
+        let png = png_bytes(1, 1, png::ColorType::Rgba, png::BitDepth::Sixteen, &[0; 8]);
+        let mut lying = png.clone();
+        lying[16..24].copy_from_slice(&[0, 0, 0x80, 0, 0, 0, 0x80, 0]); // IHDR width, height
+        let crc = crc32(&lying[12..29]);
+        lying[29..33].copy_from_slice(&crc.to_be_bytes());
+        let e = decode(&lying, Path::new("big.png")).unwrap_err().to_string();
+        assert!(e.contains("big.png") && e.contains("32768x32768") && e.contains("bytes can hold"), "{e}");
+        assert!(decode(&png, Path::new("ok.png")).is_ok(), "the same file with its true size reads");
+        // A flat 1-bit 2048x2048 PNG packs 526 KB of scanlines at well over 50:1: far
+        // from the deflate bound, it still reads.
+        let flat = png_bytes(2048, 2048, png::ColorType::Grayscale, png::BitDepth::One, &vec![0; 256 * 2048]);
+        assert!(flat.len() * 50 < 2048 * 257, "{}", flat.len());
+        assert_eq!(decode(&flat, Path::new("flat.png")).unwrap().width, 2048);
+
+        let jpeg = include_bytes!("../testdata/huge_size.jpg");
+        let e = decode(jpeg, Path::new("big.jpg")).unwrap_err().to_string();
+        assert!(e.contains("big.jpg") && e.contains("32767x32767") && e.contains("bytes can hold"), "{e}");
+        let ok = include_bytes!("../testdata/baseline_8x8.jpg");
+        assert_eq!(decode(ok, Path::new("ok.jpg")).unwrap().width, 8);
+    }
+
+    /// CRC-32 (IEEE) of a PNG chunk's type and data.
+    fn crc32(b: &[u8]) -> u32 {
+        let mut c = !0u32;
+        for &x in b {
+            c ^= x as u32;
+            for _ in 0..8 {
+                c = if c & 1 == 1 { 0xEDB8_8320 ^ (c >> 1) } else { c >> 1 };
+            }
+        }
+        !c
     }
 }
