@@ -196,3 +196,97 @@ sh_dc = 0.01
 """)
 put("edit_config", "overrides.toml", "loss.leak=0.5\ntransport.top_k=64\nmethod=naive\n")
 put("edit_config", "bad.toml", "[transport]\nepsilon = 1\neps = nan\n[loss]\nimg = inf\n")
+
+# ---------------------------------------------------------------- image (PNG by hand, JPEG literals)
+
+
+def png(w, h, color, depth, raw_rows, plte=None, trns=None, interlace=0, chunks=None):
+    """A PNG from already-filtered scanlines (each row starts with its filter byte)."""
+    import zlib
+
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    out = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, depth, color, 0, 0, interlace))
+    if plte is not None:
+        out += chunk(b"PLTE", plte)
+    if trns is not None:
+        out += chunk(b"tRNS", trns)
+    for kind, body in chunks or []:
+        out += chunk(kind, body)
+    return out + chunk(b"IDAT", zlib.compress(b"".join(raw_rows))) + chunk(b"IEND", b"")
+
+
+put("image", "rgb8.png", png(3, 2, 2, 8, [b"\0" + bytes(range(i * 9, i * 9 + 9)) for i in range(2)]))
+put("image", "rgba8_filters.png",
+    png(2, 4, 6, 8, [bytes([f]) + bytes([10 * f + k for k in range(8)]) for f in range(4)]))
+put("image", "grey16.png", png(2, 2, 0, 16, [b"\0\xff\xff\x80\x00", b"\2\x00\x01\x00\x02"]))
+put("image", "grey_alpha8.png", png(2, 1, 4, 8, [b"\0\x10\x80\xf0\x00"]))
+put("image", "rgb16.png", png(1, 1, 2, 16, [b"\0\xff\xff\x80\x00\x00\x00"]))
+put("image", "palette4_trns.png", png(4, 2, 3, 4, [b"\0\x01\x23", b"\0\x32\x10"],
+                                       plte=bytes(range(12)), trns=b"\x00\x80"))
+put("image", "grey1.png", png(9, 1, 0, 1, [b"\0\xa5\x80"]))
+# Adam7 passes of a 3x3 RGB image: 1x1, 1x1, 2x1, 1x2 (two rows), 3x1 pixels
+put("image", "interlaced.png", png(3, 3, 2, 8, [b"\0" + bytes(range(k, k + 3 * n)) for k, n in
+                                                [(0, 1), (3, 1), (6, 2), (12, 1), (15, 1), (18, 3)]], interlace=1))
+put("image", "huge_header.png", png(32768, 32768, 6, 16, [b"\0" * 16]))
+put("image", "truncated.png", png(4, 4, 2, 8, [b"\0" + bytes(12)] * 4)[:-30])
+JPEG_BASELINE = bytes.fromhex(  # 8x8 RGB, quality 50, written once with PIL
+    "ffd8ffe000104a46494600010100000100010000ffdb004300100b0c0e0c0a100e0d0e1211101318281a181616183123"
+    "251d283a333d3c3933383740485c4e404457453738506d51575f626768673e4d71797064785c656763ffdb0043011112"
+    "121815182f1a1a2f63423842636363636363636363636363636363636363636363636363636363636363636363636363"
+    "6363636363636363636363636363ffc00011080008000803012200021101031101ffc4001f0000010501010101010100"
+    "000000000000000102030405060708090a0bffc400b5100002010303020403050504040000017d010203000411051221"
+    "31410613516107227114328191a1082342b1c11552d1f02433627282090a161718191a25262728292a3435363738393a"
+    "434445464748494a535455565758595a636465666768696a737475767778797a838485868788898a9293949596979899"
+    "9aa2a3a4a5a6a7a8a9aab2b3b4b5b6b7b8b9bac2c3c4c5c6c7c8c9cad2d3d4d5d6d7d8d9dae1e2e3e4e5e6e7e8e9eaf1"
+    "f2f3f4f5f6f7f8f9faffc4001f0100030101010101010101010000000000000102030405060708090a0bffc400b51100"
+    "020102040403040705040400010277000102031104052131061241510761711322328108144291a1b1c109233352f015"
+    "6272d10a162434e125f11718191a262728292a35363738393a434445464748494a535455565758595a63646566676869"
+    "6a737475767778797a82838485868788898a92939495969798999aa2a3a4a5a6a7a8a9aab2b3b4b5b6b7b8b9bac2c3c4"
+    "c5c6c7c8c9cad2d3d4d5d6d7d8d9dae2e3e4e5e6e7e8e9eaf2f3f4f5f6f7f8f9faffda000c03010002110311003f0083"
+    "4fd0ba7c94514573d5c4d4e6dcbc062eafb15a9fffd9")
+JPEG_PROGRESSIVE = bytes.fromhex(  # 4x4 grey, progressive, written once with PIL
+    "ffd8ffe000104a46494600010100000100010000ffdb0043001b12141714111b1716171e1c1b2028422b28252528513a3d"
+    "3042605565645f555d5b6a7899816a7190735b5d85b586909ea3abadab6780bcc9baa6c799a8aba4ffc2000b0800040004"
+    "01011100ffc40014000100000000000000000000000000000003ffda00080101000000014fffc4001610010101000000000"
+    "00000000000000000020111ffda00080101000105022267ffc40014100100000000000000000000000000000000ffda000"
+    "8010100063f027fffc4001510010100000000000000000000000000000041ffda0008010100013f218cffda000801010000"
+    "00107fffc4001510010100000000000000000000000000000011ffda0008010100013f1086ff00ffd9")
+put("image", "baseline.jpg", JPEG_BASELINE)
+put("image", "progressive_grey.jpg", JPEG_PROGRESSIVE)
+put("image", "truncated.jpg", JPEG_BASELINE[:400])
+sof = JPEG_BASELINE.index(b"\xff\xc0")  # SOF0: length(2) precision(1) height(2) width(2)
+put("image", "huge_size.jpg", JPEG_BASELINE[:sof + 5] + b"\x7f\xff\x7f\xff" + JPEG_BASELINE[sof + 9:])
+put("image", "zero_size.jpg", JPEG_BASELINE[:sof + 5] + b"\x00\x00\x00\x08" + JPEG_BASELINE[sof + 9:])
+
+# ---------------------------------------------------------------- archive
+# The first byte is the target's mode: 0 whole file, 1 body (the target appends the
+# checksum), 2 and 3 bytes that drive archive::Writer (see fuzz_targets/archive.rs).
+
+
+def archive_body(entries):
+    """Header and entries of a checkpoint (crates/scene/src/archive.rs), no trailer."""
+    out = b"TSPLCKPT" + struct.pack("<II", 1, len(entries))
+    for name, code, payload, count in entries:
+        out += struct.pack("<H", len(name.encode())) + name.encode() + bytes([code]) + struct.pack("<Q", count)
+        out += payload
+    return out
+
+
+ENTRIES = [("means", 1, struct.pack("<4f", 0.5, -1.0, float("nan"), 3.0), 4),
+           ("ids", 2, struct.pack("<2I", 7, 8), 2), ("step", 3, struct.pack("<Q", 42), 1),
+           ("lr", 4, struct.pack("<d", 1e-3), 1), ("config", 5, "méthode = 1".encode(), len("méthode = 1".encode()))]
+put("archive", "body_valid", b"\x01" + archive_body(ENTRIES))
+put("archive", "body_empty", b"\x01" + archive_body([]))
+put("archive", "body_duplicate_name", b"\x01" + archive_body(ENTRIES[:2] + [("ids", 5, b"x", 1)]))
+put("archive", "body_lying_count", b"\x01" + archive_body(ENTRIES[:1])[:12] + struct.pack("<I", 1 << 31)
+    + archive_body(ENTRIES[:1])[16:])
+put("archive", "body_huge_len", b"\x01" + archive_body([("a", 4, b"", 1 << 61)]))
+put("archive", "body_bad_type_utf8", b"\x01" + archive_body([("\xff", 9, b"", 0)]).replace(b"\xc3\xbf", b"\xff\xbf"))
+put("archive", "body_version2", b"\x01" + archive_body(ENTRIES[:1]).replace(b"\x01\x00\x00\x00", b"\x02\x00\x00\x00", 1))
+put("archive", "file_bad_checksum", b"\x00" + archive_body(ENTRIES) + b"\0" * 8 + b"TSPLEND\0")
+put("archive", "file_truncated", b"\x00" + archive_body(ENTRIES)[:40])
+# Writer-driven: type, name length, name, count, values (see build() in the target)
+put("archive", "writer_f32_text", b"\x02" + b"\x00\x03abc\x02" + struct.pack("<2f", 1.5, -2) + b"\x04\x01t\x03hi!")
+put("archive", "writer_mutated", b"\x03" + b"\x10\x00\x0b\x7f" + b"\x02\x01s\x01" + struct.pack("<Q", 9) + b"\x03\x00\x01")
