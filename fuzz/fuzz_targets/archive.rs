@@ -132,12 +132,10 @@ fn check_entry(a: &Archive, name: &str, v: &Values) {
 fn check(bytes: &[u8], a: &Archive) {
     let path = Path::new("fuzz.ckpt");
     let entries = walk(&bytes[..bytes.len() - 16]);
-    // A repeated name keeps its last value.
-    let last = |i: usize| !entries[i + 1..].iter().any(|(n, _)| *n == entries[i].0);
+    // Names are unique: a repeated name is refused.
     for (i, (name, v)) in entries.iter().enumerate() {
-        if last(i) {
-            check_entry(a, name, v);
-        }
+        assert!(!entries[..i].iter().any(|(n, _)| n == name), "accepted a repeated name {name:?}");
+        check_entry(a, name, v);
     }
     assert!(!a.has("\u{0}not an entry\u{0}") || entries.iter().any(|(n, _)| n == "\u{0}not an entry\u{0}"));
     let mut w = Writer::new();
@@ -154,10 +152,8 @@ fn check(bytes: &[u8], a: &Archive) {
     assert_eq!(again, bytes, "the same entries written again give other bytes");
     let b = Archive::parse(&again, path).expect("a file we wrote reads back");
     assert_eq!(b.checksum(), a.checksum());
-    for (i, (name, v)) in entries.iter().enumerate() {
-        if last(i) {
-            check_entry(&b, name, v);
-        }
+    for (name, v) in &entries {
+        check_entry(&b, name, v);
     }
 }
 
@@ -197,7 +193,10 @@ fn build(data: &[u8]) -> Vec<(String, Values)> {
                 String::from_utf8_lossy(&(0..n).map(|_| r.byte()).collect::<Vec<_>>()).into_owned(),
             ),
         };
-        out.push((name, v));
+        // A repeated name is refused by the reader: keep the first.
+        if !out.iter().any(|(n, _)| *n == name) {
+            out.push((name, v));
+        }
     }
     out
 }

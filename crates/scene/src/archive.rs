@@ -369,6 +369,9 @@ impl Archive {
                         .to_string(),
                 ),
             };
+            if entries.contains_key(&name) {
+                return Err(Error::format(path, format!("entry {name:?} appears twice")));
+            }
             entries.insert(name, data);
         }
         if pos != body.len() {
@@ -492,6 +495,14 @@ mod tests {
             got,
             [0x8884_69d7_6de8_97db, 0x32bb_040a_f63c_0964, 0xfbd9_afb3_ad88_bf8e, 0x513c_6e54_1881_19a1]
         );
+    }
+
+    #[test]
+    fn a_repeated_entry_name_is_refused() {
+        let mut w = Writer::new();
+        w.f32("x", vec![1.0]).u32("y", vec![2]).text("x", "again");
+        let e = Archive::parse(&w.to_bytes(), Path::new("dup.ckpt")).unwrap_err().to_string();
+        assert!(e.contains("dup.ckpt") && e.contains("\"x\" appears twice"), "{e}");
     }
 
     #[test]
