@@ -60,6 +60,11 @@ pub fn has_image_extension(path: &Path) -> bool {
 /// Largest accepted image side, to refuse absurd headers before allocating.
 const MAX_SIDE: usize = 1 << 15;
 
+/// Largest accepted pixel count (2^27 ≈ 134 MP, 1.6 GB as float RGB): far above any
+/// capture used for 3DGS, and below what a valid but maximally compressed file (a
+/// decompression bomb within `MAX_SIDE`) would make this machine allocate.
+const MAX_PIXELS: usize = 1 << 27;
+
 /// Deflate packs at most 1032 bytes into one (a 258-byte match coded in 2 bits), so a
 /// PNG whose header needs more raw scanline bytes than 1032 times the file size cannot
 /// hold its pixels: refused before allocating for them.
@@ -158,6 +163,12 @@ fn check_size(w: usize, h: usize, path: &Path) -> Result<()> {
             format!("image size {w}x{h} is larger than {MAX_SIDE} pixels a side"),
         ));
     }
+    if w * h > MAX_PIXELS {
+        return Err(Error::format(
+            path,
+            format!("image size {w}x{h} is more than {MAX_PIXELS} pixels ({} million)", MAX_PIXELS >> 20),
+        ));
+    }
     Ok(())
 }
 
@@ -212,6 +223,16 @@ pub fn write_png(path: &Path, width: usize, height: usize, rgb: &[f32]) -> Resul
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sizes_are_checked_per_side_and_in_total() {
+        let p = Path::new("s.png");
+        assert!(check_size(MAX_SIDE, MAX_PIXELS / MAX_SIDE, p).is_ok());
+        let e = check_size(MAX_SIDE, MAX_PIXELS / MAX_SIDE + 1, p).unwrap_err().to_string();
+        assert!(e.contains("s.png") && e.contains("32768x4097") && e.contains("128 million"), "{e}");
+        assert!(check_size(MAX_SIDE + 1, 1, p).unwrap_err().to_string().contains("a side"));
+        assert!(check_size(0, 5, p).unwrap_err().to_string().contains("zero size"));
+    }
 
     #[test]
     fn extensions_are_appended_in_order_and_matched_in_any_case() {
@@ -291,15 +312,23 @@ mod tests {
     /// Found by the `image` fuzz target: 68 bytes of PNG claiming 32768x32768 RGBA16
     /// made the decoder allocate 8 GB before reading the data, and a damaged 646-byte
     /// JPEG claiming 32767x32767 allocated 3 GB (the decoder fills missing data with grey).
+    /// Those sizes are now over the pixel cap too, so the byte bounds are tested with
+    /// sizes under it (8192x8192 and 8000x8000).
     #[test]
     fn tiny_files_claiming_huge_sizes_are_refused_before_allocating() {
         let png = png_bytes(1, 1, png::ColorType::Rgba, png::BitDepth::Sixteen, &[0; 8]);
         let mut lying = png.clone();
-        lying[16..24].copy_from_slice(&[0, 0, 0x80, 0, 0, 0, 0x80, 0]); // IHDR width, height
-        let crc = crc32(&lying[12..29]);
-        lying[29..33].copy_from_slice(&crc.to_be_bytes());
-        let e = decode(&lying, Path::new("big.png")).unwrap_err().to_string();
-        assert!(e.contains("big.png") && e.contains("32768x32768") && e.contains("bytes can hold"), "{e}");
+        let mut claim = |w: u32, h: u32| {
+            lying[16..20].copy_from_slice(&w.to_be_bytes()); // IHDR width, height
+            lying[20..24].copy_from_slice(&h.to_be_bytes());
+            let crc = crc32(&lying[12..29]);
+            lying[29..33].copy_from_slice(&crc.to_be_bytes());
+            decode(&lying, Path::new("big.png")).unwrap_err().to_string()
+        };
+        let e = claim(8192, 8192);
+        assert!(e.contains("big.png") && e.contains("8192x8192") && e.contains("bytes can hold"), "{e}");
+        let e = claim(32768, 32768);
+        assert!(e.contains("big.png") && e.contains("32768x32768"), "{e}");
         assert!(decode(&png, Path::new("ok.png")).is_ok(), "the same file with its true size reads");
         // A flat 1-bit 2048x2048 PNG packs 526 KB of scanlines at well over 50:1: far
         // from the deflate bound, it still reads.
@@ -309,7 +338,13 @@ mod tests {
 
         let jpeg = include_bytes!("../testdata/huge_size.jpg");
         let e = decode(jpeg, Path::new("big.jpg")).unwrap_err().to_string();
-        assert!(e.contains("big.jpg") && e.contains("32767x32767") && e.contains("bytes can hold"), "{e}");
+        assert!(e.contains("big.jpg") && e.contains("32767x32767"), "{e}");
+        // The same file claiming 8000x8000 (SOF0: marker, length, precision, height, width).
+        let mut smaller = jpeg.to_vec();
+        let sof = smaller.windows(2).position(|w| w == [0xFF, 0xC0]).expect("baseline JPEG");
+        smaller[sof + 5..sof + 9].copy_from_slice(&[0x1F, 0x40, 0x1F, 0x40]);
+        let e = decode(&smaller, Path::new("big.jpg")).unwrap_err().to_string();
+        assert!(e.contains("big.jpg") && e.contains("8000x8000") && e.contains("bytes can hold"), "{e}");
         let ok = include_bytes!("../testdata/baseline_8x8.jpg");
         assert_eq!(decode(ok, Path::new("ok.jpg")).unwrap().width, 8);
     }
