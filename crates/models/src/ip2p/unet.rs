@@ -318,13 +318,9 @@ struct Transformer2D {
 }
 
 impl Transformer2D {
-    fn new(
-        vb: VarBuilder,
-        channels: usize,
-        heads: usize,
-        depth: usize,
-        cfg: &UNetConfig,
-    ) -> candle_core::Result<Self> {
+    /// The transformer of resolution `level` (its heads and depth come from the config).
+    fn new(vb: VarBuilder, channels: usize, level: usize, cfg: &UNetConfig) -> candle_core::Result<Self> {
+        let (heads, depth) = (cfg.heads(level), cfg.transformer_layers_per_block.get(level));
         let norm = nn::group_norm(cfg.norm_num_groups, channels, 1e-6, vb.pp("norm"))?;
         let (proj_in, proj_out) = if cfg.use_linear_projection {
             (
@@ -450,13 +446,7 @@ impl UNet {
                 let cin = if j == 0 { in_ch } else { out_ch };
                 resnets.push(resnet(vb_b.pp("resnets").pp(j), cin, out_ch, 1.0)?);
                 if cross {
-                    attentions.push(Transformer2D::new(
-                        vb_b.pp("attentions").pp(j),
-                        out_ch,
-                        cfg.heads(i),
-                        cfg.transformer_layers_per_block.get(i),
-                        cfg,
-                    )?);
+                    attentions.push(Transformer2D::new(vb_b.pp("attentions").pp(j), out_ch, i, cfg)?);
                 }
             }
             let downsample = if i + 1 < n {
@@ -472,13 +462,7 @@ impl UNet {
         let mid_resnets = (0..2)
             .map(|j| resnet(vb_m.pp("resnets").pp(j), ch_last, ch_last, cfg.mid_block_scale_factor))
             .collect::<candle_core::Result<Vec<_>>>()?;
-        let mid_attentions = vec![Transformer2D::new(
-            vb_m.pp("attentions.0"),
-            ch_last,
-            cfg.heads(n - 1),
-            cfg.transformer_layers_per_block.get(n - 1),
-            cfg,
-        )?];
+        let mid_attentions = vec![Transformer2D::new(vb_m.pp("attentions.0"), ch_last, n - 1, cfg)?];
 
         let mut up = Vec::with_capacity(n);
         let rev: Vec<usize> = cfg.block_out_channels.iter().rev().copied().collect();
@@ -498,13 +482,7 @@ impl UNet {
                 let cin = if j == 0 { prev_out } else { out_ch };
                 resnets.push(resnet(vb_b.pp("resnets").pp(j), cin + skip, out_ch, 1.0)?);
                 if cross {
-                    attentions.push(Transformer2D::new(
-                        vb_b.pp("attentions").pp(j),
-                        out_ch,
-                        cfg.heads(block),
-                        cfg.transformer_layers_per_block.get(block),
-                        cfg,
-                    )?);
+                    attentions.push(Transformer2D::new(vb_b.pp("attentions").pp(j), out_ch, block, cfg)?);
                 }
             }
             let upsample = if i + 1 < n {
