@@ -119,9 +119,10 @@ impl Activation {
     }
 }
 
-/// Multi-head self-attention with separate q/k/v/out projections (all with bias).
+/// Multi-head self-attention with separate q/k/v/out projections (all with bias); also
+/// DINOv2's (same computation, other weight names).
 #[derive(Debug, Clone)]
-struct Attention {
+pub(crate) struct Attention {
     q: Linear,
     k: Linear,
     v: Linear,
@@ -140,8 +141,13 @@ impl Attention {
         })
     }
 
+    /// From its four projections.
+    pub(crate) fn from_parts(q: Linear, k: Linear, v: Linear, out: Linear, heads: usize) -> Self {
+        Self { q, k, v, out, heads }
+    }
+
     /// `mask` is added to the attention logits (`[seq, seq]`, `-inf` where masked).
-    fn forward(&self, x: &Tensor, mask: Option<&Tensor>) -> candle_core::Result<Tensor> {
+    pub(crate) fn forward(&self, x: &Tensor, mask: Option<&Tensor>) -> candle_core::Result<Tensor> {
         let (b, n, dim) = x.dims3()?;
         let hd = dim / self.heads;
         let split = |t: Tensor| t.reshape((b, n, self.heads, hd))?.transpose(1, 2)?.contiguous();

@@ -21,6 +21,7 @@ use candle_core::{DType, Device, Module, Tensor};
 use candle_nn::{layer_norm, linear, LayerNorm, Linear, VarBuilder};
 use serde::Deserialize;
 
+use crate::clip::Attention;
 use crate::resample;
 use crate::{Error, ModelDir};
 
@@ -68,10 +69,7 @@ pub struct Dinov2Config {
 #[derive(Debug, Clone)]
 struct Layer {
     norm1: LayerNorm,
-    q: Linear,
-    k: Linear,
-    v: Linear,
-    o: Linear,
+    attn: Attention,
     scale1: Tensor,
     norm2: LayerNorm,
     fc1: Linear,
@@ -123,10 +121,13 @@ impl Dinov2 {
                 let a = l.pp("attention.attention");
                 Ok(Layer {
                     norm1: layer_norm(c, config.layer_norm_eps, l.pp("norm1"))?,
-                    q: linear(c, c, a.pp("query"))?,
-                    k: linear(c, c, a.pp("key"))?,
-                    v: linear(c, c, a.pp("value"))?,
-                    o: linear(c, c, l.pp("attention.output.dense"))?,
+                    attn: Attention::from_parts(
+                        linear(c, c, a.pp("query"))?,
+                        linear(c, c, a.pp("key"))?,
+                        linear(c, c, a.pp("value"))?,
+                        linear(c, c, l.pp("attention.output.dense"))?,
+                        config.num_attention_heads,
+                    ),
                     scale1: l.get(c, "layer_scale1.lambda1")?,
                     norm2: layer_norm(c, config.layer_norm_eps, l.pp("norm2"))?,
                     fc1: linear(c, mlp, l.pp("mlp.fc1"))?,
@@ -186,18 +187,9 @@ impl Dinov2 {
         let patches = patches.flatten_from(2)?.squeeze(0)?.t()?; // [gh·gw, C]
         let mut h =
             Tensor::cat(&[&self.cls_token, &patches], 0)?.add(&self.positions(gh, gw)?)?.unsqueeze(0)?;
-        let heads = self.config.num_attention_heads;
-        let hd = c / heads;
-        let n = 1 + gh * gw;
         for l in &self.layers {
-            let y = l.norm1.forward(&h)?;
-            let split = |t: Tensor| t.reshape((1, n, heads, hd))?.transpose(1, 2)?.contiguous();
-            let q = split((l.q.forward(&y)? * (hd as f64).powf(-0.5))?)?;
-            let k = split(l.k.forward(&y)?)?;
-            let v = split(l.v.forward(&y)?)?;
-            let attn = candle_nn::ops::softmax_last_dim(&q.matmul(&k.t()?.contiguous()?)?)?;
-            let y = attn.matmul(&v)?.transpose(1, 2)?.reshape((1, n, c))?;
-            h = (h + l.o.forward(&y)?.broadcast_mul(&l.scale1)?)?;
+            let y = l.attn.forward(&l.norm1.forward(&h)?, None)?;
+            h = (h + y.broadcast_mul(&l.scale1)?)?;
             let y = l.fc2.forward(&l.fc1.forward(&l.norm2.forward(&h)?)?.gelu_erf()?)?;
             h = (h + y.broadcast_mul(&l.scale2)?)?;
         }
