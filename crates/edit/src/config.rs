@@ -54,10 +54,16 @@ impl Method {
     pub fn parse(s: &str) -> Option<Method> {
         Method::ALL.into_iter().find(|m| m.name() == s)
     }
-
-    /// True for the methods that run the transport rounds.
-    pub fn uses_transport(self) -> bool {
-        !matches!(self, Method::Naive | Method::Masklift)
+    /// The settings this method implies (an ablation zeroes some weights).
+    pub fn implied(self, cfg: &mut EditConfig) {
+        match self {
+            Method::NoLeaksup => cfg.loss.leak = 0.0,
+            Method::Geometric => {
+                cfg.transport.lambda_sem = 0.0;
+                cfg.transport.lambda_app = 0.0;
+            }
+            _ => {}
+        }
     }
 }
 
@@ -103,7 +109,8 @@ impl Default for LossConfig {
     }
 }
 
-/// The edit loop's schedule (EditSplat / Instruct-GS2GS style; SPEC Method 9).
+/// The edit loop's schedule (EditSplat / Instruct-GS2GS style;
+/// docs/method.md#m9-the-edit-loop): the views are edited once.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ScheduleConfig {
@@ -111,8 +118,6 @@ pub struct ScheduleConfig {
     pub steps: usize,
     /// A transport round every this many steps.
     pub transport_every: usize,
-    /// Re-edit the views from the current render every this many steps (0 = never).
-    pub reedit_every: usize,
     /// Densify (within the gated region) every this many steps (0 = never).
     pub densify_every: usize,
     /// Gaussians with γ ≥ this may be densified.
@@ -121,13 +126,7 @@ pub struct ScheduleConfig {
 
 impl Default for ScheduleConfig {
     fn default() -> Self {
-        ScheduleConfig {
-            steps: 600,
-            transport_every: 150,
-            reedit_every: 0,
-            densify_every: 0,
-            densify_gate: 0.5,
-        }
+        ScheduleConfig { steps: 600, transport_every: 150, densify_every: 0, densify_gate: 0.5 }
     }
 }
 
@@ -252,14 +251,7 @@ impl EditConfig {
     pub fn for_method(&self, method: Method) -> Self {
         let mut c = self.clone();
         c.method = method;
-        match method {
-            Method::NoLeaksup => c.loss.leak = 0.0,
-            Method::Geometric => {
-                c.transport.lambda_sem = 0.0;
-                c.transport.lambda_app = 0.0;
-            }
-            _ => {}
-        }
+        method.implied(&mut c);
         c
     }
 

@@ -3,7 +3,8 @@
 //! For Gaussian i with supported views V(i), ω_i^v = w_i^v / (Σ_{v'} w_i^{v'} + δ) and
 //! z_i* = argmin_z Σ_v ω_i^v ‖z − y_i^v‖² + ρ ‖z − s_i‖²
 //!      = (Σ_v ω_i^v y_i^v + ρ s_i) / (Σ_v ω_i^v + ρ)            (Theorem 1, eq. (closedform)).
-//! Across transport rounds the target is smoothed: z̄ ← μ z̄ + (1 − μ) z* (SPEC Method 5).
+//! Across transport rounds the target is smoothed: z̄ ← μ z̄ + (1 − μ) z*
+//! (docs/method.md#m5-canonical-fusion).
 
 use crate::view::ViewTransport;
 

@@ -1,4 +1,4 @@
-//! Transport residual and the leakage gate (paper Sec. 3.5; SPEC Method 6).
+//! Transport residual and the leakage gate (paper Sec. 3.5; docs/method.md#m6-residual-and-gate).
 //!
 //! Relative residual per view r_i^v = [1 − w_i^v / a_i^v]_+ ∈ [0, 1] (the paper's
 //! absolute residual scales with 1/|visible set|, which would tie τ_r to the scene).

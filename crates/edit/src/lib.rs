@@ -1,28 +1,50 @@
-//! The TransSplat edit engine (paper Sec. 3, appendices A–B; SPEC "Method").
+//! The TransSplat edit engine (paper Sec. 3, appendices A–B; the decisions the paper
+//! leaves open are in docs/method.md).
 //!
-//! Each step of the method is a function over plain data, in pipeline order:
+//! The loop, [`engine`], reads as the pipeline; each stage is a module over plain data:
 //!
-//! 1. [`prototypes`]: prompt-aware prototypes of one edited view (appendix A.1).
-//! 2. [`view`]: source masses, the three-term cost and the view-wise unbalanced
-//!    transport (Sec. 3.3), giving per-Gaussian support w and targets y.
-//! 3. [`fusion`]: canonical barycentric fusion (Theorem 1) with EMA across rounds.
-//! 4. [`gate`]: relative transport residual and the leakage gate γ (SPEC Method 6).
-//! 5. [`losses`]: L_sem, L_uot (through the cost at fixed T*) and L_leak gradients.
+//! 1. [`edits`]: render the edit views, edit them once with the 2D editor, check
+//!    the outputs, gather each view's evidence.
+//! 2. [`semantic`]: the one owner of the features E_v (the job's model, for source
+//!    and edited views alike) and Φ_v, the PCA semantic space ([`pca`]) and the
+//!    initial semantic latents lifted onto the Gaussians ([`lift`]).
+//! 3. [`prototypes`]: prompt-aware prototypes of one edited view (appendix A.1).
+//! 4. [`round`]: one transport round: per view the source side and [`view`]'s
+//!    view-wise unbalanced transport (Sec. 3.3), then [`fusion`] (Theorem 1, EMA)
+//!    and [`gate`] (docs/method.md#m6-residual-and-gate).
+//! 5. [`optimise`]: the trainer, the view order, L_img of a step; [`losses`]: the
+//!    gradients of L_sem, L_uot (through the cost at fixed T*) and L_leak.
 //!
-//! [`config`] holds every hyperparameter with the paper's defaults; [`engine`] runs
-//! the edit loop, which [`checkpoint`] saves and restores.
+//! The method is one pluggable part, [`methods`]: TransSplat with its ablations, and
+//! the baselines. [`config`] holds every hyperparameter with the paper's defaults;
+//! [`checkpoint`] saves and restores a run; [`job`] is what goes in and comes out.
 
 pub mod checkpoint;
 pub mod config;
+pub mod edits;
 pub mod engine;
+pub mod error;
 pub mod fusion;
 pub mod gate;
+pub mod job;
+pub mod lift;
 pub mod losses;
+pub mod methods;
+pub mod optimise;
 pub mod pca;
 pub mod prototypes;
+pub mod round;
+pub mod semantic;
 pub mod view;
 
 pub use config::EditConfig;
+pub use config::Method;
+pub use engine::{run, run_with};
+pub use error::EditError;
+pub use job::{EditJob, EditResult, Progress, Timing};
+pub use optimise::StepLosses;
+pub use round::RoundStats;
+pub use semantic::SemanticFn;
 
 /// L2-normalises `v` in place (leaves a zero vector as is); returns the norm.
 pub fn normalize(v: &mut [f32], eps: f32) -> f32 {

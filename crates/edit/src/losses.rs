@@ -1,5 +1,5 @@
 //! Gradients of the TransSplat regularisers (paper Sec. 3.5, eqs. for L_sem, L_uot,
-//! L_leak; SPEC Method 7). L_img is the trainer's photometric loss.
+//! L_leak; docs/method.md#m7-losses). L_img is the trainer's photometric loss.
 
 /// L_sem = Σ_i γ_i ‖s_i − sg(z̄_i)‖²: returns the loss and adds λ ∂L/∂s into `grad`.
 pub fn semantic(s: &[f32], z: &[f32], gamma: &[f32], d: usize, lambda: f32, grad: &mut [f32]) -> f64 {

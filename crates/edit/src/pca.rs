@@ -1,4 +1,4 @@
-//! The semantic space (SPEC Method 8): a PCA basis of size d fitted once per job on
+//! The semantic space (docs/method.md#m8-semantic-space): a PCA basis of size d fitted once per job on
 //! the semantic features of the source and edited views together, applied to both.
 
 use rand::{Rng, SeedableRng};

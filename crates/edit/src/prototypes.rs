@@ -195,12 +195,42 @@ pub fn weighted_kmeans(pts: &[[f32; 2]], wts: &[f32], k: usize, iters: usize, se
     assign
 }
 
+/// The support Ω and normalised attention Ā of a view with the configured threshold
+/// δ_a and minimum component area (a fraction of the image, at least one pixel).
+pub fn view_support(ev: &ViewEvidence, cfg: &PrototypeConfig) -> (Vec<bool>, Vec<f32>) {
+    let min_area = ((cfg.min_area_fraction * (ev.width * ev.height) as f32).ceil() as usize).max(1);
+    support(ev, cfg.threshold, min_area)
+}
+
+/// Pixel-level prototypes for the `no_prototype` ablation: a seeded subsample of
+/// `samples` support pixels, each its own prototype with mass ∝ Ā.
+pub fn pixels(ev: &ViewEvidence, cfg: &PrototypeConfig, samples: usize, seed: u64) -> Prototypes {
+    use rand::seq::SliceRandom;
+    let (omega, abar) = view_support(ev, cfg);
+    let mut idx: Vec<usize> = (0..omega.len()).filter(|&i| omega[i]).collect();
+    idx.shuffle(&mut ChaCha8Rng::seed_from_u64(seed));
+    idx.truncate(samples);
+    let (d, da) = (ev.d, ev.d_app);
+    let mut out = Prototypes { d, d_app: da, ..Default::default() };
+    let total: f32 = idx.iter().map(|&i| abar[i]).sum();
+    for &i in &idx {
+        out.u.push([(i % ev.width) as f32 + 0.5, (i / ev.width) as f32 + 0.5]);
+        let mut e = ev.semantic[i * d..(i + 1) * d].to_vec();
+        crate::normalize(&mut e, 1e-8);
+        out.e.extend(e);
+        let mut a = ev.appearance[i * da..(i + 1) * da].to_vec();
+        crate::normalize(&mut a, 1e-8);
+        out.psi.extend(a);
+        out.b.push(abar[i] / total);
+    }
+    out
+}
+
 /// Extracts the prototypes of one view (appendix A.1). An empty result means the
 /// view carries no editing evidence.
 pub fn extract(ev: &ViewEvidence, cfg: &PrototypeConfig, seed: u64) -> Prototypes {
     let (w, h, d, da) = (ev.width, ev.height, ev.d, ev.d_app);
-    let min_area = ((cfg.min_area_fraction * (w * h) as f32).ceil() as usize).max(1);
-    let (omega, abar) = support(ev, cfg.threshold, min_area);
+    let (omega, abar) = view_support(ev, cfg);
     let idx: Vec<usize> = (0..w * h).filter(|&p| omega[p]).collect();
     if idx.is_empty() {
         return Prototypes { d, d_app: da, ..Default::default() };

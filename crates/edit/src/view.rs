@@ -3,8 +3,9 @@
 //! Sources are the Gaussians visible in the view with masses a_i ∝ ν_i α_i; targets
 //! are the view's prototypes with masses b_m. The cost is
 //! C_im = λ_geo ‖Π(x_i) − u_m‖² / diag² + λ_sem (1 − cos(s_i, e_m)) + λ_app (1 − cos(φ_i, ψ_m)),
-//! geometric term normalised by the image diagonal (SPEC Method 3). The transport
-//! crate solves it; this module turns the plan into w_i, y_i and the statistics.
+//! geometric term normalised by the image diagonal
+//! (docs/method.md#m3-transport-cost-and-features). The transport crate solves it;
+//! this module turns the plan into w_i, y_i and the statistics.
 
 use crate::prototypes::Prototypes;
 use transsplat_transport::{solve, Params, Problem};
@@ -54,8 +55,9 @@ impl Default for TransportConfig {
 }
 
 /// Source masses a_i^v = ν_i α_i / Σ_j ν_j α_j over the visible set (appendix A.2,
-/// eq. for a_i^v; SPEC Method 1). Returns (visible indices, masses); Gaussians with
-/// zero visibility or opacity are not part of the visible set.
+/// eq. for a_i^v; docs/method.md#m1-visibility-and-source-masses). Returns (visible
+/// indices, masses); Gaussians with zero visibility or opacity are not part of the
+/// visible set.
 pub fn source_masses(visibility: &[f32], opacity: &[f32]) -> (Vec<u32>, Vec<f32>) {
     let mut idx = Vec::new();
     let mut a = Vec::new();

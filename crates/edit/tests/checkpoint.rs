@@ -6,9 +6,7 @@
 //! learning rate stops naming the step and the parameter group.
 
 use transsplat_edit::checkpoint::{EDITOR_FILE, STATE_FILE};
-use transsplat_edit::config::Method;
-use transsplat_edit::engine::{run_with, EditError, EditJob, EditResult};
-use transsplat_edit::EditConfig;
+use transsplat_edit::{run_with, semantic, EditConfig, EditError, EditJob, EditResult, Method};
 use transsplat_editors::{EditedView, Editor, SimulatedEditor, SourceView};
 use transsplat_scenes::{build, Scene, SceneConfig};
 use transsplat_train::{Checkpointer, Control};
@@ -57,14 +55,13 @@ fn edit(
     calls: &std::cell::Cell<usize>,
 ) -> Result<EditResult, EditError> {
     let g = scene.gaussians_with_labels();
-    let semantic = |img: &[f32], w: usize, h: usize| transsplat_editors::semantic_fallback(img, w, h);
     let job = EditJob {
         gaussians: &g,
         cameras: &scene.cameras,
         edit_views: scene.train_views(),
         background: scene.background,
         prompt,
-        source_semantic: &semantic,
+        semantic: &semantic::builtin,
     };
     let mut editor = Counting { inner: SimulatedEditor::new(scene, 1.0, 3), calls };
     run_with(&job, &mut editor, cfg, control, &mut |_| {})
@@ -172,4 +169,20 @@ fn a_poisoned_learning_rate_stops_the_edit_naming_the_step_and_group() {
     cfg.lr.semantic = 3e38;
     let e = edit(&scene, &cfg, PROMPT, &mut Control::default(), &calls).unwrap_err().to_string();
     assert!(e.contains("features") && e.contains("NaN or infinite") && e.contains("step "), "{e}");
+}
+
+#[test]
+fn a_checkpoint_of_an_earlier_format_is_refused_saying_so() {
+    let scene = scene();
+    let dir = tempfile::tempdir().unwrap();
+    // Files of the first format carried no format entry.
+    let mut w = transsplat_scene::archive::Writer::new();
+    w.scalar("views", 1);
+    w.write(&dir.path().join(EDITOR_FILE)).unwrap();
+    let calls = std::cell::Cell::new(0);
+    let mut control =
+        Control { checkpoint: Some(Checkpointer::new(dir.path(), 10)), resume: true, ..Default::default() };
+    let e = edit(&scene, &config(Method::Transsplat), PROMPT, &mut control, &calls).unwrap_err().to_string();
+    assert!(e.contains(EDITOR_FILE) && e.contains("earlier build") && e.contains("cannot be resumed"), "{e}");
+    assert_eq!(calls.get(), 0);
 }

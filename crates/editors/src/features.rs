@@ -37,10 +37,8 @@
 //! construction). Channels are computed in parallel with rayon.
 //!
 //! [`change_attention`] is the smoothed change map Σ_c |Î − I| (σ = 2 px) used as
-//! attention when an editor gives neither attention nor mask; [`complete`] fills in
-//! E and Φ so every editor builds its [`EditedView`] the same way.
+//! attention when an editor gives neither attention nor mask.
 
-use crate::EditedView;
 use rayon::prelude::*;
 
 /// Number of appearance channels of [`appearance`].
@@ -316,30 +314,6 @@ pub fn change_attention(source: &[f32], edited: &[f32], w: usize, h: usize) -> V
     gaussian_blur(&diff, w, h, CHANGE_SIGMA).into_iter().map(|v| v.max(0.0)).collect()
 }
 
-/// Builds an [`EditedView`] from an edited image (`H × W × 3`), its attention
-/// (`H × W`; NaN and negative values become 0) and an optional mask (`H × W`, clamped
-/// to [0, 1]), computing E with [`semantic_fallback`] and Φ with [`appearance`].
-pub fn complete(
-    image: Vec<f32>,
-    w: usize,
-    h: usize,
-    mut attention: Vec<f32>,
-    mask: Option<Vec<f32>>,
-) -> EditedView {
-    check_image(&image, w, h);
-    assert_eq!(attention.len(), w * h, "attention does not match the image size");
-    for a in attention.iter_mut() {
-        if !(a.is_finite() && *a > 0.0) {
-            *a = 0.0;
-        }
-    }
-    let mask =
-        mask.map(|m| m.into_iter().map(|v| if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) }).collect());
-    let ((semantic, d_sem), (appearance, d_app)) =
-        rayon::join(|| semantic_fallback(&image, w, h), || appearance(&image, w, h));
-    EditedView { width: w, height: h, image, attention, semantic, d_sem, appearance, d_app, mask }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -452,22 +426,5 @@ mod tests {
         // hue of red points along +a/+b; white has no hue
         let e_at = |x: usize, c: usize| e[(5 * w + x) * d + c];
         assert!(e_at(0, 12) > 0.3 && e_at(0, 13) > 0.3 && e_at(19, 12).abs() < 0.05);
-    }
-
-    #[test]
-    fn complete_sanitises_attention_and_mask() {
-        let v = complete(
-            vec![0.2; 12],
-            2,
-            2,
-            vec![f32::NAN, -1.0, 0.5, 2.0],
-            Some(vec![1.5, -0.5, 0.3, f32::NAN]),
-        );
-        assert_eq!(v.attention, vec![0.0, 0.0, 0.5, 2.0]);
-        assert_eq!(v.mask, Some(vec![1.0, 0.0, 0.3, 0.0]));
-        assert_eq!(
-            (v.d_app, v.d_sem, v.appearance.len(), v.semantic.len()),
-            (D_APP, D_SEM, 4 * D_APP, 4 * D_SEM)
-        );
     }
 }

@@ -15,7 +15,7 @@
 //! [`export_views`] writes the other half: `DIR/<stem>.png` per source view and
 //! `DIR/views.json` (`transsplat views export`), ready for editing elsewhere.
 
-use crate::features::{change_attention, complete};
+use crate::features::change_attention;
 use crate::resize::resize_bilinear;
 use crate::{EditedView, Editor, Error, SourceView};
 use std::collections::HashSet;
@@ -114,7 +114,7 @@ pub(crate) fn read_edits(
             (None, Some(m)) => m.clone(),
             (None, None) => change_attention(v.image, &data, w, h),
         };
-        out.push(Some(complete(data, w, h, attention, mask)));
+        out.push(Some(EditedView::new(data, w, h, attention, mask)));
     }
     if out.iter().all(Option::is_none) {
         let first = views.first().map(|v| v.camera.stem()).unwrap_or_default();

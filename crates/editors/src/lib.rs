@@ -1,26 +1,27 @@
 //! 2D editors: from the source renders of the edit views and an instruction, each
-//! returns per view the edited image Î_v, a text-relevant attention map A_v, semantic
-//! features E_v, appearance features Φ_v and an optional mask (SPEC "Editors").
+//! returns per view the edited image Î_v, a text-relevant attention map A_v and an
+//! optional mask (docs/method.md#e1-the-editor-contract). The features E_v and Φ_v of the edited
+//! images are not the editor's business: the edit engine computes them with the one
+//! feature model of the job, for source renders and edited images alike.
 //!
 //! - [`folder`]: edited images made by any 2D tool, named like the views.
 //! - [`command`]: runs a user command on an exported folder (a file protocol).
 //! - [`simulated`]: ground-truth edits of the built-in scenes, corrupted per view the
 //!   way 2D editors fail, at a chosen severity.
-//! - [`features`]: built-in appearance features Φ (CIELAB + local texture statistics)
-//!   and the fallback semantic features E used when no feature model is given.
+//! - [`features`]: built-in appearance features Φ (CIELAB + local texture statistics),
+//!   the fallback semantic features E used when no feature model is given, and the
+//!   change map that serves as attention when an editor gives none.
 
 pub mod command;
 pub mod features;
 pub mod folder;
 pub mod resize;
-pub mod semantic;
 pub mod simulated;
 
 pub use command::CommandEditor;
-pub use features::{appearance, change_attention, complete, semantic_fallback};
+pub use features::{appearance, change_attention, semantic_fallback};
 pub use folder::{export_views, export_views_with, FolderEditor, ViewEntry};
 pub use resize::resize_bilinear;
-pub use semantic::WithSemantic;
 pub use simulated::SimulatedEditor;
 
 use transsplat_scene::Camera;
@@ -66,14 +67,29 @@ pub struct EditedView {
     pub image: Vec<f32>,
     /// Text-relevant attention A_v ≥ 0, `H × W`.
     pub attention: Vec<f32>,
-    /// Semantic features E_v, `H × W × d_sem` (reduced to d by the edit engine).
-    pub semantic: Vec<f32>,
-    pub d_sem: usize,
-    /// Appearance features Φ_v, `H × W × d_app`.
-    pub appearance: Vec<f32>,
-    pub d_app: usize,
     /// Optional target mask in [0, 1], `H × W`.
     pub mask: Option<Vec<f32>>,
+}
+
+impl EditedView {
+    /// An edited view from its image (`H × W × 3`), attention (`H × W`; NaN and
+    /// negative values become 0) and optional mask (`H × W`, clamped to [0, 1], NaN
+    /// read as 0): the one way every editor builds its output. The edit engine checks
+    /// every plane against its camera.
+    ///
+    /// # Panics
+    /// When the attention does not match `w × h` (an editor's own bug, not bad input).
+    pub fn new(image: Vec<f32>, w: usize, h: usize, mut attention: Vec<f32>, mask: Option<Vec<f32>>) -> Self {
+        assert_eq!(attention.len(), w * h, "attention does not match {w}x{h}");
+        for a in attention.iter_mut() {
+            if !(a.is_finite() && *a > 0.0) {
+                *a = 0.0;
+            }
+        }
+        let mask =
+            mask.map(|m| m.into_iter().map(|v| if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) }).collect());
+        EditedView { width: w, height: h, image, attention, mask }
+    }
 }
 
 /// Errors of the editors; messages are one line meant for the user.
@@ -106,4 +122,23 @@ pub trait Editor {
     fn name(&self) -> &str;
     /// Edits the views for `prompt`.
     fn edit(&mut self, views: &[SourceView], prompt: &str) -> Result<Vec<Option<EditedView>>, Error>;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::EditedView;
+
+    #[test]
+    fn new_sanitises_attention_and_mask() {
+        let v = EditedView::new(
+            vec![0.2; 12],
+            2,
+            2,
+            vec![f32::NAN, -1.0, 0.5, 2.0],
+            Some(vec![1.5, -0.5, 0.3, f32::NAN]),
+        );
+        assert_eq!(v.attention, vec![0.0, 0.0, 0.5, 2.0]);
+        assert_eq!(v.mask, Some(vec![1.0, 0.0, 0.3, 0.0]));
+        assert_eq!((v.width, v.height, v.image.len()), (2, 2, 12));
+    }
 }

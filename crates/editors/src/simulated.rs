@@ -37,7 +37,7 @@
 //! [`SimulatedEditor::ground_truth`], [`SimulatedEditor::target_label`],
 //! [`SimulatedEditor::describe`].
 
-use crate::features::{complete, gaussian_blur};
+use crate::features::gaussian_blur;
 use crate::{EditedView, Editor, Error, SourceView};
 use rayon::prelude::*;
 use transsplat_scene::rng::SplitMix64;
@@ -509,7 +509,7 @@ impl Editor for SimulatedEditor {
                 let mut rng = view_rng(seed, v.index);
                 let weight = r.weight(ins.label);
                 let c = corrupt(&r.rgb, &weight, &target, w, h, *colour, severity, &mut rng, want_mask);
-                Some(complete(c.image, w, h, c.attention, c.mask))
+                Some(EditedView::new(c.image, w, h, c.attention, c.mask))
             })
             .collect();
         tracing::debug!(

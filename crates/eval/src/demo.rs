@@ -4,18 +4,15 @@
 //! against the ground truth on the test views, and writes `metrics.json`, the
 //! edited scenes and `report.html`.
 
+use crate::edit_output::{self, EditOutput};
 use crate::ground_truth::{GtMetrics, Reference};
-use crate::heatmap::render_values;
 use crate::metrics::auroc;
 use crate::report::Page;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
-use transsplat_edit::config::Method;
-use transsplat_edit::engine::{self, EditJob, EditResult, Progress};
-use transsplat_edit::EditConfig;
+use transsplat_edit::{semantic, EditConfig, EditError, EditJob, EditResult, Method, Progress};
 use transsplat_editors::simulated::SimulatedEditor;
-use transsplat_raster::{render, RenderOptions, Splats};
-use transsplat_scene::{atomic::StagedDir, image, ply};
+use transsplat_scene::{atomic::StagedDir, image};
 use transsplat_scenes::{build, labels_from_extra, SceneConfig};
 
 /// Settings of a demo run.
@@ -65,7 +62,7 @@ pub enum DemoError {
     #[error(transparent)]
     Editor(#[from] transsplat_editors::Error),
     #[error(transparent)]
-    Edit(#[from] engine::EditError),
+    Edit(#[from] EditError),
     #[error(transparent)]
     Io(#[from] transsplat_scene::Error),
 }
@@ -91,7 +88,6 @@ pub fn run(
     let reference = Reference::new(&scene, &truth, label);
     let source = scene.gaussians_with_labels();
     let bg = scene.background;
-    let opts_r = RenderOptions { background: bg };
     let test = scene.test_views();
     let stems: Vec<String> = test.iter().map(|&v| scene.cameras[v].stem()).collect();
 
@@ -109,8 +105,6 @@ pub fn run(
         config.schedule.steps = config.schedule.steps.min(150);
         config.schedule.transport_every = config.schedule.transport_every.min(50);
     }
-    let semantic =
-        |img: &[f32], w: usize, h: usize| transsplat_editors::features::semantic_fallback(img, w, h);
     let mut scores = Vec::new();
     let mut results: Vec<(Method, EditResult)> = Vec::new();
     for &m in &opts.methods {
@@ -121,10 +115,10 @@ pub fn run(
             edit_views: scene.train_views(),
             background: bg,
             prompt: &opts.prompt,
-            source_semantic: &semantic,
+            semantic: &semantic::builtin,
         };
         let mut editor = sim.clone();
-        let res = engine::run(&job, &mut editor, &cfg, cancel, &mut |p| on_progress(m.name(), p))?;
+        let res = transsplat_edit::run(&job, &mut editor, &cfg, cancel, &mut |p| on_progress(m.name(), p))?;
         let metrics = reference.score(&scene, &res.gaussians);
         let labels = labels_from_extra(&res.gaussians).unwrap_or_else(|| scene.labels.clone());
         let is_target: Vec<bool> = labels.iter().map(|&l| l == label).collect();
@@ -143,30 +137,18 @@ pub fn run(
             );
         }
         let name = m.name();
-        let mdir = dir.join(name);
-        std::fs::create_dir_all(&mdir).map_err(|e| transsplat_scene::Error::io(&mdir, e))?;
-        ply::write(&mdir.join("point_cloud.ply"), &res.gaussians)?;
-        let s = Splats::new(&res.gaussians);
-        for (k, &v) in test.iter().enumerate() {
-            let cam = &scene.cameras[v];
-            let (w, h) = (cam.width as usize, cam.height as usize);
-            image::write_png(
-                &mdir.join(format!("test_{}.png", stems[k])),
-                w,
-                h,
-                &render(&s, cam, &opts_r).0.rgb,
-            )?;
-            if let Some(g) = &res.gate {
-                image::write_png(
-                    &mdir.join(format!("gate_{}.png", stems[k])),
-                    w,
-                    h,
-                    &render_values(&res.gaussians, g, cam),
-                )?;
-            }
-        }
-        let stats = serde_json::json!({"rounds": res.rounds, "losses": res.losses, "timing": res.timing, "prototypes": res.prototypes});
-        transsplat_scene::atomic::write_bytes(&mdir.join("transport.json"), stats.to_string().as_bytes())?;
+        let output = EditOutput {
+            source: &source,
+            result: &res,
+            cameras: &scene.cameras,
+            test_views: &test,
+            edit_views: &job.edit_views,
+            background: bg,
+            prompt: &opts.prompt,
+            editor: "simulated",
+            config: &cfg,
+        };
+        edit_output::write(&dir.join(name), &output)?;
         tracing::info!(
             "{name}: target PSNR {:.2}, background PSNR {:.2}, PSNR {:.2}, SSIM {:.4}, gate AUROC {}, {:.1} s (transport {:.1} s)",
             metrics.target_psnr,
@@ -263,7 +245,7 @@ fn write_report(
             ("ground truth".to_string(), format!("reference/truth_{stem}.png")),
         ];
         for s in scores {
-            cells.push((s.name.clone(), format!("{}/test_{stem}.png", s.name)));
+            cells.push((s.name.clone(), format!("{}/renders/after_{stem}.png", s.name)));
         }
         grid.push((stem.clone(), cells));
     }
@@ -274,7 +256,7 @@ fn write_report(
         let cells = results
             .iter()
             .filter(|(_, r)| r.gate.is_some())
-            .map(|(m, _)| (m.name().to_string(), format!("{}/gate_{stem}.png", m.name())))
+            .map(|(m, _)| (m.name().to_string(), format!("{}/renders/gate_{stem}.png", m.name())))
             .collect();
         grid.push((stem.clone(), cells));
     }

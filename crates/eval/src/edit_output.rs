@@ -5,8 +5,8 @@
 use crate::heatmap::render_values;
 use crate::report::Page;
 use std::path::Path;
-use transsplat_edit::engine::EditResult;
 use transsplat_edit::EditConfig;
+use transsplat_edit::EditResult;
 use transsplat_raster::{render, RenderOptions, Splats};
 use transsplat_scene::{atomic, cameras, image, ply, Camera, Gaussians};
 

@@ -3,7 +3,7 @@
 //! - [`clip_metrics`]: CLIP-sim and CLIP-dir over folders of renders (ClipSimilarity protocol).
 //! - [`metrics`]: PSNR (optionally inside or outside a mask), SSIM, AUROC.
 //! - [`ground_truth`]: scores an edited scene of a built-in benchmark scene against
-//!   its ground-truth edit on the test views (SPEC "Evaluation": target PSNR inside
+//!   its ground-truth edit on the test views (docs/method.md#v2-ground-truth-metrics: target PSNR inside
 //!   the target mask against the ground-truth edit, background PSNR outside it
 //!   against the original, SSIM, gate AUROC against the per-Gaussian target label).
 //! - [`heatmap`]: per-Gaussian values (the gate) rendered as a colour map.

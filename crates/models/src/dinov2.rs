@@ -1,6 +1,6 @@
 //! DINOv2 patch features (Hugging Face `Dinov2Model` layout: `facebook/dinov2-small`,
 //! `facebook/dinov2-base`), upsampled to the image: the semantic features E_v of the edit
-//! (SPEC, Editors).
+//! (docs/method.md#e5-semantic-and-appearance-features).
 //!
 //! Pipeline of [`Dinov2::features`], proven against torch + transformers by
 //! `tests/dinov2_parity.rs`:

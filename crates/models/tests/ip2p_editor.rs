@@ -68,7 +68,6 @@ fn views_are_edited_at_their_size_reproducibly() {
         assert!(v.attention.iter().all(|x| x.is_finite() && *x >= 0.0));
         assert!(v.attention.iter().any(|&x| x > 0.0), "text guidance leaves no trace");
         assert!(v.image.iter().zip(src).any(|(x, y)| (x - y).abs() > 1e-3), "image unchanged");
-        assert_eq!(v.d_app, transsplat_editors::features::D_APP);
     }
     assert_eq!(a, run(7), "same seed, same edit");
     assert_ne!(a[0].as_ref().unwrap().image, run(8)[0].as_ref().unwrap().image, "seed unused");

@@ -4,9 +4,9 @@ use super::common::progress;
 use anyhow::Result;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
-use transsplat_edit::config::Method;
-use transsplat_edit::engine::Progress;
 use transsplat_edit::EditConfig;
+use transsplat_edit::Method;
+use transsplat_edit::Progress;
 use transsplat_eval::demo::{self, DemoOptions};
 
 /// Arguments of `transsplat demo`.
@@ -87,7 +87,7 @@ pub fn run(args: &DemoArgs, cancel: &AtomicBool) -> Result<()> {
         }
     })
     .map_err(|e| match e {
-        demo::DemoError::Edit(transsplat_edit::engine::EditError::Interrupted(s)) => {
+        demo::DemoError::Edit(transsplat_edit::EditError::Interrupted(s)) => {
             anyhow::anyhow!("interrupted at step {s}; nothing was written to {}", args.out.display())
         }
         e => e.into(),

@@ -5,9 +5,7 @@ use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use transsplat_edit::checkpoint::STATE_FILE;
-use transsplat_edit::config::Method;
-use transsplat_edit::engine::{self, EditJob, Progress};
-use transsplat_edit::EditConfig;
+use transsplat_edit::{semantic, EditConfig, EditError, EditJob, Method, Progress};
 use transsplat_editors::{CommandEditor, Editor, FolderEditor, SimulatedEditor};
 use transsplat_eval::edit_output::{self, EditOutput, MARKER};
 use transsplat_scene::atomic::StagedDir;
@@ -193,24 +191,10 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
             Box::new(Ip2pEditor::load(dir, Settings::default(), config.seed, &device)?.with_cancel(cancel))
         }
     };
-    if let Some(m) = &dino {
-        // The model's tensors are shared, so the clone is cheap.
-        let m = m.clone();
-        let features = move |img: &[f32], w: usize, h: usize| {
-            m.features_projected(img, w, h, DINO_CHANNELS)
-                .map_err(|e| transsplat_editors::Error::Invalid(format!("DINOv2: {e}")))
-        };
-        editor = Box::new(transsplat_editors::WithSemantic::new(editor, Box::new(features)));
-    }
-    // The engine's feature callback cannot fail: render sizes match their cameras, so a
-    // DINOv2 error here is an internal fault; it is logged and the view gets zero features.
+    // The one semantic model of the job, for source renders and edited images alike.
     let semantic = move |img: &[f32], w: usize, h: usize| match &dino {
-        Some(m) => m.features_projected(img, w, h, DINO_CHANNELS).unwrap_or_else(|e| {
-            tracing::error!("DINOv2 on a {w}x{h} render: {e}");
-            let c = DINO_CHANNELS.min(m.channels());
-            (vec![0.0; w * h * c], c)
-        }),
-        None => transsplat_editors::semantic_fallback(img, w, h),
+        Some(m) => m.features_projected(img, w, h, DINO_CHANNELS).map_err(|e| format!("DINOv2: {e}")),
+        None => semantic::builtin(img, w, h),
     };
     let job = EditJob {
         gaussians: &g,
@@ -218,10 +202,10 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         edit_views: edit_views.clone(),
         background: args.background,
         prompt: &args.prompt,
-        source_semantic: &semantic,
+        semantic: &semantic,
     };
     let bar = progress(config.schedule.steps as u64, "edit");
-    let result = engine::run_with(&job, editor.as_mut(), &config, &mut control, &mut |p| match p {
+    let result = transsplat_edit::run_with(&job, editor.as_mut(), &config, &mut control, &mut |p| match p {
         Progress::Step { step, loss, .. } => {
             bar.set_position(step as u64);
             if step % 10 == 0 {
@@ -240,10 +224,10 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
     });
     bar.finish_and_clear();
     let result = result.map_err(|e| match e {
-        engine::EditError::Interrupted(s) => {
+        EditError::Interrupted(s) => {
             anyhow::anyhow!(args.checkpoints.interrupted(s as u64, &control, &args.out))
         }
-        e @ engine::EditError::Train(_) => {
+        e @ EditError::Train(_) => {
             anyhow::anyhow!("{e}; no scene was written to {}; {}", args.out.display(), control.note())
         }
         e => e.into(),

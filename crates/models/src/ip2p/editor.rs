@@ -11,7 +11,7 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use candle_core::{Device, Tensor};
-use transsplat_editors::{features, resize_bilinear, EditedView, Editor, Error as EditError, SourceView};
+use transsplat_editors::{resize_bilinear, EditedView, Editor, Error as EditError, SourceView};
 use transsplat_scene::rng::{mix, SplitMix64};
 
 use super::pipeline::{Ip2p, PromptEmbeds, Settings, DOWNLOAD_HINT};
@@ -156,7 +156,7 @@ impl<'c> Ip2pEditor<'c> {
         let image = resize_bilinear(&edited, mw, mh, 3, w, h);
         let attention = resize_bilinear(&attention, mw / f, mh / f, 1, w, h);
         tracing::debug!("ip2p view {}: span {span}, {}x{} at {mw}x{mh}", view.index, w, h);
-        Ok(features::complete(image, w, h, attention, None))
+        Ok(EditedView::new(image, w, h, attention, None))
     }
 }
 

@@ -1,7 +1,7 @@
 //! One InstructPix2Pix edit in the Instruct-NeRF2NeRF / Instruct-GS2GS manner: the
 //! render is encoded, noised to the first timestep of a span T drawn in [0.70, 0.98] of
 //! the schedule, and denoised by DDIM with three-way classifier-free guidance
-//! (SPEC "Editors"; paper §"Implementation details": DDIM, 20 steps, t ∈ [0.70, 0.98]).
+//! (docs/method.md#e2-instructpix2pix; paper §"Implementation details": DDIM, 20 steps, t ∈ [0.70, 0.98]).
 
 use candle_core::{DType, Device, Tensor};
 
@@ -145,7 +145,7 @@ impl Ip2p {
     /// stops the edit with an error.
     ///
     /// Each step runs the UNet on a batch of three — (text, image), (∅, image), (∅, ∅) —
-    /// and combines ε = ε_u + s_T(ε_text − ε_img) + s_I(ε_img − ε_u) (SPEC "Editors").
+    /// and combines ε = ε_u + s_T(ε_text − ε_img) + s_I(ε_img − ε_u) (docs/method.md#e2-instructpix2pix).
     /// The image-conditioning latent is the unscaled posterior mode; the edited latent is
     /// the mode × the scaling factor. The attention A_v (the paper's text-relevant map,
     /// §3.2) is DiffEdit-style: the channel mean of |ε_text − ε_img| averaged over steps.

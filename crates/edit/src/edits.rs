@@ -1,0 +1,115 @@
+//! The first stage of an edit (docs/method.md#m9-the-edit-loop): render the edit
+//! views of the source scene, have the 2D editor edit them once, check what it
+//! returned, and gather each usable view's evidence for the method.
+
+use crate::error::EditError;
+use crate::prototypes::ViewEvidence;
+use crate::semantic::SemanticSpace;
+use transsplat_editors::{EditedView, Editor, SourceView};
+use transsplat_raster::{render, RenderOptions, Splats};
+use transsplat_scene::{Camera, Gaussians};
+
+/// One usable edit view, prepared once: its camera, the edited image Î_v (the target
+/// of L_img) and the appearance plane Φ_v of the edited image.
+pub struct ViewData {
+    /// Index of the view's camera in the scene.
+    pub cam: usize,
+    pub target: Vec<f32>,
+    pub appearance: Vec<f32>,
+    pub d_app: usize,
+}
+
+/// Renders the source scene at each of `cams` (`H × W × 3` each).
+pub fn render_sources(g: &Gaussians, cams: &[&Camera], background: [f32; 3]) -> Vec<Vec<f32>> {
+    let s = Splats::new(g);
+    let opts = RenderOptions { background };
+    cams.iter().map(|c| render(&s, c, &opts).0.rgb).collect()
+}
+
+/// Has `editor` edit the source renders of the views `views` (camera indices into
+/// `cameras`) for `prompt`, and checks that every output matches its camera and that
+/// at least one view was edited.
+pub fn edit_views(
+    editor: &mut dyn Editor,
+    cameras: &[Camera],
+    views: &[usize],
+    sources: &[Vec<f32>],
+    prompt: &str,
+) -> Result<Vec<Option<EditedView>>, EditError> {
+    let src: Vec<SourceView> = views
+        .iter()
+        .zip(sources)
+        .map(|(&v, img)| SourceView { index: v, camera: &cameras[v], image: img })
+        .collect();
+    let edited = editor.edit(&src, prompt)?;
+    check_outputs(editor.name(), &edited, cameras, views)?;
+    Ok(edited)
+}
+
+/// Errors unless there is one output per view, each matching its camera's size, and
+/// at least one of them is an edited view.
+pub fn check_outputs(
+    editor: &str,
+    edited: &[Option<EditedView>],
+    cameras: &[Camera],
+    views: &[usize],
+) -> Result<(), EditError> {
+    if edited.len() != views.len() {
+        return Err(EditError::Input(format!(
+            "editor {editor} returned {} views for {} inputs",
+            edited.len(),
+            views.len()
+        )));
+    }
+    for (e, &v) in edited.iter().zip(views) {
+        let Some(e) = e else { continue };
+        let c = &cameras[v];
+        let px = c.width as usize * c.height as usize;
+        let ok = e.width == c.width as usize
+            && e.height == c.height as usize
+            && e.image.len() == px * 3
+            && e.attention.len() == px
+            && e.mask.as_ref().is_none_or(|m| m.len() == px);
+        if !ok {
+            return Err(EditError::Input(format!(
+                "editor {editor} returned an output for view {:?} whose planes do not match the view size {}x{}",
+                c.name, c.width, c.height
+            )));
+        }
+    }
+    if edited.iter().all(Option::is_none) {
+        return Err(EditError::Input(format!("editor {editor} produced no edited view")));
+    }
+    Ok(())
+}
+
+/// The usable edit views in order, each handed with its evidence (attention, mask,
+/// projected semantic and appearance planes) and camera index to `take`, which returns how many
+/// prototypes it made of the view. Returns the views and the prototype count of every
+/// edit view (0 where the editor gave nothing).
+pub fn gather(
+    views: &[usize],
+    edited: &[Option<EditedView>],
+    space: &mut SemanticSpace,
+    mut take: impl FnMut(usize, &ViewEvidence) -> usize,
+) -> (Vec<ViewData>, Vec<usize>) {
+    let mut out = Vec::new();
+    let mut counts = vec![0; views.len()];
+    for (k, (e, &cam)) in edited.iter().zip(views).enumerate() {
+        let (Some(e), Some(f)) = (e, space.edited[k].take()) else { continue };
+        let semantic = space.pca.project(&f.semantic);
+        let ev = ViewEvidence {
+            width: e.width,
+            height: e.height,
+            attention: &e.attention,
+            mask: e.mask.as_deref(),
+            semantic: &semantic,
+            d: space.pca.d,
+            appearance: &f.appearance,
+            d_app: f.d_app,
+        };
+        counts[k] = take(cam, &ev);
+        out.push(ViewData { cam, target: e.image.clone(), appearance: f.appearance, d_app: f.d_app });
+    }
+    (out, counts)
+}

@@ -1,0 +1,175 @@
+//! The optimisation side of the edit loop (docs/method.md#m9-the-edit-loop): the
+//! trainer built from the edit settings, the view order (one view per step, shuffled
+//! per epoch), the image term L_img of one step, and the loop's records.
+
+use crate::config::EditConfig;
+use crate::error::EditError;
+use crate::round::RoundStats;
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use transsplat_raster::{Frame, Grads, ImageGrads};
+use transsplat_scene::{Camera, Gaussians};
+use transsplat_train::{DensifyConfig, LearningRates, Model, TrainConfig, Trainer};
+
+/// Loss values of one step.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct StepLosses {
+    pub step: usize,
+    pub img: f64,
+    pub sem: f64,
+    pub uot: f64,
+    pub leak: f64,
+}
+
+/// The trainer of an edit: the source scene with semantic latents `s` (`N × d`), the
+/// edit's learning rates (position decaying to 1 %), and densification every
+/// `schedule.densify_every` steps without opacity resets (or none).
+pub fn trainer(
+    g: &Gaussians,
+    s: Vec<f32>,
+    cfg: &EditConfig,
+    cameras: &[Camera],
+    background: [f32; 3],
+) -> Result<Trainer, EditError> {
+    let lr = &cfg.lr;
+    let mut densify = DensifyConfig { sh_degree_interval: 0, ..DensifyConfig::disabled() };
+    if cfg.schedule.densify_every > 0 {
+        densify.from_step = 0;
+        densify.until_step = cfg.schedule.steps as u64 + 1;
+        densify.interval = cfg.schedule.densify_every as u64;
+        densify.opacity_reset_interval = 0;
+    }
+    let config = TrainConfig {
+        iterations: cfg.schedule.steps as u64,
+        lr: LearningRates {
+            position_init: lr.position,
+            position_final: lr.position * 0.01,
+            position_max_steps: None,
+            sh_dc: lr.sh_dc,
+            sh_rest: lr.sh_rest,
+            opacity: lr.opacity,
+            scaling: lr.scale,
+            rotation: lr.rotation,
+            features: lr.semantic,
+        },
+        densify,
+        background,
+        seed: cfg.seed,
+        ..TrainConfig::default()
+    };
+    let extent = transsplat_train::trainer::scene_extent(cameras);
+    let model = Model::with_features(g.clone(), s, cfg.semantic_dim).map_err(EditError::Train)?;
+    Trainer::new(model, extent, config).map_err(|e| EditError::Train(e.to_string()))
+}
+
+/// True when geometry and opacity cannot change during the edit (their learning rates
+/// are zero and nothing is densified), so per-view statistics can be computed once.
+pub fn geometry_frozen(cfg: &EditConfig) -> bool {
+    let lr = &cfg.lr;
+    lr.position == 0.0
+        && lr.scale == 0.0
+        && lr.rotation == 0.0
+        && lr.opacity == 0.0
+        && cfg.schedule.densify_every == 0
+}
+
+/// Renders `cam` with the current model and backpropagates λ_img L_img against
+/// `target`: returns the frame, the gradients and λ_img L_img.
+pub fn image_gradients(tr: &Trainer, cam: &Camera, target: &[f32], cfg: &EditConfig) -> (Frame, Grads, f64) {
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let (img, frame) = tr.render(cam);
+    let mut il = transsplat_train::loss::image_loss(&img.rgb, target, w, h, None, cfg.loss.dssim);
+    if cfg.loss.img != 1.0 {
+        il.grad.iter_mut().for_each(|g| *g *= cfg.loss.img);
+    }
+    let mut grads = tr.zero_grads();
+    tr.backward(cam, &frame, &ImageGrads { rgb: &il.grad, ..Default::default() }, &mut grads);
+    (frame, grads, (il.loss * cfg.loss.img) as f64)
+}
+
+/// Stops the run when a loss of the step is NaN or infinite, naming the loss.
+pub fn check_losses(rec: &StepLosses, step: u64) -> Result<(), EditError> {
+    for (name, v) in
+        [("image", rec.img), ("semantic", rec.sem), ("transport", rec.uot), ("leakage", rec.leak)]
+    {
+        if !v.is_finite() {
+            return Err(EditError::Train(format!(
+                "step {step}: the {name} loss became NaN or infinite; lower the learning rates or check the inputs"
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// One view per step, every view once per epoch in a seeded shuffled order.
+#[derive(Clone, Debug)]
+pub struct ViewOrder {
+    /// Views left in this epoch (taken from the back).
+    pub left: Vec<usize>,
+    pub rng: ChaCha8Rng,
+}
+
+impl ViewOrder {
+    pub fn new(seed: u64) -> Self {
+        ViewOrder { left: Vec::new(), rng: ChaCha8Rng::seed_from_u64(seed ^ 0xED17) }
+    }
+
+    /// The next view of `views`.
+    pub fn next(&mut self, views: usize) -> usize {
+        if self.left.is_empty() {
+            self.left = (0..views).collect();
+            self.left.shuffle(&mut self.rng);
+        }
+        self.left.pop().expect("at least one view")
+    }
+}
+
+/// The loop's own state at the top of a step, besides the trainer and the method.
+#[derive(Clone, Debug)]
+pub struct LoopState {
+    /// Steps done.
+    pub step: usize,
+    pub order: ViewOrder,
+    pub rounds: Vec<RoundStats>,
+    pub losses: Vec<StepLosses>,
+    /// Seconds in the editor, and in all (earlier processes of a resumed run included).
+    pub editor_s: f64,
+    pub elapsed_s: f64,
+}
+
+impl LoopState {
+    pub fn new(seed: u64, editor_s: f64) -> Self {
+        LoopState {
+            step: 0,
+            order: ViewOrder::new(seed),
+            rounds: Vec::new(),
+            losses: Vec::new(),
+            editor_s,
+            elapsed_s: 0.0,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_view_once_per_epoch() {
+        let mut o = ViewOrder::new(3);
+        for _ in 0..3 {
+            let mut epoch: Vec<usize> = (0..5).map(|_| o.next(5)).collect();
+            epoch.sort();
+            assert_eq!(epoch, vec![0, 1, 2, 3, 4]);
+        }
+    }
+
+    #[test]
+    fn a_non_finite_loss_is_named() {
+        let rec = StepLosses { leak: f64::NAN, ..Default::default() };
+        let e = check_losses(&rec, 7).unwrap_err().to_string();
+        assert!(e.contains("step 7: the leakage loss"), "{e}");
+        assert!(check_losses(&StepLosses::default(), 7).is_ok());
+    }
+}

@@ -1,0 +1,150 @@
+//! One transport round (paper Sec. 3.3–3.5; docs/method.md#m9-the-edit-loop): per
+//! view the source side (visible Gaussians, masses, projected means, appearance
+//! descriptors), the view-wise UOT against the view's prototypes ([`crate::view`]),
+//! then canonical fusion with EMA ([`crate::fusion`]) and the gate
+//! ([`crate::gate`]). Views are solved in parallel.
+
+use crate::error::EditError;
+use crate::fusion::{accumulate, canonical_targets, ema};
+use crate::prototypes::Prototypes;
+use crate::view::{self, TransportConfig, ViewTransport};
+use crate::{gate, EditConfig};
+use rayon::prelude::*;
+use transsplat_raster::{gaussian_stats, Splats};
+use transsplat_scene::{sigmoid, Camera, Gaussians};
+
+/// Statistics of one transport round.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct RoundStats {
+    pub round: usize,
+    pub step: usize,
+    pub views: usize,
+    pub objective: f64,
+    pub dual: f64,
+    pub gap: f64,
+    pub transported_mass: f64,
+    pub mean_gate: f64,
+    pub seconds: f64,
+}
+
+/// One edit view as a transport round sees it: its camera, appearance plane Φ_v and
+/// prototypes (empty when the view carries no evidence).
+pub struct RoundView<'a> {
+    pub cam: &'a Camera,
+    pub appearance: &'a [f32],
+    pub d_app: usize,
+    pub prototypes: &'a Prototypes,
+}
+
+/// The source side of one view's transport: visible Gaussians, masses a_i^v,
+/// projected means and normalised appearance descriptors φ_i^v.
+#[derive(Clone, Debug, Default)]
+pub struct ViewSources {
+    pub idx: Vec<u32>,
+    pub a: Vec<f32>,
+    pub m2d: Vec<[f32; 2]>,
+    pub phi: Vec<f32>,
+}
+
+/// The source side of every view (empty for views without prototypes), from one
+/// splat-back pass per view (docs/method.md#m1-visibility-and-source-masses).
+pub fn view_sources(g: &Gaussians, views: &[RoundView]) -> Vec<ViewSources> {
+    let opacity: Vec<f32> = g.opacity_logits.iter().map(|&o| sigmoid(o)).collect();
+    let splats = Splats::new(g);
+    views
+        .par_iter()
+        .map(|v| {
+            if v.prototypes.is_empty() {
+                return ViewSources::default();
+            }
+            let st = gaussian_stats(&splats, v.cam, Some((v.appearance, v.d_app)));
+            let (idx, a) = view::source_masses(&st.visibility, &opacity);
+            let m2d: Vec<[f32; 2]> = idx.iter().map(|&i| st.means2d[i as usize]).collect();
+            let mut phi: Vec<f32> = Vec::with_capacity(idx.len() * v.d_app);
+            for &i in &idx {
+                let mut p = st.splat[i as usize * v.d_app..(i as usize + 1) * v.d_app].to_vec();
+                crate::normalize(&mut p, 1e-8);
+                phi.extend(p);
+            }
+            ViewSources { idx, a, m2d, phi }
+        })
+        .collect()
+}
+
+/// The view-wise transport of every view with prototypes, against the current
+/// semantic latents `s` (`N × d`); `views` and `sources` are aligned, and each result
+/// carries its view's camera index from `cam_index`.
+pub fn solve_views(
+    s: &[f32],
+    d: usize,
+    views: &[RoundView],
+    cam_index: &[usize],
+    sources: &[ViewSources],
+    cfg: &TransportConfig,
+) -> Result<Vec<ViewTransport>, EditError> {
+    let diag = |c: &Camera| ((c.width as f32).powi(2) + (c.height as f32).powi(2)).sqrt();
+    views
+        .par_iter()
+        .zip(sources)
+        .zip(cam_index)
+        .filter(|((v, _), _)| !v.prototypes.is_empty())
+        .map(|((v, src), &cam)| {
+            let sv: Vec<f32> = src
+                .idx
+                .iter()
+                .flat_map(|&i| s[i as usize * d..(i as usize + 1) * d].iter().copied())
+                .collect();
+            let mut t = view::transport(
+                src.idx.clone(),
+                src.a.clone(),
+                &src.m2d,
+                &sv,
+                &src.phi,
+                v.prototypes,
+                diag(v.cam),
+                cfg,
+            )?;
+            t.view = cam;
+            Ok(t)
+        })
+        .collect()
+}
+
+/// What the transport rounds carry from one round to the next.
+#[derive(Clone, Debug)]
+pub struct TransportState {
+    /// Gate γ_i (1 before the first round).
+    pub gamma: Vec<f32>,
+    /// EMA of the canonical targets z̄_i (`N × d`), `None` before the first round.
+    pub zbar: Option<Vec<f32>>,
+    /// The last round's view plans (for L_uot).
+    pub cached: Vec<ViewTransport>,
+}
+
+impl TransportState {
+    pub fn new(n: usize) -> Self {
+        TransportState { gamma: vec![1.0; n], zbar: None, cached: Vec::new() }
+    }
+
+    /// Fuses this round's view plans into z̄ and γ (Theorem 1, EMA, gate) for the
+    /// latents `s` (`N × d`) and returns the round's statistics (`round` left 0).
+    pub fn update(&mut self, plans: Vec<ViewTransport>, s: &[f32], d: usize, cfg: &EditConfig) -> RoundStats {
+        let n = self.gamma.len();
+        let f = &cfg.fusion;
+        let acc = accumulate(n, d, &plans, f.min_support);
+        let z = canonical_targets(&acc, s, f.rho);
+        self.zbar = Some(ema(self.zbar.as_deref(), &z, f.ema));
+        self.gamma = gate::gate(&gate::residuals(n, &plans, f.min_support), f.tau_r);
+        self.cached = plans;
+        let v = &self.cached;
+        RoundStats {
+            views: v.len(),
+            objective: v.iter().map(|v| v.objective).sum(),
+            dual: v.iter().map(|v| v.dual).sum(),
+            gap: v.iter().map(|v| v.gap).sum(),
+            transported_mass: v.iter().map(|v| v.transported_mass).sum(),
+            mean_gate: self.gamma.iter().map(|&x| x as f64).sum::<f64>() / n.max(1) as f64,
+            ..Default::default()
+        }
+    }
+}
