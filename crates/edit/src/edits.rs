@@ -113,3 +113,43 @@ pub fn gather(
     }
     (out, counts)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn camera(name: &str) -> Camera {
+        let eye = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let (fx, fy, cx, cy) = (4.0, 4.0, 2.0, 1.5);
+        Camera {
+            name: name.into(),
+            width: 4,
+            height: 3,
+            fx,
+            fy,
+            cx,
+            cy,
+            rotation: eye,
+            translation: [0.0; 3],
+        }
+    }
+
+    fn view(w: usize, h: usize) -> EditedView {
+        EditedView::new(vec![0.5; w * h * 3], w, h, vec![1.0; w * h], None)
+    }
+
+    #[test]
+    fn outputs_must_match_their_cameras_and_one_must_be_edited() {
+        let cams = [camera("a"), camera("b")];
+        assert!(check_outputs("e", &[Some(view(4, 3)), None], &cams, &[0, 1]).is_ok());
+        let e = check_outputs("e", &[Some(view(4, 3))], &cams, &[0, 1]).unwrap_err().to_string();
+        assert!(e.contains("returned 1 views for 2 inputs"), "{e}");
+        let e = check_outputs("e", &[None, Some(view(3, 4))], &cams, &[0, 1]).unwrap_err().to_string();
+        assert!(e.contains("view \"b\"") && e.contains("4x3"), "{e}");
+        let mut masked = view(4, 3);
+        masked.mask = Some(vec![1.0; 5]);
+        assert!(check_outputs("e", &[Some(masked), None], &cams, &[0, 1]).is_err());
+        let e = check_outputs("e", &[None, None], &cams, &[0, 1]).unwrap_err().to_string();
+        assert!(e.contains("produced no edited view"), "{e}");
+    }
+}

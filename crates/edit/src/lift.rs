@@ -29,3 +29,36 @@ pub fn lift(g: &Gaussians, cams: &[&Camera], planes: &[&[f32]], channels: usize)
         .map(|j| if den[j / channels] > 0.0 { (num[j] / den[j / channels]) as f32 } else { 0.0 })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use transsplat_scenes::{build, SceneConfig};
+
+    /// Constant planes lift to the blend-weighted mean of the constants over the views
+    /// that blend each Gaussian (weights from the rasterizer's own statistics), and to
+    /// 0 where no view blends it.
+    #[test]
+    fn constant_planes_lift_to_their_weighted_mean() {
+        let scene =
+            build("tabletop", &SceneConfig { width: 32, height: 24, views: 3, ..SceneConfig::quick() })
+                .unwrap();
+        let g = &scene.gaussians;
+        let cams: Vec<&Camera> = scene.cameras[..2].iter().collect();
+        let px = |c: &Camera| (c.width * c.height) as usize;
+        let (p0, p1) = (vec![0.25f32; px(cams[0])], vec![0.75f32; px(cams[1])]);
+        let lifted = lift(g, &cams, &[&p0, &p1], 1);
+        let s = Splats::new(g);
+        let w0 = gaussian_stats(&s, cams[0], None).weight_sum;
+        let w1 = gaussian_stats(&s, cams[1], None).weight_sum;
+        let (mut both, mut none) = (0, 0);
+        for i in 0..g.len() {
+            let (a, b) = (w0[i] as f64, w1[i] as f64);
+            let want = if a + b > 0.0 { (0.25 * a + 0.75 * b) / (a + b) } else { 0.0 };
+            assert!((lifted[i] as f64 - want).abs() < 1e-6, "Gaussian {i}: {} vs {want}", lifted[i]);
+            both += (a > 0.0 && b > 0.0) as usize;
+            none += (a + b == 0.0) as usize;
+        }
+        assert!(both > 100 && none > 0, "the test must see shared and unseen Gaussians ({both}, {none})");
+    }
+}

@@ -134,3 +134,62 @@ pub fn set_semantic_extras(g: &mut Gaussians, s: &[f32], d: usize) {
     }
     g.extra = transsplat_scene::Extra { names, values };
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn camera(name: &str) -> Camera {
+        let eye = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let (fx, fy, cx, cy) = (4.0, 4.0, 2.0, 1.5);
+        Camera {
+            name: name.into(),
+            width: 4,
+            height: 3,
+            fx,
+            fy,
+            cx,
+            cy,
+            rotation: eye,
+            translation: [0.0; 3],
+        }
+    }
+
+    /// One rule for source renders and edited images: a failing model stops the fit with
+    /// a message naming the view and which image it was.
+    #[test]
+    fn a_failing_model_names_the_view_for_sources_and_edits_alike() {
+        let cams = [camera("a"), camera("b")];
+        let views: Vec<&Camera> = cams.iter().collect();
+        let (src, dark) = (vec![vec![0.5f32; 36]; 2], vec![0.0f32; 36]);
+        let edited = vec![None, Some(EditedView::new(dark, 4, 3, vec![1.0; 12], None))];
+        // Fails on black images: only the edited image of view b is black.
+        let model = |img: &[f32], w: usize, h: usize| -> Result<(Vec<f32>, usize), String> {
+            if img.iter().all(|&v| v == 0.0) {
+                return Err("no features for black".into());
+            }
+            Ok((vec![1.0; w * h * 2], 2))
+        };
+        let e = SemanticSpace::fit(&model, &views, &src, &edited, 2, 0).err().unwrap().to_string();
+        assert!(e.contains("edited image of view \"b\": no features for black"), "{e}");
+        let e = SemanticSpace::fit(&model, &views, &[vec![0.0; 36], vec![0.5; 36]], &[None, None], 2, 0)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("source render of view \"a\""), "{e}");
+        // A wrong plane size and inconsistent channel counts are refused.
+        let short =
+            |_: &[f32], _: usize, _: usize| -> Result<(Vec<f32>, usize), String> { Ok((vec![0.0; 5], 2)) };
+        let e = SemanticSpace::fit(&short, &views, &src, &[None, None], 2, 0).err().unwrap().to_string();
+        assert!(e.contains("5 values with 2 channels for a 4x3 image"), "{e}");
+        let edited = vec![Some(EditedView::new(vec![0.3; 36], 4, 3, vec![1.0; 12], None)), None];
+        let by_image = |img: &[f32], w: usize, h: usize| -> Result<(Vec<f32>, usize), String> {
+            let d = if img[0] == 0.3 { 3 } else { 2 };
+            Ok((vec![0.1; w * h * d], d))
+        };
+        let e = SemanticSpace::fit(&by_image, &views, &src, &edited, 2, 0).err().unwrap().to_string();
+        assert!(e.contains("3 channels for one image and 2 for another"), "{e}");
+        let ok = SemanticSpace::fit(&model, &views, &src, &edited, 2, 0).unwrap();
+        assert_eq!((ok.pca.d_in, ok.pca.d, ok.edited[0].as_ref().unwrap().d_app), (2, 2, 6));
+    }
+}
