@@ -42,27 +42,7 @@ pub fn resize_bilinear(src: &[f32], w: usize, h: usize, c: usize, nw: usize, nh:
     if w == 0 || h == 0 || nw == 0 || nh == 0 || c == 0 {
         return vec![0.0; nw * nh * c];
     }
-    let (tx, ty) = (taps(w, nw), taps(h, nh));
-    let mut rows = vec![0.0f32; h * nw * c];
-    for y in 0..h {
-        for (ox, t) in tx.iter().enumerate() {
-            for &(ix, wgt) in t {
-                for k in 0..c {
-                    rows[(y * nw + ox) * c + k] += wgt * src[(y * w + ix) * c + k];
-                }
-            }
-        }
-    }
-    let mut out = vec![0.0f32; nh * nw * c];
-    for (oy, t) in ty.iter().enumerate() {
-        let dst = &mut out[oy * nw * c..(oy + 1) * nw * c];
-        for &(iy, wgt) in t {
-            for (d, v) in dst.iter_mut().zip(&rows[iy * nw * c..(iy + 1) * nw * c]) {
-                *d += wgt * v;
-            }
-        }
-    }
-    out
+    transsplat_scene::resample::separable(src, w, h, c, &taps(w, nw), &taps(h, nh))
 }
 
 #[cfg(test)]

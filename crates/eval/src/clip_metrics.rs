@@ -1,4 +1,4 @@
-//! CLIP-sim and CLIP-dir (SPEC, Evaluation), by the Instruct-NeRF2NeRF `ClipSimilarity`
+//! CLIP-sim and CLIP-dir (docs/method.md#v1-clip-metrics), by the Instruct-NeRF2NeRF `ClipSimilarity`
 //! protocol, over folders of renders from any method:
 //!
 //! - CLIP-sim = cos(f(Î), g(t_target)),
@@ -14,6 +14,7 @@ use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
 use transsplat_models::clip::{l2_normalize, Clip};
+use transsplat_scene::cameras::is_held_out;
 use transsplat_scene::image;
 
 /// Score of one view.
@@ -84,7 +85,7 @@ pub fn pair_views(
     let edits = images_by_stem(edited)?;
     src.into_iter()
         .enumerate()
-        .filter(|(i, _)| i % every == 0)
+        .filter(|&(i, _)| is_held_out(i, every))
         .map(|(_, (stem, path))| {
             let e = edits.iter().find(|(s, _)| *s == stem).ok_or_else(|| {
                 Error::Input(format!(

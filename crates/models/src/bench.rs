@@ -2,14 +2,13 @@
 //! model with the real architecture sizes and random weights (real weights cannot be
 //! downloaded here; the arithmetic is the same) and timing one forward pass.
 
-use std::time::Instant;
-
-use candle_core::{DType, Device};
-use candle_nn::{VarBuilder, VarMap};
+use candle_core::Device;
+use transsplat_scene::timing::try_best_of;
 
 use crate::clip::{Clip, ClipConfig, ClipTextConfig, ClipVisionConfig};
 use crate::dinov2::{Dinov2, Dinov2Config};
 use crate::ip2p::bench::{sd15_models, Case as Ip2pCase, Sd15};
+use crate::weights::random_weights;
 use crate::Error;
 
 /// One benchmark: a name and a function that builds its model and returns the seconds
@@ -50,31 +49,9 @@ fn ip2p(device: &Device, case: Ip2pCase, size: usize) -> Result<f64, Error> {
     time(|| Ok(case.run(&models, size, device)?))
 }
 
-/// Random weights for a model built by `build`: a first build creates the randomly
-/// initialised variables, and the returned builder holds detached copies of them.
-/// Operations on variables record the graph for back-propagation and would keep every
-/// activation alive; weights loaded from files are plain tensors, like these.
-pub(crate) fn random_weights(
-    device: &Device,
-    build: impl FnOnce(VarBuilder) -> Result<(), Error>,
-) -> Result<VarBuilder<'static>, Error> {
-    let map = VarMap::new();
-    build(VarBuilder::from_varmap(&map, DType::F32, device))?;
-    let tensors: std::collections::HashMap<String, candle_core::Tensor> = map
-        .data()
-        .lock()
-        .map_err(|_| candle_core::Error::Msg("poisoned weight map".into()))?
-        .iter()
-        .map(|(k, v)| (k.clone(), v.as_tensor().detach()))
-        .collect();
-    Ok(VarBuilder::from_tensors(tensors, DType::F32, device))
-}
-
-fn time<T>(mut f: impl FnMut() -> Result<T, Error>) -> Result<f64, Error> {
-    f()?;
-    let t = Instant::now();
-    f()?;
-    Ok(t.elapsed().as_secs_f64())
+/// Seconds of one run of `f` after one untimed warm-up run.
+fn time<T>(f: impl FnMut() -> Result<T, Error>) -> Result<f64, Error> {
+    try_best_of(1, 1, f).map(|(secs, _)| secs)
 }
 
 /// `openai/clip-vit-large-patch14`.

@@ -7,7 +7,7 @@
 //! - [`clip`]: CLIP image and text features for the CLIP-sim / CLIP-dir metrics.
 //! - [`tokenizer`]: the CLIP byte-pair tokenizer with its vocabulary bundled.
 //! - [`resample`]: torch-exact bicubic / bilinear resizing for the models' preprocessing.
-//! - [`bench`]: the model cases of `transsplat bench models`.
+//! - [`bench`](mod@bench): the model cases of `transsplat bench models`.
 //! - [`weights`]: locating, validating and memory-mapping weight folders.
 //!
 //! Every model is proven against the reference Python implementation (diffusers,

@@ -5,12 +5,13 @@
 //! are memory-mapped, never copied into a buffer first, and converted to the compute
 //! dtype (f32 on CPU) tensor by tensor as the model is built, so fp32, fp16 and bf16
 //! files all load. A missing folder or file is an [`Error`] that names the folder, the
-//! file expected, and the `hf download ...` command that fetches it.
+//! file expected, and the `hf download ...` command that fetches it. The benchmarks
+//! build models with random weights instead (`random_weights`).
 
 use std::path::{Path, PathBuf};
 
 use candle_core::{DType, Device};
-use candle_nn::VarBuilder;
+use candle_nn::{VarBuilder, VarMap};
 use serde::de::DeserializeOwned;
 
 /// What went wrong while locating or opening weights.
@@ -198,6 +199,26 @@ pub fn default_device() -> Device {
         return d;
     }
     Device::Cpu
+}
+
+/// Random weights for a model built by `build`: a first build creates the randomly
+/// initialised variables, and the returned builder holds detached copies of them.
+/// Operations on variables record the graph for back-propagation and would keep every
+/// activation alive; weights loaded from files are plain tensors, like these.
+pub(crate) fn random_weights(
+    device: &Device,
+    build: impl FnOnce(VarBuilder) -> Result<(), Error>,
+) -> Result<VarBuilder<'static>, Error> {
+    let map = VarMap::new();
+    build(VarBuilder::from_varmap(&map, DType::F32, device))?;
+    let tensors: std::collections::HashMap<String, candle_core::Tensor> = map
+        .data()
+        .lock()
+        .map_err(|_| candle_core::Error::Msg("poisoned weight map".into()))?
+        .iter()
+        .map(|(k, v)| (k.clone(), v.as_tensor().detach()))
+        .collect();
+    Ok(VarBuilder::from_tensors(tensors, DType::F32, device))
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@
 //! saturate (T ≤ 1e-4) after tens to a few hundred blends whatever the count.
 
 use crate::{backward, gaussian_stats, render, Grads, ImageGrads, RenderOptions, Splats};
-use std::time::Instant;
+use transsplat_scene::timing::best_of;
 use transsplat_scene::{rng::SplitMix64, Camera, Gaussians};
 
 /// The benchmark camera: at the origin looking down +z, 60° horizontal field of view.
@@ -73,37 +73,25 @@ pub struct BenchResult {
     pub intersections: usize,
 }
 
-fn best<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
-    let mut best = f64::INFINITY;
-    let mut out = None;
-    for _ in 0..reps.max(1) {
-        let t = Instant::now();
-        let r = f();
-        best = best.min(t.elapsed().as_secs_f64());
-        out = Some(r);
-    }
-    (best, out.expect("at least one repetition"))
-}
-
 /// Runs forward, backward and splat-back on the synthetic scene.
 pub fn run(n: usize, width: u32, height: u32, reps: usize) -> BenchResult {
     let g = bench_scene(n, 7);
     let cam = bench_camera(width, height);
     let s = Splats::new(&g);
     let opts = RenderOptions { background: [0.0; 3] };
-    let (forward, (img, frame)) = best(reps, || render(&s, &cam, &opts));
+    let (forward, (img, frame)) = best_of(0, reps, || render(&s, &cam, &opts));
     let view = crate::project::View::new(&cam);
-    let (binning, _) = best(reps, || crate::bin::bin(&s, &view));
+    let (binning, _) = best_of(0, reps, || crate::bin::bin(&s, &view));
     let px = (width * height) as usize;
     let v: Vec<f32> = (0..px * 3).map(|i| ((i * 7919) % 17) as f32 / 17.0 - 0.5).collect();
     let va: Vec<f32> = v[..px].to_vec();
-    let (bwd, _) = best(reps, || {
+    let (bwd, _) = best_of(0, reps, || {
         let mut grads = Grads::zeros(g.len(), g.sh_degree, 0);
         backward(&s, &cam, &frame, &ImageGrads { rgb: &v, alpha: &va, ..Default::default() }, &mut grads);
         grads
     });
     let feat: Vec<f32> = v.clone();
-    let (splat, stats) = best(reps, || gaussian_stats(&s, &cam, Some((&feat, 3))));
+    let (splat, stats) = best_of(0, reps, || gaussian_stats(&s, &cam, Some((&feat, 3))));
     let mut traversed = frame.last.clone();
     traversed.sort_unstable();
     BenchResult {

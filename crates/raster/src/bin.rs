@@ -200,7 +200,7 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
     let mut means2d = vec![[0.0f32; 2]; n];
     let mut depths = vec![0.0f32; n];
     let mut radii = vec![[0u32; 2]; n];
-    let avx2 = crate::kernel::has_avx2();
+    let avx2 = transsplat_scene::cpu::has_avx2();
     let parts: Vec<(Vec<u32>, Vec<Packed>)> =
         (means2d.par_chunks_mut(PCH), depths.par_chunks_mut(PCH), radii.par_chunks_mut(PCH))
             .into_par_iter()

@@ -9,6 +9,7 @@
 
 use crate::bin::{Binned, Packed, TILE};
 use crate::fastexp::exp_neg;
+use crate::project::Splat2dGrads;
 
 const ALPHA_MIN: f32 = 1.0 / 255.0;
 const T_MIN: f32 = 1e-4;
@@ -281,10 +282,38 @@ pub struct ForwardState<'a> {
     pub background: [f32; 3],
 }
 
-/// Floats per splat in the backward accumulation buffer:
-/// `[x, y, a, b, c, opacity, r, g, b, depth, features..]`.
+/// Where each gradient sits in one splat's row of the backward accumulation buffer
+/// ([`grad_stride`] floats): ∂L with respect to the splat's 2D quantities.
+pub mod slot {
+    /// ∂L/∂(x, y) of the projected mean (2 floats).
+    pub const XY: usize = 0;
+    /// ∂L/∂(a, b, c) of the conic (3 floats).
+    pub const CONIC: usize = 2;
+    /// ∂L/∂o of the activated opacity.
+    pub const OPACITY: usize = 5;
+    /// ∂L/∂(r, g, b) of the view-dependent colour (3 floats).
+    pub const COLOR: usize = 6;
+    /// ∂L/∂z of the view depth.
+    pub const DEPTH: usize = 9;
+    /// ∂L/∂f_k of the features (`num_features` floats).
+    pub const FEATURES: usize = 10;
+}
+
+/// Floats per splat in the backward accumulation buffer (layout [`slot`]).
 pub fn grad_stride(num_features: usize) -> usize {
-    10 + num_features
+    slot::FEATURES + num_features
+}
+
+/// The named 2D gradients of one accumulator row (without the features).
+pub fn splat_grads(row: &[f32]) -> Splat2dGrads {
+    let at = |k: usize| row[k];
+    Splat2dGrads {
+        xy: [at(slot::XY), at(slot::XY + 1)],
+        conic: [at(slot::CONIC), at(slot::CONIC + 1), at(slot::CONIC + 2)],
+        opacity: at(slot::OPACITY),
+        color: [at(slot::COLOR), at(slot::COLOR + 1), at(slot::COLOR + 2)],
+        depth: at(slot::DEPTH),
+    }
 }
 
 #[inline(always)]
@@ -469,18 +498,18 @@ fn backward_tile_impl(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads
         }
         let dst = &mut buf[j * stride..(j + 1) * stride];
         let sum = |a: &[f32; HALF]| a.iter().sum::<f32>();
-        dst[0] += sum(&gx);
-        dst[1] += sum(&gy);
-        dst[2] += sum(&ga);
-        dst[3] += sum(&gb);
-        dst[4] += sum(&gc);
-        dst[5] += sum(&go);
+        dst[slot::XY] += sum(&gx);
+        dst[slot::XY + 1] += sum(&gy);
+        dst[slot::CONIC] += sum(&ga);
+        dst[slot::CONIC + 1] += sum(&gb);
+        dst[slot::CONIC + 2] += sum(&gc);
+        dst[slot::OPACITY] += sum(&go);
         for c in 0..3 {
-            dst[6 + c] += sum(&gcol[c]);
+            dst[slot::COLOR + c] += sum(&gcol[c]);
         }
-        dst[9] += sum(&gz);
-        for k in 0..f {
-            dst[10 + k] += gfeat[k];
+        dst[slot::DEPTH] += sum(&gz);
+        for (d, g) in dst[slot::FEATURES..].iter_mut().zip(&gfeat[..f]) {
+            *d += g;
         }
     }
 }
@@ -497,22 +526,11 @@ fn backward_tile_avx2(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads
     backward_tile_impl(b, tile, st, g, buf)
 }
 
-pub(crate) fn has_avx2() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
-
 /// Forward pass over one tile. Forward and backward always take the same code
 /// path so that their skip and stop decisions agree bit for bit.
 pub fn forward_tile(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&Accum, &mut [f32])>) {
     #[cfg(target_arch = "x86_64")]
-    if has_avx2() {
+    if transsplat_scene::cpu::has_avx2() {
         // SAFETY: the CPU supports AVX2 and FMA (checked above).
         return unsafe { forward_tile_avx2(b, tile, out, acc) };
     }
@@ -523,7 +541,7 @@ pub fn forward_tile(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&Ac
 /// (layout [`grad_stride`]).
 pub fn backward_tile(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads, buf: &mut [f32]) {
     #[cfg(target_arch = "x86_64")]
-    if has_avx2() {
+    if transsplat_scene::cpu::has_avx2() {
         // SAFETY: the CPU supports AVX2 and FMA (checked above).
         return unsafe { backward_tile_avx2(b, tile, st, g, buf) };
     }

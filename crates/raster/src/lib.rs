@@ -29,7 +29,8 @@ pub mod sh;
 
 use bin::Binned;
 use kernel::{Accum, ForwardState, PixelGrads, TileOut};
-use project::{GaussianParams, Splat2dGrads, View};
+use project::{GaussianParams, View};
+use rayon::iter::Either;
 use rayon::prelude::*;
 pub use transsplat_scene::sh_coeffs;
 use transsplat_scene::{Camera, Gaussians};
@@ -305,19 +306,23 @@ pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, gr
     let kc = sh_coeffs(splats.sh_degree) * 3;
     let active = splats.active_sh_degree.min(splats.sh_degree);
     let nsh = sh_coeffs(active) * 3;
-    let ptr = (
-        par::SharedMut(grads.means.as_mut_ptr()),
-        par::SharedMut(grads.log_scales.as_mut_ptr()),
-        par::SharedMut(grads.rotations.as_mut_ptr()),
-        par::SharedMut(grads.opacity_logits.as_mut_ptr()),
-        par::SharedMut(grads.sh.as_mut_ptr()),
-        par::SharedMut(grads.features.as_mut_ptr()),
-        par::SharedMut(grads.means2d.as_mut_ptr()),
-    );
     // Walk the Gaussians in index order (not depth order): parameter reads and gradient
     // writes then stream through memory, and only the accumulator row is a random read.
     let pos = depth_positions(&b.ids, n);
-    (0..n).into_par_iter().with_min_len(2048).for_each(|i| {
+    let features = match f {
+        0 => Either::Right((0..n).into_par_iter().map(|_| <&mut [f32]>::default())),
+        _ => Either::Left(grads.features[..n * f].par_chunks_mut(f)),
+    };
+    let rows = (
+        &mut grads.means,
+        &mut grads.log_scales,
+        &mut grads.rotations,
+        &mut grads.opacity_logits,
+        grads.sh.par_chunks_mut(kc),
+        features,
+        &mut grads.means2d,
+    );
+    rows.into_par_iter().enumerate().with_min_len(2048).for_each(|(i, (mean, ls, quat, op, sh, ft, m2))| {
         let j = pos[i];
         if j == u32::MAX {
             return;
@@ -329,43 +334,29 @@ pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, gr
         if a.iter().all(|&v| v == 0.0) {
             return;
         }
-        let sg = Splat2dGrads {
-            xy: [a[0], a[1]],
-            conic: [a[2], a[3], a[4]],
-            opacity: a[5],
-            color: [a[6], a[7], a[8]],
-            depth: a[9],
-        };
+        let sg = kernel::splat_grads(a);
         let mut vsh = [0.0f32; 48];
         let gg = project::project_backward(&view, &splats.params(i), &sg, &mut vsh[..nsh]);
-        // SAFETY: every task writes only Gaussian i's entries, all in bounds (checked by
-        // the `Grads` shapes above).
-        unsafe {
-            let m = &mut *ptr.0.get().add(i);
-            let l = &mut *ptr.1.get().add(i);
-            for k in 0..3 {
-                m[k] += gg.mean[k];
-                l[k] += gg.log_scale[k];
-            }
-            let r = &mut *ptr.2.get().add(i);
-            for k in 0..4 {
-                r[k] += gg.quat[k];
-            }
-            *ptr.3.get().add(i) += gg.opacity_logit;
-            for (k, v) in vsh[..nsh].iter().enumerate() {
-                *ptr.4.get().add(i * kc + k) += v;
-            }
-            for k in 0..f {
-                *ptr.5.get().add(i * f + k) += a[10 + k];
-            }
-            let m2 = &mut *ptr.6.get().add(i);
-            m2[0] += a[0];
-            m2[1] += a[1];
+        for k in 0..3 {
+            mean[k] += gg.mean[k];
+            ls[k] += gg.log_scale[k];
         }
+        for (r, g) in quat.iter_mut().zip(gg.quat) {
+            *r += g;
+        }
+        *op += gg.opacity_logit;
+        for (s, v) in sh.iter_mut().zip(&vsh[..nsh]) {
+            *s += v;
+        }
+        for (d, g) in ft.iter_mut().zip(&a[kernel::slot::FEATURES..]) {
+            *d += g;
+        }
+        m2[0] += sg.xy[0];
+        m2[1] += sg.xy[1];
     });
 }
 
-/// Per-Gaussian statistics of one view (SPEC, Method 1), and the splat-back.
+/// Per-Gaussian statistics of one view (docs/method.md#m1-visibility-and-source-masses), and the splat-back.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct GaussianStats {
     /// Σ_p T_i(p) α_i(p): total blend weight.

@@ -7,6 +7,7 @@
 //!
 //! [`load`] picks the format from a path. Every returned camera passes
 //! [`Camera::validate`]; distortion that is not exactly zero is refused, never ignored.
+//! [`is_held_out`] is the train/test split of a camera list ([`LLFF_HOLD`]).
 
 use crate::{Camera, Error, Result};
 use std::path::{Path, PathBuf};
@@ -18,6 +19,15 @@ pub mod transforms;
 
 pub use colmap::{ColmapModel, Point3D};
 pub use transforms::Transforms;
+
+/// INRIA's `llffhold`: every 8th camera, in image-name order, is a test view.
+pub const LLFF_HOLD: usize = 8;
+
+/// Whether camera `index` is held out for testing when every `every`-th one is
+/// (`index % every == 0`; none when `every` is 0).
+pub fn is_held_out(index: usize, every: usize) -> bool {
+    every > 0 && index.is_multiple_of(every)
+}
 
 /// Loads cameras from `path`, detecting the format:
 ///

@@ -10,6 +10,9 @@
 //! - [`scene_paths`]: finding the scene and cameras in an INRIA 3DGS output folder.
 //! - [`atomic`]: write-to-temporary-then-rename for every output.
 //! - [`archive`]: named little-endian arrays with a checksum (checkpoints).
+//! - [`resample`]: separable resampling of interleaved images by per-axis taps.
+//! - [`cpu`], [`timing`]: run-time CPU feature detection and best-of-N benchmark
+//!   timing, shared by the crates above this one.
 //!
 //! Every error names the file it is about ([`Error`]).
 
@@ -17,13 +20,16 @@ pub mod archive;
 pub mod atomic;
 pub mod camera;
 pub mod cameras;
+pub mod cpu;
 pub mod error;
 pub mod gaussians;
 pub mod image;
 pub mod npy;
 pub mod ply;
+pub mod resample;
 pub mod rng;
 pub mod scene_paths;
+pub mod timing;
 
 pub use camera::Camera;
 pub use error::{Error, Result};

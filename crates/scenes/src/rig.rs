@@ -3,14 +3,14 @@
 //! extrinsics). World frame: z up, the backdrop wall at +y, cameras on the −y side.
 
 use crate::build::{cross, normalize, sub};
+use transsplat_scene::cameras::is_held_out;
 use transsplat_scene::Camera;
 
-/// Every `LLFF_HOLD`-th camera (index % 8 == 0) is a test view.
-pub const LLFF_HOLD: usize = 8;
+pub use transsplat_scene::cameras::LLFF_HOLD;
 
 /// True for the held-out test views (llffhold = 8: indices 0, 8, 16, ...).
 pub fn is_test(index: usize) -> bool {
-    index % LLFF_HOLD == 0
+    is_held_out(index, LLFF_HOLD)
 }
 
 /// Where the cameras are and what they look at.

@@ -12,7 +12,7 @@
 //! delay, which INRIA's defaults disable): log-linear from `1.6e-4 · extent` to
 //! `1.6e-6 · extent` over `max_steps`, constant after.
 
-use crate::model::Model;
+use crate::model::{Model, Reindex};
 use rayon::prelude::*;
 use transsplat_raster::Grads;
 
@@ -165,6 +165,21 @@ impl Adam {
             groups: Group::ALL.map(|g| GroupState { width: g.width(model), ..Default::default() }),
             betas: (0.9, 0.999),
             eps: 1e-15,
+        }
+    }
+
+    /// Applies `r` to every moment; fresh rows start at zero, as INRIA's
+    /// `densification_postfix` does. A group never stepped stays lazily empty.
+    pub fn reindex(&mut self, r: &Reindex) {
+        // Exhaustive destructuring: a new field must be handled here.
+        let Adam { groups, betas: _, eps: _ } = self;
+        for g in groups.iter_mut() {
+            if g.m.is_empty() && g.v.is_empty() {
+                continue; // never stepped (e.g. frozen group)
+            }
+            let w = g.width;
+            g.m = r.gather_fresh_zero(&g.m, w, 0.0);
+            g.v = r.gather_fresh_zero(&g.v, w, 0.0);
         }
     }
 

@@ -7,8 +7,8 @@ use crate::densify::{DensifyConfig, DensifyStats};
 use crate::loss::image_loss;
 use crate::model::Model;
 use crate::trainer::{TrainConfig, Trainer};
-use std::time::Instant;
 use transsplat_raster::{backward, bench, render, Grads, ImageGrads, RenderOptions};
+use transsplat_scene::timing::best_of;
 
 /// Seconds per operation for one configuration (best of the repetitions).
 #[derive(Clone, Debug, Default)]
@@ -26,18 +26,6 @@ pub struct TrainBench {
     pub adam: f64,
     /// One densify-and-prune pass (amortised over `interval` = 100 steps in INRIA's schedule).
     pub densify: f64,
-}
-
-fn time(f: impl FnOnce()) -> f64 {
-    let t = Instant::now();
-    f();
-    t.elapsed().as_secs_f64()
-}
-
-/// Best of `reps` runs after a warm-up.
-fn best_time(reps: usize, mut f: impl FnMut()) -> f64 {
-    f();
-    (0..reps.max(1)).map(|_| time(&mut f)).fold(f64::INFINITY, f64::min)
 }
 
 /// Runs the benchmark for `n` Gaussians at `width × height`, `reps` repetitions each.
@@ -60,19 +48,21 @@ pub fn run(n: usize, width: u32, height: u32, reps: usize) -> TrainBench {
     // Interleaved, best of `reps`: the machine may be shared, and the minimum is the
     // least disturbed measurement of each.
     for _ in 0..reps.max(1) + 1 {
-        forward_backward = forward_backward.min(time(|| {
+        let (t, ()) = best_of(0, 1, || {
             let s = trainer.splats();
             let (img, frame) = render(&s, &cam, &opts);
             let mut grads = Grads::zeros(s.len(), 3, 0);
             let v: Vec<f32> = img.rgb.iter().zip(&target).map(|(a, b)| (a - b) / px as f32).collect();
             backward(&s, &cam, &frame, &ImageGrads { rgb: &v, ..Default::default() }, &mut grads);
-        }));
-        step = step.min(time(|| {
+        });
+        forward_backward = forward_backward.min(t);
+        let (t, ()) = best_of(0, 1, || {
             trainer.step(&cam, &target, None).expect("finite benchmark step");
-        }));
+        });
+        step = step.min(t);
     }
     let (img, frame) = trainer.render(&cam);
-    let loss = best_time(reps, || {
+    let (loss, ()) = best_of(1, reps, || {
         let _ = image_loss(&img.rgb, &target, img.width, img.height, None, 0.2);
     });
     let mut grads = trainer.zero_grads();
@@ -80,7 +70,7 @@ pub fn run(n: usize, width: u32, height: u32, reps: usize) -> TrainBench {
     let mut adam_model = trainer.model.clone();
     let mut adam = Adam::new(&adam_model);
     let lr = trainer.learning_rates();
-    let adam_t = best_time(reps, || {
+    let (adam_t, ()) = best_of(1, reps, || {
         let _ = adam.step(&mut adam_model, &grads, &lr);
     });
     drop(adam_model);
@@ -95,12 +85,10 @@ pub fn run(n: usize, width: u32, height: u32, reps: usize) -> TrainBench {
     for (i, a) in stats.grad_accum.iter_mut().enumerate() {
         *a = if i % 20 == 0 { 1e-3 } else { 1e-5 } * stats.denom[i] as f32;
     }
-    let densify = {
-        let mut t = trainer.clone();
-        t.stats = stats;
-        let start = Instant::now();
+    let mut t = trainer.clone();
+    t.stats = stats;
+    let (densify, ()) = best_of(0, 1, || {
         let _ = t.densify_and_prune(None);
-        start.elapsed().as_secs_f64()
-    };
+    });
     TrainBench { gaussians: n, width, height, forward_backward, step, loss, adam: adam_t, densify }
 }

@@ -1,6 +1,6 @@
-//! Checkpoints of long runs (training here, the edit loop in the edit crate):
-//! everything needed to continue bit-identically, in a [`transsplat_scene::archive`]
-//! file written atomically into a checkpoint folder.
+//! Checkpoints of long runs (training in [`fit`](mod@crate::fit), the edit loop in the
+//! edit crate): everything needed to continue bit-identically, in a
+//! [`transsplat_scene::archive`] file written atomically into a checkpoint folder.
 //!
 //! A checkpoint holds the model (every array, extras and feature channels), the
 //! Adam moments and step counters per group, the densification statistics, the step,
@@ -14,9 +14,7 @@
 //! tests of resuming) and whether to resume.
 
 use crate::adam::{Adam, Group, GroupState};
-use crate::dataset::{Dataset, LoadOptions};
 use crate::densify::DensifyStats;
-use crate::fit::{FitOptions, FitState};
 use crate::model::Model;
 use crate::trainer::{TrainConfig, TrainError, Trainer};
 use rand::SeedableRng;
@@ -24,11 +22,8 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
-use transsplat_scene::archive::{Archive, Hasher, Writer};
+use transsplat_scene::archive::{Archive, Writer};
 use transsplat_scene::{sh_coeffs, Extra, Gaussians};
-
-/// File name of a training checkpoint inside the checkpoint folder.
-pub const TRAIN_FILE: &str = "train.ckpt";
 
 /// What identifies a run: its settings as text (compared line by line when
 /// resuming) and a hash of its inputs.
@@ -69,34 +64,6 @@ impl RunId {
         }
         Ok(())
     }
-}
-
-/// The identity of a training run: the optimiser and loading settings, and a hash of
-/// the dataset (cameras, images, masks, points).
-pub fn train_run_id(ds: &Dataset, opts: &FitOptions, load: &LoadOptions) -> RunId {
-    let settings = format!(
-        "{:#?}\nmax_sh_degree: {}\nrandom_points: {}\n{load:#?}",
-        opts.config, opts.max_sh_degree, opts.random_points
-    );
-    let view_hash = |v: &crate::dataset::View| {
-        let mut h = Hasher::default();
-        h.str(&format!("{:?}", v.camera)).f32s(&v.image);
-        if let Some(w) = &v.weights {
-            h.f32s(w);
-        }
-        h.finish()
-    };
-    let train: Vec<u64> = ds.train.par_iter().map(view_hash).collect();
-    let test: Vec<u64> = ds.test.par_iter().map(view_hash).collect();
-    let mut h = Hasher::default();
-    h.str(&format!("{:?}\n{:?}", ds.kind, ds.cameras));
-    train.iter().chain(&[u64::MAX]).chain(&test).for_each(|&x| {
-        h.u64(x);
-    });
-    if let Some(p) = &ds.points {
-        h.f32s(p.positions.as_flattened()).f32s(p.colors.as_flattened());
-    }
-    RunId { settings, inputs: h.finish() }
 }
 
 /// Where and how often checkpoints are written, and the last one made.
@@ -162,32 +129,6 @@ impl Checkpointer {
             Some(s) => format!("the last good checkpoint (step {s}) remains in {}", self.dir.display()),
             None => "no checkpoint had been written yet".into(),
         }
-    }
-
-    /// Writes a training checkpoint.
-    pub fn save_train(&mut self, trainer: &Trainer, state: &FitState) -> Result<(), TrainError> {
-        let id = self.id.clone();
-        let mut w = Writer::new();
-        id.put(&mut w);
-        put_trainer(&mut w, "tr", trainer);
-        put_rng(&mut w, "fit.order_rng", &state.order_rng);
-        w.u64("fit.stack", state.stack.iter().map(|&i| i as u64).collect::<Vec<_>>());
-        w.f32("fit.ema_loss", vec![state.ema_loss]);
-        self.write(TRAIN_FILE, &w, trainer.step).map(|_| ())
-    }
-
-    /// Restores a training run from its checkpoint; `config` must be the run's.
-    pub fn load_train(&mut self, config: TrainConfig) -> Result<(Trainer, FitState), TrainError> {
-        let a = self.read(TRAIN_FILE)?;
-        let trainer = get_trainer(&a, "tr", config)?;
-        let order_rng = get_rng(&a, "fit.order_rng")?;
-        let stack: Vec<usize> = a.u64("fit.stack")?.iter().map(|&i| i as usize).collect();
-        if let Some(&bad) = stack.iter().find(|&&i| i >= u32::MAX as usize) {
-            return Err(a.err(format!("view index {bad} out of range")).into());
-        }
-        let ema_loss = a.f32_len("fit.ema_loss", 1)?[0];
-        self.last = Some(trainer.step);
-        Ok((trainer, FitState { order_rng, stack, ema_loss }))
     }
 
     /// Removes the checkpoint folder (after the run's output is complete).

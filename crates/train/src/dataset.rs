@@ -33,7 +33,8 @@
 
 use crate::points::{self, PointCloud};
 use std::path::{Path, PathBuf};
-use transsplat_scene::cameras::{colmap, inria, transforms};
+use transsplat_scene::cameras::{colmap, inria, is_held_out, transforms, LLFF_HOLD};
+use transsplat_scene::resample::{separable, Taps};
 use transsplat_scene::{image, Camera, Error, Result};
 
 /// How to load a dataset.
@@ -51,7 +52,7 @@ pub struct LoadOptions {
 
 impl Default for LoadOptions {
     fn default() -> Self {
-        LoadOptions { resolution: 1, background: [0.0; 3], use_masks: true, test_every: 8 }
+        LoadOptions { resolution: 1, background: [0.0; 3], use_masks: true, test_every: LLFF_HOLD }
     }
 }
 
@@ -185,7 +186,7 @@ pub fn load(dir: &Path, opts: &LoadOptions) -> Result<Dataset> {
             None
         };
         let view = View { camera: scale_camera(&cam, w, h), image: data, weights, path };
-        if opts.test_every > 0 && n > 1 && k % opts.test_every == 0 {
+        if n > 1 && is_held_out(k, opts.test_every) {
             test.push(view);
         } else {
             train.push(view);
@@ -298,7 +299,7 @@ pub fn resample(src: &[f32], w: usize, h: usize, c: usize, nw: usize, nh: usize)
     if (w, h) == (nw, nh) {
         return src.to_vec();
     }
-    let taps = |n: usize, m: usize| -> Vec<Vec<(usize, f32)>> {
+    let taps = |n: usize, m: usize| -> Vec<Taps> {
         let s = n as f64 / m as f64;
         (0..m)
             .map(|o| {
@@ -316,27 +317,7 @@ pub fn resample(src: &[f32], w: usize, h: usize, c: usize, nw: usize, nh: usize)
             })
             .collect()
     };
-    let (tx, ty) = (taps(w, nw), taps(h, nh));
-    let mut rows = vec![0.0f32; h * nw * c];
-    for y in 0..h {
-        for (ox, t) in tx.iter().enumerate() {
-            for &(ix, wgt) in t {
-                for k in 0..c {
-                    rows[(y * nw + ox) * c + k] += wgt * src[(y * w + ix) * c + k];
-                }
-            }
-        }
-    }
-    let mut out = vec![0.0f32; nh * nw * c];
-    for (oy, t) in ty.iter().enumerate() {
-        for &(iy, wgt) in t {
-            let (dst, s) = (&mut out[oy * nw * c..(oy + 1) * nw * c], &rows[iy * nw * c..(iy + 1) * nw * c]);
-            for (d, v) in dst.iter_mut().zip(s) {
-                *d += wgt * v;
-            }
-        }
-    }
-    out
+    separable(src, w, h, c, &taps(w, nw), &taps(h, nh))
 }
 
 #[cfg(test)]

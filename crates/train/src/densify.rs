@@ -130,6 +130,15 @@ impl DensifyStats {
         DensifyStats { grad_accum: vec![0.0; n], denom: vec![0; n], max_radii: vec![0.0; n] }
     }
 
+    /// Applies `r`; fresh rows start at zero.
+    pub fn reindex(&mut self, r: &Reindex) {
+        // Exhaustive destructuring: a new field must be handled here.
+        let DensifyStats { grad_accum, denom, max_radii } = self;
+        *grad_accum = r.gather_fresh_zero(grad_accum, 1, 0.0);
+        *denom = r.gather_fresh_zero(denom, 1, 0);
+        *max_radii = r.gather_fresh_zero(max_radii, 1, 0.0);
+    }
+
     /// Adds one view: `means2d_grad` is ∂L/∂(pixel mean) from the rasterizer's
     /// backward pass, `radii` the view's per-axis radii (0 = not visible).
     pub fn record(&mut self, means2d_grad: &[[f32; 2]], radii: &[[u32; 2]], width: u32, height: u32) {

@@ -1,9 +1,11 @@
 //! A whole training run on a [`Dataset`]: initialisation, the INRIA loop (one
 //! random training view per step, drawn without replacement per epoch), periodic
-//! test PSNR, and the INRIA output folder.
+//! test PSNR, the INRIA output folder, and the run's checkpoints (its identity
+//! [`train_run_id`], [`Checkpointer::save_train`] and [`Checkpointer::load_train`]).
 
-use crate::checkpoint::Control;
-use crate::dataset::{Dataset, View};
+use crate::checkpoint::{get_rng, get_trainer, non_finite_parameters, put_rng, put_trainer};
+use crate::checkpoint::{Checkpointer, Control, RunId};
+use crate::dataset::{Dataset, LoadOptions, View};
 use crate::init::{gaussians_from_points, random_points};
 use crate::loss::psnr;
 use crate::model::Model;
@@ -11,7 +13,9 @@ use crate::trainer::{scene_extent, StepReport, TrainConfig, TrainError, Trainer}
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
+use transsplat_scene::archive::{Hasher, Writer};
 use transsplat_scene::{cameras::inria, ply, Camera, Error};
 
 /// Options of a run beyond the optimiser's [`TrainConfig`].
@@ -114,6 +118,66 @@ impl FitState {
     }
 }
 
+/// File name of a training checkpoint inside the checkpoint folder.
+pub const TRAIN_FILE: &str = "train.ckpt";
+
+/// The identity of a training run: the optimiser and loading settings, and a hash of
+/// the dataset (cameras, images, masks, points).
+pub fn train_run_id(ds: &Dataset, opts: &FitOptions, load: &LoadOptions) -> RunId {
+    let settings = format!(
+        "{:#?}\nmax_sh_degree: {}\nrandom_points: {}\n{load:#?}",
+        opts.config, opts.max_sh_degree, opts.random_points
+    );
+    let view_hash = |v: &View| {
+        let mut h = Hasher::default();
+        h.str(&format!("{:?}", v.camera)).f32s(&v.image);
+        if let Some(w) = &v.weights {
+            h.f32s(w);
+        }
+        h.finish()
+    };
+    let train: Vec<u64> = ds.train.par_iter().map(view_hash).collect();
+    let test: Vec<u64> = ds.test.par_iter().map(view_hash).collect();
+    let mut h = Hasher::default();
+    h.str(&format!("{:?}\n{:?}", ds.kind, ds.cameras));
+    train.iter().chain(&[u64::MAX]).chain(&test).for_each(|&x| {
+        h.u64(x);
+    });
+    if let Some(p) = &ds.points {
+        h.f32s(p.positions.as_flattened()).f32s(p.colors.as_flattened());
+    }
+    RunId { settings, inputs: h.finish() }
+}
+
+/// Training checkpoints: the trainer and the loop's [`FitState`], in [`TRAIN_FILE`].
+impl Checkpointer {
+    /// Writes a training checkpoint.
+    pub fn save_train(&mut self, trainer: &Trainer, state: &FitState) -> Result<(), TrainError> {
+        let id = self.id.clone();
+        let mut w = Writer::new();
+        id.put(&mut w);
+        put_trainer(&mut w, "tr", trainer);
+        put_rng(&mut w, "fit.order_rng", &state.order_rng);
+        w.u64("fit.stack", state.stack.iter().map(|&i| i as u64).collect::<Vec<_>>());
+        w.f32("fit.ema_loss", vec![state.ema_loss]);
+        self.write(TRAIN_FILE, &w, trainer.step).map(|_| ())
+    }
+
+    /// Restores a training run from its checkpoint; `config` must be the run's.
+    pub fn load_train(&mut self, config: TrainConfig) -> Result<(Trainer, FitState), TrainError> {
+        let a = self.read(TRAIN_FILE)?;
+        let trainer = get_trainer(&a, "tr", config)?;
+        let order_rng = get_rng(&a, "fit.order_rng")?;
+        let stack: Vec<usize> = a.u64("fit.stack")?.iter().map(|&i| i as usize).collect();
+        if let Some(&bad) = stack.iter().find(|&&i| i >= u32::MAX as usize) {
+            return Err(a.err(format!("view index {bad} out of range")).into());
+        }
+        let ema_loss = a.f32_len("fit.ema_loss", 1)?[0];
+        self.last = Some(trainer.step);
+        Ok((trainer, FitState { order_rng, stack, ema_loss }))
+    }
+}
+
 /// Trains `trainer` on `ds` for `config.iterations` steps from its current step,
 /// calling `on_progress` after every step. Returns the final test evaluation.
 pub fn fit(
@@ -181,7 +245,7 @@ pub fn fit_with(
 /// and `out/cameras.json`, each file atomically. Returns the PLY path.
 /// Refuses (naming the parameter group) to write a model holding NaN or infinite values.
 pub fn write_output(out: &Path, trainer: &Trainer, cameras: &[Camera]) -> transsplat_scene::Result<PathBuf> {
-    if let Some(group) = crate::checkpoint::non_finite_parameters(&trainer.model) {
+    if let Some(group) = non_finite_parameters(&trainer.model) {
         return Err(Error::format(
             out,
             format!("not written: the trained {group} hold NaN or infinite values"),

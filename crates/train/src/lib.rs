@@ -12,13 +12,13 @@
 //! - [`trainer`]: [`Trainer`], one optimisation step as a library call, split into
 //!   `begin_step` / `forward_backward` / `finish_step` so other crates can add
 //!   their own gradient terms before the Adam step.
-//! - [`dataset`], [`points`], [`init`], [`fit`]: COLMAP / transforms.json / INRIA
+//! - [`dataset`], [`points`], [`init`], [`fit`](mod@fit): COLMAP / transforms.json / INRIA
 //!   folders at a chosen downscale, point-cloud initialisation (k-d tree nearest
 //!   neighbours) or random points in the cameras' view, the training loop with test
-//!   PSNR, and the INRIA output folder.
+//!   PSNR and its checkpoints, and the INRIA output folder.
 //! - [`checkpoint`]: checkpoints of long runs (bit-identical resume), the run's
 //!   identity, and [`Control`] (Ctrl-C, checkpoint interval, deterministic stop).
-//! - [`bench`]: time per training step against forward + backward alone.
+//! - [`bench`](mod@bench): time per training step against forward + backward alone.
 //!
 //! Everything random is seeded (ChaCha8).
 
@@ -46,6 +46,6 @@ pub use fit::{
     evaluate, fit, fit_with, initial_model, write_output, Eval, FitOptions, FitState, InitSource, Progress,
 };
 pub use loss::{image_loss, psnr, ssim, ImageLoss};
-pub use model::{apply_reindex, Model, Reindex};
+pub use model::{Model, Reindex};
 pub use points::PointCloud;
-pub use trainer::{scene_extent, StepReport, TrainConfig, TrainError, Trainer, ViewPass};
+pub use trainer::{apply_reindex, scene_extent, StepReport, TrainConfig, TrainError, Trainer, ViewPass};

@@ -1,17 +1,18 @@
-//! The trainable model and the one function that keeps every per-Gaussian array
+//! The trainable model, and the rearrangement that keeps every per-Gaussian array
 //! aligned when Gaussians are added or removed.
 //!
 //! A [`Model`] owns a [`Gaussians`] (the INRIA parameters plus carried `extra`
 //! properties such as an object `label`) and learnable per-Gaussian `features`
 //! (the semantic latents of the edit stage). Densification and pruning describe what
-//! they did as a [`Reindex`] — new row `j` is a copy of old row `src[j]` — and
-//! [`apply_reindex`] applies it to the model, the Adam moments and the densification
-//! statistics together. It destructures each struct exhaustively, so adding a field
-//! anywhere without handling it here is a compile error. Callers holding their own
-//! per-Gaussian arrays apply the returned [`Reindex`] to them with [`Reindex::apply`].
+//! they did as a [`Reindex`] — new row `j` is a copy of old row `src[j]` — and each
+//! holder of per-Gaussian state applies it with its own `reindex` method
+//! ([`Model::reindex`], [`Adam::reindex`](crate::Adam::reindex),
+//! [`DensifyStats::reindex`](crate::DensifyStats::reindex)), which destructures
+//! its struct exhaustively, so adding a field without handling it there is a compile
+//! error; [`crate::trainer::apply_reindex`] applies it to all three together. Callers
+//! holding their own per-Gaussian arrays apply the returned [`Reindex`] to them with
+//! [`Reindex::apply`].
 
-use crate::adam::Adam;
-use crate::densify::DensifyStats;
 use transsplat_raster::Splats;
 use transsplat_scene::{Extra, Gaussians};
 
@@ -79,6 +80,36 @@ impl Model {
     /// The features of Gaussian `i`.
     pub fn features_of(&self, i: usize) -> &[f32] {
         &self.features[i * self.num_features..(i + 1) * self.num_features]
+    }
+
+    /// Applies `r` to every per-Gaussian array: parameters, extras and features.
+    pub fn reindex(&mut self, r: &Reindex) {
+        assert_eq!(
+            self.len(),
+            r.old_len,
+            "rearrangement made for {} Gaussians, model has {}",
+            r.old_len,
+            self.len()
+        );
+        // Exhaustive destructuring: a new field must be handled here.
+        let Model {
+            gaussians: Gaussians { means, log_scales, rotations, opacity_logits, sh_degree, sh, extra },
+            features,
+            num_features,
+        } = self;
+        let Extra { names, values } = extra;
+        let kc = transsplat_scene::sh_coeffs(*sh_degree) * 3;
+        *means = unflat(r.gather(flat3(means), 3));
+        *log_scales = unflat(r.gather(flat3(log_scales), 3));
+        *rotations = unflat(r.gather(rotations.as_flattened(), 4));
+        *opacity_logits = r.gather(opacity_logits, 1);
+        *sh = r.gather(sh, kc);
+        if !names.is_empty() {
+            *values = r.gather(values, names.len());
+        }
+        if *num_features > 0 {
+            *features = r.gather(features, *num_features);
+        }
     }
 }
 
@@ -174,53 +205,6 @@ fn flat3(v: &[[f32; 3]]) -> &[f32] {
 
 fn unflat<const N: usize>(v: Vec<f32>) -> Vec<[f32; N]> {
     v.chunks_exact(N).map(|c| std::array::from_fn(|k| c[k])).collect()
-}
-
-/// Applies `r` to every per-Gaussian array: the model's parameters, extras and
-/// features, every Adam moment, and the densification statistics. The one place
-/// where Gaussians are added or removed.
-pub fn apply_reindex(model: &mut Model, adam: &mut Adam, stats: &mut DensifyStats, r: &Reindex) {
-    assert_eq!(
-        model.len(),
-        r.old_len,
-        "rearrangement made for {} Gaussians, model has {}",
-        r.old_len,
-        model.len()
-    );
-    // Exhaustive destructuring: a new field anywhere must be handled here.
-    let Model {
-        gaussians: Gaussians { means, log_scales, rotations, opacity_logits, sh_degree, sh, extra },
-        features,
-        num_features,
-    } = model;
-    let Extra { names, values } = extra;
-    let kc = transsplat_scene::sh_coeffs(*sh_degree) * 3;
-    *means = unflat(r.gather(flat3(means), 3));
-    *log_scales = unflat(r.gather(flat3(log_scales), 3));
-    *rotations = unflat(r.gather(rotations.as_flattened(), 4));
-    *opacity_logits = r.gather(opacity_logits, 1);
-    *sh = r.gather(sh, kc);
-    if !names.is_empty() {
-        *values = r.gather(values, names.len());
-    }
-    if *num_features > 0 {
-        *features = r.gather(features, *num_features);
-    }
-
-    let Adam { groups, betas: _, eps: _ } = adam;
-    for g in groups.iter_mut() {
-        if g.m.is_empty() && g.v.is_empty() {
-            continue; // never stepped (e.g. frozen group): stays lazily empty
-        }
-        let w = g.width;
-        g.m = r.gather_fresh_zero(&g.m, w, 0.0);
-        g.v = r.gather_fresh_zero(&g.v, w, 0.0);
-    }
-
-    let DensifyStats { grad_accum, denom, max_radii } = stats;
-    *grad_accum = r.gather_fresh_zero(grad_accum, 1, 0.0);
-    *denom = r.gather_fresh_zero(denom, 1, 0);
-    *max_radii = r.gather_fresh_zero(max_radii, 1, 0.0);
 }
 
 #[cfg(test)]

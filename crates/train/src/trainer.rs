@@ -18,12 +18,12 @@
 //! optimiser step (so the Adam update of that iteration is lost for the tensors it
 //! replaces); we take the Adam step first, then densify. Gaussians added or removed
 //! are applied to the model, the Adam moments and the statistics by
-//! [`crate::model::apply_reindex`].
+//! [`apply_reindex`].
 
 use crate::adam::{Adam, Group, LearningRates};
 use crate::densify::{self, DensifyConfig, DensifyCounts, DensifyStats};
 use crate::loss::{image_loss, ImageLoss};
-use crate::model::{apply_reindex, Model, Reindex};
+use crate::model::{Model, Reindex};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -119,6 +119,15 @@ pub struct Trainer {
     pub step: u64,
     pub active_sh_degree: u32,
     pub rng: ChaCha8Rng,
+}
+
+/// Applies `r` to every per-Gaussian array: the model's ([`Model::reindex`]), the
+/// Adam moments ([`Adam::reindex`]) and the densification statistics
+/// ([`DensifyStats::reindex`]). The one place where Gaussians are added or removed.
+pub fn apply_reindex(model: &mut Model, adam: &mut Adam, stats: &mut DensifyStats, r: &Reindex) {
+    model.reindex(r);
+    adam.reindex(r);
+    stats.reindex(r);
 }
 
 /// INRIA's `getNerfppNorm` radius: 1.1 × the largest distance of a camera centre

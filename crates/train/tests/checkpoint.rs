@@ -5,10 +5,10 @@
 //! or a truncated one, is refused naming the file; a poisoned learning rate stops
 //! the run naming the step and the parameter group.
 
-use transsplat_raster::{render, RenderOptions, Splats};
-use transsplat_scenes::{build, is_test, SceneConfig};
-use transsplat_train::checkpoint::{train_run_id, TRAIN_FILE};
-use transsplat_train::dataset::{scale_camera, Dataset, DatasetKind, View};
+mod common;
+
+use transsplat_train::dataset::Dataset;
+use transsplat_train::fit::{train_run_id, TRAIN_FILE};
 use transsplat_train::{
     fit_with, initial_model, scene_extent, Checkpointer, Control, DensifyConfig, FitOptions, FitState,
     LoadOptions, PointCloud, TrainConfig, TrainError, Trainer,
@@ -17,26 +17,7 @@ use transsplat_train::{
 const ITERS: u64 = 48;
 
 fn dataset() -> Dataset {
-    let scene = build("tabletop", &SceneConfig::quick()).unwrap();
-    let splats = Splats::new(&scene.gaussians);
-    let mut ds = Dataset {
-        kind: DatasetKind::Inria,
-        cameras: scene.cameras.clone(),
-        train: Vec::new(),
-        test: Vec::new(),
-        points: None,
-        points_path: None,
-    };
-    for (k, cam) in scene.cameras.iter().enumerate() {
-        let camera = scale_camera(cam, 40, 30);
-        let (img, _) = render(&splats, &camera, &RenderOptions { background: scene.background });
-        let view = View { camera, image: img.rgb, weights: None, path: cam.name.clone().into() };
-        if is_test(k) {
-            ds.test.push(view)
-        } else {
-            ds.train.push(view)
-        }
-    }
+    let (scene, mut ds) = common::tabletop(40, 30);
     let mut cloud = PointCloud::default();
     for (i, m) in scene.gaussians.means.iter().enumerate().step_by(10) {
         cloud.positions.push(*m);

@@ -4,11 +4,10 @@
 //! The held-out views (every 8th camera) must reach a stated PSNR within a bounded
 //! number of steps.
 
+mod common;
+
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use transsplat_raster::{render, RenderOptions, Splats};
-use transsplat_scenes::{build, is_test, SceneConfig};
-use transsplat_train::dataset::{scale_camera, Dataset, DatasetKind, View};
 use transsplat_train::{
     evaluate, fit, initial_model, scene_extent, DensifyConfig, FitOptions, PointCloud, TrainConfig, Trainer,
 };
@@ -19,27 +18,8 @@ const MIN_TEST_PSNR: f32 = 24.0;
 
 #[test]
 fn tabletop_training_reaches_the_test_psnr() {
-    let scene = build("tabletop", &SceneConfig::quick()).unwrap();
+    let (scene, mut ds) = common::tabletop(64, 48);
     let bg = scene.background;
-    let splats = Splats::new(&scene.gaussians);
-    let mut ds = Dataset {
-        kind: DatasetKind::Inria,
-        cameras: scene.cameras.clone(),
-        train: Vec::new(),
-        test: Vec::new(),
-        points: None,
-        points_path: None,
-    };
-    for (k, cam) in scene.cameras.iter().enumerate() {
-        let camera = scale_camera(cam, 64, 48);
-        let (img, _) = render(&splats, &camera, &RenderOptions { background: bg });
-        let view = View { camera, image: img.rgb, weights: None, path: cam.name.clone().into() };
-        if is_test(k) {
-            ds.test.push(view)
-        } else {
-            ds.train.push(view)
-        }
-    }
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let mut cloud = PointCloud::default();
     for m in scene.gaussians.means.iter().step_by(8) {

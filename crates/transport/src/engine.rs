@@ -1,4 +1,4 @@
-//! The stabilised-scaling solver (SPEC Method 4; paper eq. (5) / appendix "View-wise
+//! The stabilised-scaling solver (docs/method.md#m4-the-uot-solver; paper eq. (5) / appendix "View-wise
 //! Unbalanced Semantic Transport").
 //!
 //! # The iteration
@@ -54,6 +54,7 @@ use crate::problem::{Problem, Support};
 use crate::solution::{finish, Potentials, Raw, Solution};
 use crate::Params;
 use rayon::prelude::*;
+use transsplat_scene::cpu::has_avx2;
 
 /// Engine rows per parallel chunk.
 const CH: usize = 256;
@@ -351,17 +352,6 @@ fn chunk_dispatch<L: Layout>(
     }
     let _ = avx2;
     chunk_body(l, ctx, r0, e0, k, rows, acc_out, row_mass)
-}
-
-fn has_avx2() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
 }
 
 struct Engine<'p, L: Layout> {

@@ -1,5 +1,5 @@
 //! Entropic unbalanced optimal transport, the view-wise solver of TransSplat (paper
-//! Sec. 3.3, eq. (5); appendix "View-wise Unbalanced Semantic Transport"; SPEC Method 4).
+//! Sec. 3.3, eq. (5); appendix "View-wise Unbalanced Semantic Transport"; docs/method.md#m4-the-uot-solver).
 //! Knows nothing about Gaussians: n sources with masses `a`, m targets with masses `b`,
 //! a cost `C` (dense, top-k or any sparse support) and
 //!

@@ -1,5 +1,5 @@
 //! Plain log-domain solver in `f64`: the same Gauss–Seidel fixed point as the
-//! stabilised engine (SPEC Method 4), computed by a log-sum-exp over every entry in
+//! stabilised engine (docs/method.md#m4-the-uot-solver), computed by a log-sum-exp over every entry in
 //! both half-sweeps, i.e. two exps per entry per sweep. It is the test oracle and the
 //! baseline of `transsplat bench transport`; use [`crate::solve`] for real work.
 

@@ -274,7 +274,7 @@ impl Solution {
     /// Gradient of the optimal objective with respect to the cost, in the layout of
     /// [`Solution::sparse_plan`]. By the envelope theorem (the objective is minimised
     /// over T and linear in C) it is the optimal plan T* itself; the edit engine pushes
-    /// it through the cost's dependence on the semantic latents (SPEC Method 7).
+    /// it through the cost's dependence on the semantic latents (docs/method.md#m7-losses).
     pub fn cost_gradient(&self, p: &Problem<'_>) -> Vec<f32> {
         self.sparse_plan(p)
     }

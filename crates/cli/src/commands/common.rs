@@ -55,6 +55,23 @@ pub fn load_cameras(cameras_arg: Option<&Path>, scene: &Path) -> Result<(Vec<Cam
     Ok((cams, path))
 }
 
+/// The first of `inputs` that the output folder `out` (absolute) holds: directly (`out`
+/// is the input folder, or the folder of an input file) or, with `nested`, at any depth
+/// (for an output folder that is replaced whole). Inputs that cannot be resolved are
+/// skipped.
+pub fn input_in_output<'a>(out: &Path, inputs: &[&'a Path], nested: bool) -> Option<&'a Path> {
+    inputs.iter().copied().find(|input| {
+        let Ok(inp) = input.canonicalize() else { return false };
+        if nested {
+            inp.starts_with(out)
+        } else if inp.is_dir() {
+            inp == out
+        } else {
+            inp.parent().unwrap_or(Path::new("")) == out
+        }
+    })
+}
+
 /// Creates the output folder, refusing one that is an input file or holds the inputs
 /// in a way outputs could overwrite.
 pub fn prepare_out_dir(out: &Path, inputs: &[&Path]) -> Result<PathBuf> {
@@ -65,21 +82,12 @@ pub fn prepare_out_dir(out: &Path, inputs: &[&Path]) -> Result<PathBuf> {
         .with_context(|| format!("{}: cannot create output folder", out.display()))?;
     let out =
         out.canonicalize().with_context(|| format!("{}: cannot resolve output folder", out.display()))?;
-    for input in inputs {
-        if let Ok(inp) = input.canonicalize() {
-            let dir = if inp.is_dir() {
-                inp.clone()
-            } else {
-                inp.parent().map(Path::to_path_buf).unwrap_or_default()
-            };
-            if out == dir {
-                bail!(
-                    "{}: output folder is the folder of the input {}; choose another so no input can be overwritten",
-                    out.display(),
-                    input.display()
-                );
-            }
-        }
+    if let Some(input) = input_in_output(&out, inputs, false) {
+        bail!(
+            "{}: output folder is the folder of the input {}; choose another so no input can be overwritten",
+            out.display(),
+            input.display()
+        );
     }
     let probe = out.join(".transsplat-write-test");
     std::fs::write(&probe, b"")

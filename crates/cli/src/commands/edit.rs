@@ -1,6 +1,8 @@
 //! `transsplat edit`: language-driven editing of a scene with any 2D editor.
 
-use super::common::{load_cameras, load_scene, parse_rgb, progress, CheckpointArgs, SceneArgs};
+use super::common::{
+    input_in_output, load_cameras, load_scene, parse_rgb, progress, CheckpointArgs, SceneArgs,
+};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -9,6 +11,7 @@ use transsplat_edit::{semantic, EditConfig, EditError, EditJob, Method, Progress
 use transsplat_editors::{CommandEditor, Editor, FolderEditor, SimulatedEditor};
 use transsplat_eval::edit_output::{self, EditOutput, MARKER};
 use transsplat_scene::atomic::StagedDir;
+use transsplat_scenes::is_test;
 
 /// DINOv2 features are reduced to this many channels (a fixed random projection) before
 /// the engine's PCA to `semantic_dim`: 384 or 768 channels per pixel of every view would
@@ -141,15 +144,11 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         c.validate().map_err(|e| anyhow::anyhow!("{}: {e}", cam_path.display()))?;
     }
     let out_abs = std::path::absolute(&args.out).unwrap_or(args.out.clone());
-    for input in [&scene_path, &cam_path] {
-        if let Ok(i) = input.canonicalize() {
-            if i.starts_with(&out_abs) || i.parent() == Some(out_abs.as_path()) {
-                bail!("{}: output folder would contain the input {}", args.out.display(), input.display());
-            }
-        }
+    if let Some(input) = input_in_output(&out_abs, &[scene_path.as_path(), cam_path.as_path()], true) {
+        bail!("{}: output folder would contain the input {}", args.out.display(), input.display());
     }
-    let test: Vec<usize> = (0..cams.len()).filter(|i| i % 8 == 0).collect();
-    let mut edit_views: Vec<usize> = (0..cams.len()).filter(|i| i % 8 != 0).collect();
+    let test: Vec<usize> = (0..cams.len()).filter(|&i| is_test(i)).collect();
+    let mut edit_views: Vec<usize> = (0..cams.len()).filter(|&i| !is_test(i)).collect();
     if edit_views.is_empty() {
         edit_views = (0..cams.len()).collect();
     }

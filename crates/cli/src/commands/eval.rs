@@ -1,5 +1,5 @@
 //! `transsplat eval`: CLIP-sim and CLIP-dir of edited renders against source renders
-//! (Instruct-NeRF2NeRF `ClipSimilarity` protocol, SPEC Evaluation), for the output of any
+//! (Instruct-NeRF2NeRF `ClipSimilarity` protocol, docs/method.md#v1-clip-metrics), for the output of any
 //! method. Prints a table and writes per-view and mean values as JSON (atomically).
 
 use std::ops::ControlFlow;
@@ -11,7 +11,7 @@ use clap::Args;
 use transsplat_eval::clip_metrics::{pair_views, score, Error as ClipError};
 use transsplat_models::clip::Clip;
 use transsplat_models::ModelDir;
-use transsplat_scene::{atomic, image};
+use transsplat_scene::{atomic, cameras::LLFF_HOLD, image};
 
 use super::common::{load_cameras, load_scene, progress, SceneArgs};
 
@@ -43,7 +43,7 @@ pub struct EvalArgs {
     #[arg(long)]
     pub target_prompt: String,
     /// Score every n-th view (sorted by name; 8 = the llffhold test views).
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = LLFF_HOLD)]
     pub every: usize,
     /// Where to write the scores.
     #[arg(long, default_value = "metrics.json")]

@@ -5,7 +5,7 @@ use super::common::{parse_rgb, prepare_out_dir, progress, CheckpointArgs};
 use anyhow::{bail, Context, Result};
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
-use transsplat_train::checkpoint::{train_run_id, TRAIN_FILE};
+use transsplat_train::fit::{train_run_id, TRAIN_FILE};
 use transsplat_train::{
     dataset, fit_with, initial_model, scene_extent, write_output, DensifyConfig, FitOptions, FitState,
     InitSource, LearningRates, LoadOptions, TrainConfig, TrainError, Trainer,

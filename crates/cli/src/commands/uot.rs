@@ -6,6 +6,7 @@ use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use transsplat_scene::npy;
+use transsplat_scene::timing::try_best_of;
 use transsplat_transport::{reference, solve, solve_with, Params, Problem, Solution, Workspace};
 
 /// Parses a marginal relaxation: a positive number or `inf`.
@@ -240,16 +241,9 @@ pub fn bench_problem(n: usize, m: usize, seed: u64) -> (Vec<f32>, Vec<f32>, Vec<
     (a, b, c)
 }
 
-fn best_of<T>(repeat: usize, mut f: impl FnMut() -> Result<T>) -> Result<(f64, T)> {
-    let mut best = f64::INFINITY;
-    let mut last = None;
-    for _ in 0..repeat.max(1) {
-        let t0 = Instant::now();
-        let v = f()?;
-        best = best.min(t0.elapsed().as_secs_f64());
-        last = Some(v);
-    }
-    Ok((best, last.expect("at least one run")))
+/// [`try_best_of`] without warm-up, with the error type fixed for `?` in the closures.
+fn best_of<T>(repeat: usize, f: impl FnMut() -> Result<T>) -> Result<(f64, T)> {
+    try_best_of(0, repeat, f)
 }
 
 /// Runs `transsplat bench transport`.

@@ -41,7 +41,7 @@ pub fn sd15_models(device: &Device) -> candle_core::Result<Sd15> {
     let unet_cfg = serde_json::from_str::<UNetConfig>(SD15_UNET).map_err(parse)?;
     let vae_cfg = serde_json::from_str::<VaeConfig>(SD15_VAE).map_err(parse)?;
     let to_candle = |e: crate::Error| candle_core::Error::Msg(e.to_string());
-    let vb = crate::bench::random_weights(device, |vb| {
+    let vb = crate::weights::random_weights(device, |vb| {
         UNet::new(vb.pp("unet"), unet_cfg.clone())?;
         Vae::new(vb.pp("vae"), vae_cfg.clone())?;
         Ok(())

@@ -1,0 +1,31 @@
+//! Shared by the integration tests that train on the built-in tabletop scene.
+
+use transsplat_raster::{render, RenderOptions, Splats};
+use transsplat_scenes::{build, is_test, Scene, SceneConfig};
+use transsplat_train::dataset::{scale_camera, Dataset, DatasetKind, View};
+
+/// The quick tabletop scene and a dataset of its renders at `width × height`, every
+/// 8th view held out for testing; no point cloud.
+pub fn tabletop(width: usize, height: usize) -> (Scene, Dataset) {
+    let scene = build("tabletop", &SceneConfig::quick()).unwrap();
+    let splats = Splats::new(&scene.gaussians);
+    let mut ds = Dataset {
+        kind: DatasetKind::Inria,
+        cameras: scene.cameras.clone(),
+        train: Vec::new(),
+        test: Vec::new(),
+        points: None,
+        points_path: None,
+    };
+    for (k, cam) in scene.cameras.iter().enumerate() {
+        let camera = scale_camera(cam, width, height);
+        let (img, _) = render(&splats, &camera, &RenderOptions { background: scene.background });
+        let view = View { camera, image: img.rgb, weights: None, path: cam.name.clone().into() };
+        if is_test(k) {
+            ds.test.push(view)
+        } else {
+            ds.train.push(view)
+        }
+    }
+    (scene, ds)
+}
