@@ -23,6 +23,8 @@ struct Cli {
     command: Command,
 }
 
+// Parsed once per process: the size of the largest variant does not matter.
+#[allow(clippy::large_enum_variant)]
 #[derive(Subcommand, Debug)]
 enum Command {
     /// The built-in benchmark: a built-in scene, the simulated editor, TransSplat and
@@ -62,7 +64,7 @@ enum BenchCommand {
     Train(commands::train::BenchArgs),
 }
 
-/// Set by SIGINT / Ctrl-C; long commands stop at the next step, write nothing partial, and
+/// Set by SIGINT / Ctrl-C or SIGTERM; long commands stop at the next step, write nothing partial, and
 /// `train` / `edit` write a checkpoint to resume from.
 static CANCEL: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
@@ -75,12 +77,17 @@ fn main() {
         Command::Demo(_) | Command::Edit(_) | Command::Eval(_) | Command::Render(_) | Command::Train(_)
     );
     if polls_cancel {
+        // SIGINT, SIGTERM (what `timeout`, docker and batch schedulers send) and SIGHUP.
         let _ = ctrlc::set_handler(|| {
             if CANCEL.swap(true, std::sync::atomic::Ordering::SeqCst) {
+                // A second signal quits at once, still ending any editor process group
+                // and removing the staging folders.
+                transsplat_editors::child::kill_all();
+                transsplat_scene::atomic::remove_staged();
                 std::process::exit(130);
             }
             eprintln!(
-                "interrupt: stopping at the next step (train and edit save a checkpoint); Ctrl-C again quits at once"
+                "interrupt: stopping at the next step (train and edit save a checkpoint); a second signal quits at once"
             );
         });
     }

@@ -31,28 +31,35 @@
 //!   (≥ 0; e.g. the text-guidance magnitude of a diffusion editor), used instead of the
 //!   mask or the change map.
 //!
-//! A non-zero exit status is an error that quotes the last lines of the command's
-//! stderr. Views without an output are skipped with a warning, no output at all is an
-//! error — exactly as for the [`folder`](crate::folder) editor, which reads the outputs.
+//! The command runs in a process group of its own. Its stdout and stderr stream to
+//! `WORK/editor.stdout.log` and `WORK/editor.stderr.log`; a non-zero exit status is an
+//! error that quotes the last lines of the stderr log (bounded). A time limit
+//! ([`CommandEditor::with_timeout`]) ends a hung command and a cancel flag
+//! ([`CommandEditor::with_cancel`]: Ctrl-C, SIGTERM) ends it early; either way its whole
+//! process group is ended, so nothing is orphaned ([`crate::child`]). Views without an
+//! output are skipped with a warning, no output at all is an error — exactly as for the
+//! [`folder`](crate::folder) editor, which reads the outputs.
 //!
 //! Before each run the files this protocol names (inputs, outputs, masks and attention
 //! maps of the current views, and `request.json`) are removed from `WORK`; nothing else
 //! in it is touched.
 
+use crate::child::{tail, Run};
 use crate::folder::{read_edits, view_entries};
 use crate::{EditedView, Editor, Error, SourceView};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Command;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
 use transsplat_scene::{atomic, image};
-
-/// Number of stderr lines quoted when the command fails.
-const STDERR_LINES: usize = 12;
 
 /// Runs a command line over exported views (see the module doc).
 #[derive(Clone, Debug)]
-pub struct CommandEditor {
+pub struct CommandEditor<'c> {
     command: String,
     work_dir: PathBuf,
+    timeout: Option<Duration>,
+    cancel: Option<&'c AtomicBool>,
 }
 
 fn io_err(path: &Path, e: std::io::Error) -> Error {
@@ -67,17 +74,22 @@ fn remove_if_present(path: &Path) -> Result<(), Error> {
     }
 }
 
-/// The last `n` non-empty lines of `bytes`, joined with " | ".
-fn tail(bytes: &[u8], n: usize) -> String {
-    let text = String::from_utf8_lossy(bytes);
-    let lines: Vec<&str> = text.lines().map(str::trim_end).filter(|l| !l.trim().is_empty()).collect();
-    lines[lines.len().saturating_sub(n)..].join(" | ")
-}
-
-impl CommandEditor {
+impl<'c> CommandEditor<'c> {
     /// `command_line` is run with `sh -c`; `work_dir` is created if needed.
     pub fn new(command_line: impl Into<String>, work_dir: impl Into<PathBuf>) -> Self {
-        CommandEditor { command: command_line.into(), work_dir: work_dir.into() }
+        CommandEditor { command: command_line.into(), work_dir: work_dir.into(), timeout: None, cancel: None }
+    }
+
+    /// Ends the command (and its process group) when it runs longer than `limit`.
+    pub fn with_timeout(mut self, limit: Duration) -> Self {
+        self.timeout = Some(limit);
+        self
+    }
+
+    /// Ends the command (and its process group) when `flag` becomes true.
+    pub fn with_cancel(mut self, flag: &'c AtomicBool) -> Self {
+        self.cancel = Some(flag);
+        self
     }
 
     pub fn command_line(&self) -> &str {
@@ -119,7 +131,7 @@ impl CommandEditor {
     }
 }
 
-impl Editor for CommandEditor {
+impl Editor for CommandEditor<'_> {
     fn name(&self) -> &str {
         "command"
     }
@@ -130,31 +142,26 @@ impl Editor for CommandEditor {
         }
         let (input, output, request) = self.prepare(views, prompt)?;
         tracing::info!("running editor command: {}", self.command);
-        let result = Command::new("sh")
-            .arg("-c")
+        let work = input.parent().unwrap_or(&input);
+        let mut cmd = Command::new("sh");
+        cmd.arg("-c")
             .arg(&self.command)
-            .current_dir(input.parent().unwrap_or(&input))
+            .current_dir(work)
             .env("TRANSSPLAT_INPUT", &input)
             .env("TRANSSPLAT_OUTPUT", &output)
             .env("TRANSSPLAT_PROMPT", prompt)
-            .env("TRANSSPLAT_REQUEST", &request)
-            .stdin(Stdio::null())
-            .output()
-            .map_err(|e| Error::Command(format!("cannot run `sh -c {:?}`: {e}", self.command)))?;
-        for line in String::from_utf8_lossy(&result.stdout).lines() {
-            tracing::debug!("editor: {line}");
-        }
-        if !result.status.success() {
-            let err = tail(&result.stderr, STDERR_LINES);
+            .env("TRANSSPLAT_REQUEST", &request);
+        let run = Run { log_dir: work, timeout: self.timeout, cancel: self.cancel };
+        let status = run.status(cmd, &format!("editor command `{}`", self.command))?;
+        if !status.success() {
+            let err = tail(&run.stderr_log());
             let err = if err.is_empty() { "no stderr output".to_string() } else { err };
             return Err(Error::Command(format!(
-                "editor command `{}` failed ({}): {err}",
-                self.command, result.status
+                "editor command `{}` failed ({status}): {err}",
+                self.command
             )));
         }
-        for line in String::from_utf8_lossy(&result.stderr).lines() {
-            tracing::debug!("editor stderr: {line}");
-        }
+        tracing::debug!("editor output: {}", run.log_dir.display());
         read_edits(&output, views, Some(&output.join("attention"))).map_err(|e| match e {
             Error::NoEdits(msg) => {
                 Error::NoEdits(format!("editor command `{}` wrote nothing usable: {msg}", self.command))

@@ -5,13 +5,15 @@
 //! feature model of the job, for source renders and edited images alike.
 //!
 //! - [`folder`]: edited images made by any 2D tool, named like the views.
-//! - [`command`]: runs a user command on an exported folder (a file protocol).
+//! - [`command`]: runs a user command on an exported folder (a file protocol), as a
+//!   [`child`] process: own process group, output to logs, time limit, cancellation.
 //! - [`simulated`]: ground-truth edits of the built-in scenes, corrupted per view the
 //!   way 2D editors fail, at a chosen severity.
 //! - [`features`]: built-in appearance features Φ (CIELAB + local texture statistics),
 //!   the fallback semantic features E used when no feature model is given, and the
 //!   change map that serves as attention when an editor gives none.
 
+pub mod child;
 pub mod command;
 pub mod features;
 pub mod folder;

@@ -40,10 +40,42 @@ pub fn read(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(|e| Error::io(path, e))
 }
 
+/// Staging folders of this process not yet committed or dropped, for [`remove_staged`].
+static STAGED: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+/// Removes every staging folder of this process: for a hard exit (a second Ctrl-C or
+/// SIGTERM) that skips the destructors.
+pub fn remove_staged() {
+    let staged = std::mem::take(&mut *STAGED.lock().unwrap_or_else(|e| e.into_inner()));
+    for temp in staged {
+        let _ = std::fs::remove_dir_all(&temp);
+    }
+}
+
+/// Removes `.{name}.partial-<pid>` folders in `parent` left by processes of this
+/// machine that no longer run (killed without a chance to clean up). Linux only: where
+/// `/proc` is absent nothing is removed.
+fn remove_abandoned(parent: &Path, name: &str) {
+    if !Path::new("/proc/self").exists() {
+        return;
+    }
+    let prefix = format!(".{name}.partial-");
+    let Ok(entries) = std::fs::read_dir(parent) else { return };
+    for e in entries.flatten() {
+        let file = e.file_name().to_string_lossy().into_owned();
+        let Some(pid) = file.strip_prefix(&prefix).and_then(|p| p.parse::<u32>().ok()) else { continue };
+        if pid != std::process::id() && !Path::new(&format!("/proc/{pid}")).exists() {
+            tracing::info!("removing {} left by an ended run", e.path().display());
+            let _ = std::fs::remove_dir_all(e.path());
+        }
+    }
+}
+
 /// A folder written as a whole: files go into a hidden temporary folder beside the
 /// target, which replaces the target only in [`StagedDir::commit`]. Dropping it
 /// without committing removes the temporary folder, so an interrupted run leaves
-/// the target as it was.
+/// the target as it was; [`remove_staged`] does the same for a hard exit, and a
+/// later run removes the temporary folders of runs that were killed.
 #[derive(Debug)]
 pub struct StagedDir {
     target: PathBuf,
@@ -71,11 +103,13 @@ impl StagedDir {
             target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
         let parent = target.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
         std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+        remove_abandoned(parent, &name);
         let temp = parent.join(format!(".{name}.partial-{}", std::process::id()));
         if temp.exists() {
             std::fs::remove_dir_all(&temp).map_err(|e| Error::io(&temp, e))?;
         }
         std::fs::create_dir_all(&temp).map_err(|e| Error::io(&temp, e))?;
+        STAGED.lock().unwrap_or_else(|e| e.into_inner()).push(temp.clone());
         Ok(StagedDir { target: target.to_path_buf(), temp, committed: false })
     }
 
@@ -104,6 +138,7 @@ impl Drop for StagedDir {
         if !self.committed {
             let _ = std::fs::remove_dir_all(&self.temp);
         }
+        STAGED.lock().unwrap_or_else(|e| e.into_inner()).retain(|t| t != &self.temp);
     }
 }
 
@@ -135,5 +170,26 @@ mod tests {
         std::fs::create_dir(&foreign).unwrap();
         std::fs::write(foreign.join("precious"), b"").unwrap();
         assert!(StagedDir::begin(&foreign, "done.json").is_err());
+    }
+
+    #[test]
+    fn hard_exits_and_killed_runs_leave_no_staging_folder() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("out");
+        let s = StagedDir::begin(&target, "done.json").unwrap();
+        let temp = s.path().to_path_buf();
+        remove_staged();
+        assert!(!temp.exists());
+        std::mem::forget(s);
+        // A folder of a process that no longer runs is removed by the next run; one of
+        // a running process (this one, another target) is left alone.
+        let dead = dir.path().join(".out.partial-4294967294");
+        let mine = dir.path().join(format!(".other.partial-{}", std::process::id()));
+        std::fs::create_dir_all(&dead).unwrap();
+        std::fs::create_dir_all(&mine).unwrap();
+        let s = StagedDir::begin(&target, "done.json").unwrap();
+        assert_eq!(!dead.exists(), Path::new("/proc/self").exists());
+        assert!(mine.exists());
+        drop(s);
     }
 }

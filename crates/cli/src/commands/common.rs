@@ -96,6 +96,26 @@ pub fn prepare_out_dir(out: &Path, inputs: &[&Path]) -> Result<PathBuf> {
     Ok(out)
 }
 
+/// Parses a finite number (a flag value; NaN and infinities are refused).
+pub fn finite_f32(s: &str) -> Result<f32, String> {
+    finite_f64(s).map(|v| v as f32).and_then(|v| {
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(format!("{s:?} is out of range"))
+        }
+    })
+}
+
+/// Parses a finite number (a flag value; NaN and infinities are refused).
+pub fn finite_f64(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        Ok(_) => Err(format!("expected a finite number, got {s:?}")),
+        Err(e) => Err(format!("{s:?}: {e}")),
+    }
+}
+
 /// Parses `R,G,B` with components in [0, 1].
 pub fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
     let v: Vec<f32> =

@@ -25,7 +25,7 @@ pub struct DemoArgs {
     #[arg(long, default_value = "make the ball blue")]
     pub prompt: String,
     /// Severity of the simulated editor's failures (0 = perfect edits).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, value_parser = super::common::finite_f32, default_value_t = 1.0)]
     pub severity: f32,
     /// Methods to run (comma-separated): transsplat, naive, masklift, no_leaksup, no_prototype, geometric.
     #[arg(long, value_delimiter = ',')]

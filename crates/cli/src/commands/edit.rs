@@ -53,6 +53,11 @@ pub struct EditArgs {
     /// Command line to run (`command` editor).
     #[arg(long)]
     pub command: Option<String>,
+    /// Seconds the command editor may run before it is ended with its whole process
+    /// group (0 = no limit). The default, 4 hours, is generous for hundreds of views on a
+    /// GPU; a hung editor is ended instead of waited for forever.
+    #[arg(long, default_value_t = 14_400)]
+    pub editor_timeout: u64,
     /// InstructPix2Pix pipeline folder (`ip2p` editor), as written by
     /// `hf download timbrooks/instruct-pix2pix --local-dir DIR`.
     #[arg(long, value_name = "DIR")]
@@ -63,7 +68,7 @@ pub struct EditArgs {
     #[arg(long, value_name = "DIR")]
     pub dino_weights: Option<PathBuf>,
     /// Simulated editor severity (0 = perfect edits).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, value_parser = super::common::finite_f32, default_value_t = 1.0)]
     pub severity: f32,
     /// TOML file of edit settings.
     #[arg(long)]
@@ -169,7 +174,11 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         }
         EditorKind::Command => {
             let cmd = args.command.as_ref().context("--editor command needs --command CMD")?;
-            Box::new(CommandEditor::new(cmd.clone(), staged.path().join("editor")))
+            let mut e = CommandEditor::new(cmd.clone(), staged.path().join("editor")).with_cancel(cancel);
+            if args.editor_timeout > 0 {
+                e = e.with_timeout(std::time::Duration::from_secs(args.editor_timeout));
+            }
+            Box::new(e)
         }
         EditorKind::Simulated => {
             let scene = builtin_scene(&args.scene.scene)?;

@@ -24,7 +24,7 @@ pub struct BuiltinSceneArgs {
     #[arg(long)]
     pub views: Option<usize>,
     /// Gaussian density multiplier (default 1, about 40k Gaussians; 0.12 with --quick).
-    #[arg(long)]
+    #[arg(long, value_parser = super::common::finite_f32)]
     pub detail: Option<f32>,
     /// Seed of the procedural generation.
     #[arg(long, default_value_t = 0)]

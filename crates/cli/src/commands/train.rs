@@ -45,7 +45,7 @@ pub struct TrainArgs {
     #[arg(long)]
     pub no_masks: bool,
     /// Opacity learning rate (INRIA: 0.025; up to 0.05).
-    #[arg(long, default_value_t = 0.025)]
+    #[arg(long, value_parser = super::common::finite_f32, default_value_t = 0.025)]
     pub opacity_lr: f32,
     /// Densify until this step (INRIA: 15000).
     #[arg(long, default_value_t = 15_000)]

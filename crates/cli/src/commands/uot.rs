@@ -43,7 +43,7 @@ pub struct UotArgs {
     #[arg(long)]
     pub target: PathBuf,
     /// Entropic regularisation eps > 0.
-    #[arg(long)]
+    #[arg(long, value_parser = super::common::finite_f64)]
     pub eps: f64,
     /// Source marginal relaxation tau_s > 0, or `inf` for a hard marginal.
     #[arg(long, value_parser = parse_tau)]
@@ -55,7 +55,7 @@ pub struct UotArgs {
     #[arg(long, default_value_t = 30)]
     pub iters: usize,
     /// Stop when the potentials change by at most tol*eps in a sweep.
-    #[arg(long)]
+    #[arg(long, value_parser = super::common::finite_f64)]
     pub tol: Option<f64>,
     /// Keep each target's k cheapest sources (0 = dense).
     #[arg(long, default_value_t = 0)]
@@ -168,7 +168,7 @@ pub struct BenchArgs {
     /// k of the top-k runs.
     #[arg(long, default_value_t = 128)]
     pub topk: usize,
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, value_parser = super::common::finite_f64, default_value_t = 0.05)]
     pub eps: f64,
     #[arg(long, value_parser = parse_tau, default_value = "1")]
     pub tau_s: f64,
