@@ -55,26 +55,55 @@ pub fn load_cameras(cameras_arg: Option<&Path>, scene: &Path) -> Result<(Vec<Cam
     Ok((cams, path))
 }
 
-/// The first of `inputs` that the output folder `out` (absolute) holds: directly (`out`
-/// is the input folder, or the folder of an input file) or, with `nested`, at any depth
-/// (for an output folder that is replaced whole). Inputs that cannot be resolved are
-/// skipped.
-pub fn input_in_output<'a>(out: &Path, inputs: &[&'a Path], nested: bool) -> Option<&'a Path> {
-    inputs.iter().copied().find(|input| {
-        let Ok(inp) = input.canonicalize() else { return false };
-        if nested {
-            inp.starts_with(out)
-        } else if inp.is_dir() {
-            inp == out
+/// `p` made absolute with every existing part resolved (links, `..`), so paths that
+/// do not exist yet compare with the inputs they might overwrite.
+fn resolved(p: &Path) -> PathBuf {
+    let abs = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let mut existing = abs.as_path();
+    let mut rest = Vec::new();
+    while !existing.exists() {
+        let (Some(parent), Some(name)) = (existing.parent(), existing.file_name()) else { return abs };
+        rest.push(name.to_os_string());
+        existing = parent;
+    }
+    let mut out = existing.canonicalize().unwrap_or_else(|_| existing.to_path_buf());
+    out.extend(rest.iter().rev());
+    out
+}
+
+/// The one rule for every command's output, file or folder: refused (naming both paths)
+/// when it is an input, contains an input, or lies inside an input folder (a dataset
+/// given as a folder) or the `images` folder of a dataset beside an input file.
+/// `inputs` are the paths as given and as resolved (both may be listed).
+pub fn check_output(out: &Path, inputs: &[&Path]) -> Result<()> {
+    let o = resolved(out);
+    for input in inputs {
+        let i = resolved(input);
+        let images = i.parent().map(|d| d.join("images"));
+        let why = if o == i {
+            "is the input"
+        } else if i.starts_with(&o) {
+            "contains the input"
+        } else if i.is_dir() && o.starts_with(&i) {
+            "lies inside the input folder"
+        } else if images.is_some_and(|d| d.is_dir() && o.starts_with(&d)) {
+            "lies inside the images folder of the dataset of"
         } else {
-            inp.parent().unwrap_or(Path::new("")) == out
-        }
-    })
+            continue;
+        };
+        bail!(
+            "{}: the output {why} {}; choose another output so no input can be overwritten",
+            out.display(),
+            input.display()
+        );
+    }
+    Ok(())
 }
 
 /// Creates the output folder, refusing one that is an input file or holds the inputs
 /// in a way outputs could overwrite.
 pub fn prepare_out_dir(out: &Path, inputs: &[&Path]) -> Result<PathBuf> {
+    check_output(out, inputs)?;
     if out.exists() && !out.is_dir() {
         bail!("{}: output path exists and is not a folder", out.display());
     }
@@ -82,7 +111,9 @@ pub fn prepare_out_dir(out: &Path, inputs: &[&Path]) -> Result<PathBuf> {
         .with_context(|| format!("{}: cannot create output folder", out.display()))?;
     let out =
         out.canonicalize().with_context(|| format!("{}: cannot resolve output folder", out.display()))?;
-    if let Some(input) = input_in_output(&out, inputs, false) {
+    // Outputs are written straight into this folder: the folder of an input file is
+    // refused too.
+    if let Some(input) = inputs.iter().find(|i| i.canonicalize().is_ok_and(|i| i.parent() == Some(&out))) {
         bail!(
             "{}: output folder is the folder of the input {}; choose another so no input can be overwritten",
             out.display(),

@@ -1,8 +1,6 @@
 //! `transsplat edit`: language-driven editing of a scene with any 2D editor.
 
-use super::common::{
-    input_in_output, load_cameras, load_scene, parse_rgb, progress, CheckpointArgs, SceneArgs,
-};
+use super::common::{check_output, load_cameras, load_scene, parse_rgb, progress, CheckpointArgs, SceneArgs};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -148,10 +146,9 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
     for c in &cams {
         c.validate().map_err(|e| anyhow::anyhow!("{}: {e}", cam_path.display()))?;
     }
-    let out_abs = std::path::absolute(&args.out).unwrap_or(args.out.clone());
-    if let Some(input) = input_in_output(&out_abs, &[scene_path.as_path(), cam_path.as_path()], true) {
-        bail!("{}: output folder would contain the input {}", args.out.display(), input.display());
-    }
+    let mut inputs = vec![args.scene.scene.as_path(), scene_path.as_path(), cam_path.as_path()];
+    inputs.extend(args.edits.as_deref());
+    check_output(&args.out, &inputs)?;
     let test: Vec<usize> = (0..cams.len()).filter(|&i| is_test(i)).collect();
     let mut edit_views: Vec<usize> = (0..cams.len()).filter(|&i| !is_test(i)).collect();
     if edit_views.is_empty() {

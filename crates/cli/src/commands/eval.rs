@@ -54,9 +54,9 @@ pub struct EvalArgs {
 pub fn run(args: &EvalArgs, cancel: &AtomicBool) -> Result<()> {
     let hint = format!("hf download openai/clip-vit-large-patch14 --local-dir {}", args.clip.display());
     let dir = ModelDir::open(&args.clip, "CLIP", &hint)?;
-    if [&args.source, &args.edited].iter().any(|d| args.out.starts_with(d)) {
-        bail!("{}: the output must not be inside an input folder", args.out.display());
-    }
+    let mut inputs = vec![args.clip.as_path(), args.source.as_path(), args.edited.as_path()];
+    inputs.extend(args.cameras.as_deref());
+    super::common::check_output(&args.out, &inputs)?;
     // With --cameras the inputs are scenes: render them first (kept until scoring ends).
     let rendered = match &args.cameras {
         Some(cams) => {

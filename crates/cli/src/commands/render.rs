@@ -30,7 +30,7 @@ pub struct RenderArgs {
 pub fn run(args: &RenderArgs, cancel: &AtomicBool) -> Result<()> {
     let (g, scene_path) = load_scene(&args.scene)?;
     let (cams, cam_path) = load_cameras(args.cameras.as_deref(), &args.scene.scene)?;
-    let out = prepare_out_dir(&args.out, &[&scene_path, &cam_path])?;
+    let out = prepare_out_dir(&args.out, &[&args.scene.scene, &scene_path, &cam_path])?;
     render_views(&g, &cams, &out, args.background, args.raw, cancel)?;
     tracing::info!("rendered {} views to {}", cams.len(), out.display());
     Ok(())

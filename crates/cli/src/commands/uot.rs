@@ -78,6 +78,9 @@ fn read_npy(path: &Path, what: &str, dims: usize) -> Result<npy::Array> {
 
 /// Runs `transsplat uot`.
 pub fn run(args: &UotArgs) -> Result<()> {
+    if let Some(out) = &args.out {
+        super::common::check_output(out, &[&args.cost, &args.source, &args.target])?;
+    }
     let c = read_npy(&args.cost, "cost", 2)?;
     let a = read_npy(&args.source, "source masses", 1)?;
     let b = read_npy(&args.target, "target masses", 1)?;

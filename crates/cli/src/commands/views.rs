@@ -52,7 +52,7 @@ pub fn export(args: &ExportArgs) -> Result<()> {
             cams.len()
         );
     }
-    let out = prepare_out_dir(&args.out, &[&scene_path, &cam_path])?;
+    let out = prepare_out_dir(&args.out, &[&args.scene.scene, &scene_path, &cam_path])?;
     // never overwrite images this command did not write (e.g. a dataset's own images)
     if !out.join("views.json").is_file() {
         if let Some(&i) = edit.iter().find(|&&i| out.join(format!("{}.png", cams[i].stem())).exists()) {
