@@ -195,13 +195,13 @@ fn cases() -> Vec<Case> {
             "render --scene {d}/in/scene.ply --out {d}/in",
         )
         .with_scene()
-        .expect(&["output folder is the folder of the input"]),
+        .expect(&["the output contains the input", "scene.ply"]),
         Case::new(
             "render: output path is an existing file",
             "render --scene {d}/in/scene.ply --out {d}/in/cameras.json",
         )
         .with_scene()
-        .expect(&["cameras.json", "exists and is not a folder"]),
+        .expect(&["cameras.json", "the output is the input"]),
         Case::new("render: read-only output location", "render --scene {d}/in/scene.ply --out {d}/ro/out")
             .with_scene()
             .dir("ro")
@@ -214,7 +214,7 @@ fn cases() -> Vec<Case> {
         .arg("make it blue")
         .with_scene()
         .dir("edits")
-        .expect(&["output folder would contain the input", "scene.ply"]),
+        .expect(&["the output contains the input", "scene.ply"]),
         // ---- edit settings
         Case::new("edit: empty prompt", EDIT).arg("  ").with_scene().expect(&["--prompt is empty"]),
         Case::new("edit: unknown config key", EDIT)
@@ -357,7 +357,7 @@ fn cases() -> Vec<Case> {
             .file("ds/cameras.json", cameras_json(&cams(2)))
             .file("ds/images/view_0.png", png(40, 30))
             .file("ds/images/view_1.png", png(40, 30))
-            .expect(&["output folder is the folder of the input"]),
+            .expect(&["the output is the input", "ds"]),
         Case::new("train: zero focal length in COLMAP", "train --data {d}/ds --out {d}/out --iters 1")
             .file("ds/sparse/0/cameras.txt", "1 PINHOLE 40 30 0 50 20 15\n")
             .file("ds/sparse/0/images.txt", "1 1 0 0 0 0 0 3 1 view_0.png\n\n")
@@ -434,6 +434,121 @@ fn cases() -> Vec<Case> {
             .expect(&["unknown scene \"nowhere\""]),
         Case::new("scene: zero width", "scene tabletop --quick --width 0 --out {d}/ds")
             .expect(&["image size 0x96"]),
+        // ---- camera checks shared by every format (Camera::validate and the readers)
+        Case::new("render: zero rotation in cameras.json", RENDER)
+            .arg("{d}/in/cameras.json")
+            .file("in/scene.ply", scene_ply())
+            .file(
+                "in/cameras.json",
+                cameras_json_with(|c| c["rotation"] = serde_json::json!([[0, 0, 0], [0, 0, 0], [0, 0, 0]])),
+            )
+            .expect(&["cameras.json", "camera \"view_0\": rotation is not orthonormal"]),
+        Case::new("render: non-orthonormal rotation in cameras.json", RENDER)
+            .arg("{d}/in/cameras.json")
+            .file("in/scene.ply", scene_ply())
+            .file(
+                "in/cameras.json",
+                cameras_json_with(|c| c["rotation"] = serde_json::json!([[1, 0.5, 0], [0, 1, 0], [0, 0, 3]])),
+            )
+            .expect(&["cameras.json", "camera \"view_0\": rotation is not orthonormal"]),
+        Case::new("render: reflection instead of a rotation in cameras.json", RENDER)
+            .arg("{d}/in/cameras.json")
+            .file("in/scene.ply", scene_ply())
+            .file(
+                "in/cameras.json",
+                cameras_json_with(|c| c["rotation"] = serde_json::json!([[1, 0, 0], [0, 1, 0], [0, 0, -1]])),
+            )
+            .expect(&["cameras.json", "rotation is a reflection"]),
+        Case::new("render: zero quaternion in COLMAP", RENDER)
+            .arg("{d}/sparse")
+            .file("in/scene.ply", scene_ply())
+            .file("sparse/cameras.txt", "1 PINHOLE 40 30 50 50 20 15\n")
+            .file("sparse/images.txt", "1 0 0 0 0 0 0 3 1 a.png\n\n")
+            .expect(&["images.txt", "line 1: image \"a.png\" has an invalid quaternion"]),
+        // COLMAP stores a quaternion, normalised on reading (as COLMAP does), so the
+        // only way it is not a rotation is zero (above) or not finite.
+        Case::new("render: NaN quaternion in COLMAP (not a rotation)", RENDER)
+            .arg("{d}/sparse")
+            .file("in/scene.ply", scene_ply())
+            .file("sparse/cameras.txt", "1 PINHOLE 40 30 50 50 20 15\n")
+            .file("sparse/images.txt", "1 1 0 0 0 0 0 3 1 a.png\n\n2 1 nan 0 0 0 0 3 1 b.png\n\n")
+            .expect(&["images.txt", "line 3: image \"b.png\" has an invalid quaternion"]),
+        Case::new("render: empty image name in cameras.json", RENDER)
+            .arg("{d}/in/cameras.json")
+            .file("in/scene.ply", scene_ply())
+            .file("in/cameras.json", cameras_json_with(|c| c["img_name"] = "".into()))
+            .expect(&["cameras.json", "camera 0: a camera has an empty image name"]),
+        Case::new("render: empty file_path in transforms.json", RENDER)
+            .arg("{d}/in/transforms.json")
+            .file("in/scene.ply", scene_ply())
+            .file("in/transforms.json", transforms_with(r#""fl_x": 50, "w": 40, "h": 30"#, &["a.png", ""]))
+            .expect(&["transforms.json", "camera 1: a camera has an empty image name"]),
+        Case::new("render: duplicate image names in cameras.json", RENDER)
+            .arg("{d}/in/cameras.json")
+            .file("in/scene.ply", scene_ply())
+            .file("in/cameras.json", cameras_json_with(|c| c["img_name"] = "view_1".into()))
+            .expect(&["cameras.json", "two cameras share the image name \"view_1\""]),
+        Case::new("render: COLMAP images whose names differ only in extension", RENDER)
+            .arg("{d}/sparse")
+            .file("in/scene.ply", scene_ply())
+            .file("sparse/cameras.txt", "1 PINHOLE 40 30 50 50 20 15\n")
+            .file("sparse/images.txt", "1 1 0 0 0 0 0 3 1 a.png\n\n2 1 0 0 0 0 0 3 1 a.jpg\n\n")
+            .expect(&["images.txt", "two cameras share the image name \"a\" (\"a.png\" and \"a.jpg\")"]),
+        Case::new("render: field of view of 7 rad in transforms.json", RENDER)
+            .arg("{d}/in/transforms.json")
+            .file("in/scene.ply", scene_ply())
+            .file(
+                "in/transforms.json",
+                transforms_with(r#""camera_angle_x": 7, "w": 40, "h": 30"#, &["a.png"]),
+            )
+            .expect(&[
+                "transforms.json",
+                "frame 0 (\"a.png\"): \"camera_angle_x\" = 7 is not a field of view in radians",
+            ]),
+        Case::new("render: 100000x100000 camera in cameras.json", RENDER)
+            .arg("{d}/in/cameras.json")
+            .file("in/scene.ply", scene_ply())
+            .file(
+                "in/cameras.json",
+                cameras_json_with(|c| {
+                    c["width"] = 100_000.into();
+                    c["height"] = 100_000.into()
+                }),
+            )
+            .expect(&["cameras.json", "image size 100000x100000 is larger than 32768 pixels a side"]),
+        Case::new("render: 100000x100000 camera in COLMAP", RENDER)
+            .arg("{d}/sparse")
+            .file("in/scene.ply", scene_ply())
+            .file("sparse/cameras.txt", "1 PINHOLE 100000 100000 50 50 20 15\n")
+            .file("sparse/images.txt", "1 1 0 0 0 0 0 3 1 a.png\n\n")
+            .expect(&[
+                "cameras.txt",
+                "camera 1: image size 100000x100000 is larger than 32768 pixels a side",
+            ]),
+        Case::new("render: COLMAP camera over the pixel cap", RENDER)
+            .arg("{d}/sparse")
+            .file("in/scene.ply", scene_ply())
+            .file("sparse/cameras.bin", cameras_bin_sized(1, &[50.0, 50.0, 20.0, 15.0], 32768, 4097))
+            .file("sparse/images.bin", images_bin(&[(1, 1, "a.png")], 1))
+            .expect(&["cameras.bin", "image size 32768x4097 is more than 134217728 pixels (128 million)"]),
+        Case::new(
+            "train: 100000x100000 camera in a COLMAP dataset",
+            "train --data {d}/ds --out {d}/out --iters 1",
+        )
+        .file("ds/sparse/0/cameras.txt", "1 PINHOLE 100000 100000 50 50 20 15\n")
+        .file("ds/sparse/0/images.txt", "1 1 0 0 0 0 0 3 1 view_0.png\n\n")
+        .file("ds/images/view_0.png", png(40, 30))
+        .expect(&["cameras.txt", "image size 100000x100000"]),
+        Case::new("render: COLMAP images.txt missing a line", RENDER)
+            .arg("{d}/sparse")
+            .file("in/scene.ply", scene_ply())
+            .file("sparse/cameras.txt", "1 PINHOLE 40 30 50 50 20 15\n")
+            .file("sparse/images.txt", "1 1 0 0 0 0 0 3 1 a.png\n2 1 0 0 0 0 0 3 1 b.png\n\n")
+            .expect(&[
+                "images.txt",
+                "line 2: expected the 2D points of image 1 (line 1)",
+                "is a line missing?",
+            ]),
     ]
 }
 
@@ -744,4 +859,97 @@ fn npy_with_descr(descr: &str, shape: &[usize], payload: &[u8]) -> Vec<u8> {
     b.extend_from_slice(header.as_bytes());
     b.extend_from_slice(payload);
     b
+}
+
+// ---------------------------------------------------------------------------------
+// Camera checks: inputs, and `info` on finite but huge log-scales
+
+/// A transforms.json with the top-level fields `top` and one identity-pose frame per
+/// `file_path`.
+fn transforms_with(top: &str, names: &[&str]) -> Vec<u8> {
+    let frames: Vec<String> = names
+        .iter()
+        .map(|n| {
+            format!(
+                r#"{{"file_path": "{n}", "transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,3],[0,0,0,1]]}}"#
+            )
+        })
+        .collect();
+    format!(r#"{{{top}, "frames": [{}]}}"#, frames.join(", ")).into_bytes()
+}
+
+/// COLMAP cameras.bin with one camera of `model` and the given size.
+fn cameras_bin_sized(model: i32, params: &[f64], width: u64, height: u64) -> Vec<u8> {
+    let mut b = 1u64.to_le_bytes().to_vec();
+    b.extend_from_slice(&1u32.to_le_bytes());
+    b.extend_from_slice(&model.to_le_bytes());
+    b.extend_from_slice(&width.to_le_bytes());
+    b.extend_from_slice(&height.to_le_bytes());
+    for p in params {
+        b.extend_from_slice(&p.to_le_bytes());
+    }
+    b
+}
+
+/// Not a bad input: a log-scale of 80 (or 100, 1000) is finite, so `info` succeeds and
+/// every statistic it prints is a finite number (it printed "mean NaN" where exp of a
+/// log-scale overflowed f32); like the table, it writes nothing.
+#[test]
+fn info_on_huge_finite_log_scales_prints_finite_statistics() {
+    for ls in [80.0f32, 100.0, 1000.0] {
+        let tmp = tempfile::tempdir().unwrap();
+        let mut g = scene();
+        g.log_scales[3] = [ls, ls, ls];
+        g.log_scales[5][1] = ls;
+        let p = tmp.path().join("scene.ply");
+        std::fs::write(&p, ply::to_bytes(&g)).unwrap();
+        let before = snapshot(tmp.path());
+        for json in [false, true] {
+            let mut cmd = Command::new(env!("CARGO_BIN_EXE_transsplat"));
+            cmd.arg("info").env("RUST_LOG", "off");
+            if json {
+                cmd.arg("--json");
+            }
+            let out = cmd.arg(&p).output().unwrap();
+            let stdout = String::from_utf8_lossy(&out.stdout);
+            assert!(out.status.success(), "log-scale {ls}: {}", String::from_utf8_lossy(&out.stderr));
+            if json {
+                let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+                assert_eq!(v["max_log_scale"]["max"].as_f64(), Some(ls as f64), "{stdout}");
+                // Over f64's range (e^709.8) a scale is null in JSON; its log is there.
+                assert_eq!(v["scale"]["max"].is_null(), ls > 709.0, "{stdout}");
+                let mean = v["scale"]["mean"].as_f64();
+                assert!(ls > 709.0 || mean.is_some_and(|m| m.is_finite() && m > 1e30), "{stdout}");
+                for (k, s) in v.as_object().unwrap().iter().filter(|(_, s)| s.is_object()) {
+                    let flat: Vec<&serde_json::Value> = if k == "position" {
+                        s.as_object()
+                            .unwrap()
+                            .values()
+                            .flat_map(|a| a.as_object().unwrap().values())
+                            .collect()
+                    } else {
+                        s.as_object().unwrap().values().collect()
+                    };
+                    let huge = ls > 709.0 && (k == "scale" || k == "max_scale");
+                    for x in flat {
+                        assert!(huge || x.as_f64().is_some_and(f64::is_finite), "{k}: {x} in {stdout}");
+                    }
+                }
+            } else {
+                let stats = stdout.lines().skip_while(|l| !l.starts_with("bounding box")).skip(1);
+                for t in stats.flat_map(|l| l.split_whitespace()) {
+                    let t = t.trim_matches(|c| c == '(' || c == ')');
+                    assert!(!t.contains("NaN") && !t.contains("inf"), "log-scale {ls}: {t:?} in\n{stdout}");
+                }
+                let max_line = stdout.lines().find(|l| l.starts_with("max scale")).unwrap();
+                let want = match ls {
+                    80.0 => "max 5.5406e34",
+                    100.0 => "max 2.6881e43",
+                    _ => "max 1.9701e434",
+                };
+                assert!(max_line.ends_with(want), "{max_line}");
+            }
+        }
+        assert_eq!(snapshot(tmp.path()), before, "info wrote something");
+    }
 }

@@ -6,7 +6,11 @@
 //! - [`transforms`]: nerfstudio / Blender `transforms.json` (OpenGL camera-to-world).
 //!
 //! [`load`] picks the format from a path. Every returned camera passes
-//! [`Camera::validate`]; distortion that is not exactly zero is refused, never ignored.
+//! [`Camera::validate`] (a non-empty image name, a size within the one cap for images
+//! and cameras [`crate::camera::check_image_size`], positive focal lengths, a rotation
+//! that is orthonormal within [`crate::camera::ROTATION_TOLERANCE`]), and no two
+//! cameras of a file share an image name; distortion that is not exactly zero is
+//! refused, never ignored; fields of view must lie in (0, π).
 //! [`is_held_out`] is the train/test split of a camera list ([`LLFF_HOLD`]).
 
 use crate::{Camera, Error, Result};
@@ -105,10 +109,30 @@ pub fn parse_json(bytes: &[u8], path: &Path) -> Result<Vec<Camera>> {
     }
 }
 
-/// Checks every camera, naming `path` in the error.
+/// Checks every camera ([`Camera::validate`]) and that no two share an image name
+/// (compared by [`Camera::stem`], which names their outputs), naming `path` in the error.
+/// Cameras are counted from 0 in the order given.
 pub(crate) fn validated(cameras: Vec<Camera>, path: &Path) -> Result<Vec<Camera>> {
-    for c in &cameras {
-        c.validate().map_err(|m| Error::format(path, m))?;
+    let mut seen = std::collections::HashMap::with_capacity(cameras.len());
+    for (i, c) in cameras.iter().enumerate() {
+        c.validate().map_err(|m| {
+            if c.name.trim().is_empty() {
+                Error::format(path, format!("camera {i}: {m}"))
+            } else {
+                Error::format(path, m)
+            }
+        })?;
+        if let Some(first) = seen.insert(c.stem(), &c.name) {
+            let also =
+                if *first == c.name { String::new() } else { format!(" ({first:?} and {:?})", c.name) };
+            return Err(Error::format(
+                path,
+                format!(
+                    "two cameras share the image name {:?}{also}; their outputs would overwrite each other",
+                    c.stem()
+                ),
+            ));
+        }
     }
     Ok(cameras)
 }
@@ -119,13 +143,17 @@ pub(crate) fn json_dim(v: &serde_json::Value) -> Option<u32> {
     (f.fract() == 0.0 && f >= 0.0 && f <= u32::MAX as f64).then_some(f as u32)
 }
 
-/// Rotation matrix of a (w, x, y, z) quaternion, normalised first. None for a zero
-/// or non-finite quaternion.
+/// Rotation matrix of a (w, x, y, z) quaternion, normalised first (COLMAP does the
+/// same). None for a zero or non-finite quaternion.
 pub(crate) fn quat_to_matrix(q: [f64; 4]) -> Option<[[f32; 3]; 3]> {
-    let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-    if !(n.is_finite() && n > 0.0) {
+    // Scaled by the largest component first so that squaring neither overflows nor
+    // underflows: any finite non-zero quaternion has a direction.
+    let big = q.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    if !(big.is_finite() && big > 0.0) || q.iter().any(|v| v.is_nan()) {
         return None;
     }
+    let q = q.map(|v| v / big);
+    let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
     let [w, x, y, z] = q.map(|v| v / n);
     let m = [
         [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],

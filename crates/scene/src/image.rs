@@ -57,14 +57,6 @@ pub fn has_image_extension(path: &Path) -> bool {
         .is_some_and(|e| EXTENSIONS.iter().any(|x| x.eq_ignore_ascii_case(e)))
 }
 
-/// Largest accepted image side, to refuse absurd headers before allocating.
-const MAX_SIDE: usize = 1 << 15;
-
-/// Largest accepted pixel count (2^27 ≈ 134 MP, 1.6 GB as float RGB): far above any
-/// capture used for 3DGS, and below what a valid but maximally compressed file (a
-/// decompression bomb within `MAX_SIDE`) would make this machine allocate.
-const MAX_PIXELS: usize = 1 << 27;
-
 /// Deflate packs at most 1032 bytes into one (a 258-byte match coded in 2 bits), so a
 /// PNG whose header needs more raw scanline bytes than 1032 times the file size cannot
 /// hold its pixels: refused before allocating for them.
@@ -157,19 +149,8 @@ fn check_size(w: usize, h: usize, path: &Path) -> Result<()> {
     if w == 0 || h == 0 {
         return Err(Error::format(path, format!("image has zero size {w}x{h}")));
     }
-    if w > MAX_SIDE || h > MAX_SIDE {
-        return Err(Error::format(
-            path,
-            format!("image size {w}x{h} is larger than {MAX_SIDE} pixels a side"),
-        ));
-    }
-    if w * h > MAX_PIXELS {
-        return Err(Error::format(
-            path,
-            format!("image size {w}x{h} is more than {MAX_PIXELS} pixels ({} million)", MAX_PIXELS >> 20),
-        ));
-    }
-    Ok(())
+    // The one cap for image files and cameras.
+    crate::camera::check_image_size(w as u64, h as u64).map_err(|m| Error::format(path, m))
 }
 
 fn too_small(w: usize, h: usize, len: usize, path: &Path) -> Error {
@@ -223,6 +204,8 @@ pub fn write_png(path: &Path, width: usize, height: usize, rgb: &[f32]) -> Resul
 #[cfg(test)]
 mod tests {
     use super::*;
+    const MAX_SIDE: usize = crate::camera::MAX_IMAGE_SIDE as usize;
+    const MAX_PIXELS: usize = crate::camera::MAX_IMAGE_PIXELS as usize;
 
     #[test]
     fn sizes_are_checked_per_side_and_in_total() {

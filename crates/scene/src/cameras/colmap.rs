@@ -104,13 +104,24 @@ pub fn parse_model(
             Error::format(
                 img_path,
                 format!(
-                    "image {:?} (id {}) refers to camera id {}, which is not in {cam_name}",
-                    im.name, im.image_id, im.camera_id
+                    "{}image {:?} (id {}) refers to camera id {}, which is not in {cam_name}",
+                    im.at(),
+                    im.name,
+                    im.image_id,
+                    im.camera_id
                 ),
             )
         })?;
         let rotation = super::quat_to_matrix(im.q).ok_or_else(|| {
-            Error::format(img_path, format!("image {:?} has an invalid quaternion {:?}", im.name, im.q))
+            Error::format(
+                img_path,
+                format!(
+                    "{}image {:?} has an invalid quaternion {:?} (zero or not finite, so not a rotation)",
+                    im.at(),
+                    im.name,
+                    im.q
+                ),
+            )
         })?;
         cameras.push(Camera {
             name: im.name,
@@ -124,11 +135,9 @@ pub fn parse_model(
             translation: im.t.map(|v| v as f32),
         });
     }
+    // Checked in file order (messages count cameras as the images file lists them).
+    let mut cameras = super::validated(cameras, img_path)?;
     cameras.sort_by(|a, b| a.name.cmp(&b.name));
-    if let Some(w) = cameras.windows(2).find(|w| w[0].name == w[1].name) {
-        return Err(Error::format(img_path, format!("image name {:?} appears twice", w[0].name)));
-    }
-    let cameras = super::validated(cameras, img_path)?;
     let points = match points {
         Some((p, b)) => parse_points_file(p, b)?,
         None => Vec::new(),
@@ -182,10 +191,10 @@ fn to_pinhole(
              supported, undistort the images first (COLMAP image_undistorter)"
         ));
     }
-    let dim = |v: u64, what: &str| {
-        u32::try_from(v).map_err(|_| format!("camera {id}: image {what} {v} is too large"))
-    };
-    Ok(Intrinsics { width: dim(width, "width")?, height: dim(height, "height")?, fx, fy, cx, cy })
+    // The size cap is checked here, where the size is, so the message names this file;
+    // it also guarantees both sides fit in u32.
+    crate::camera::check_image_size(width, height).map_err(|m| format!("camera {id}: {m}"))?;
+    Ok(Intrinsics { width: width as u32, height: height as u32, fx, fy, cx, cy })
 }
 
 fn model_by_id(id: i32) -> Option<&'static (i32, &'static str, usize, bool)> {
@@ -202,6 +211,15 @@ pub(crate) struct Image {
     t: [f64; 3],
     camera_id: u32,
     name: String,
+    /// The 1-based line of the image in `images.txt`; None in `images.bin`.
+    line: Option<usize>,
+}
+
+impl Image {
+    /// `"line N: "` for an image from a text file, else nothing (a message prefix).
+    fn at(&self) -> String {
+        self.line.map(|l| format!("line {l}: ")).unwrap_or_default()
+    }
 }
 
 fn parse_images_file(path: &Path, bytes: &[u8]) -> Result<Vec<Image>> {
@@ -210,7 +228,7 @@ fn parse_images_file(path: &Path, bytes: &[u8]) -> Result<Vec<Image>> {
     let mut seen = std::collections::HashSet::with_capacity(images.len());
     for im in &images {
         if !seen.insert(im.image_id) {
-            return Err(Error::format(path, format!("image id {} appears twice", im.image_id)));
+            return Err(Error::format(path, format!("{}image id {} appears twice", im.at(), im.image_id)));
         }
     }
     Ok(images)
@@ -325,7 +343,7 @@ pub(crate) fn parse_images_bin(b: &[u8]) -> std::result::Result<Vec<Image>, Stri
         let name = String::from_utf8_lossy(name).into_owned();
         let np = c.u64().ok_or_else(t)?;
         c.skip(np.checked_mul(24).ok_or_else(t)?).ok_or_else(t)?;
-        out.push(Image { image_id, q, t: tr, camera_id, name });
+        out.push(Image { image_id, q, t: tr, camera_id, name, line: None });
     }
     Ok(out)
 }
@@ -419,11 +437,37 @@ pub(crate) fn parse_images_txt(b: &[u8]) -> std::result::Result<Vec<Image>, Stri
             return Err(format!("line {ln}: missing image name"));
         }
         let name = name.to_string();
-        // The next line lists the 2D points (possibly empty); not needed.
-        it.next();
-        out.push(Image { image_id, q, t, camera_id, name });
+        // The next line lists the 2D points (possibly empty); not needed, but checked
+        // so that a missing line is an error rather than the next image read as points
+        // and dropped. A last image may end the file without one (nothing is lost).
+        if let Some((pln, points)) = it.next() {
+            check_points2d_line(points).map_err(|m| {
+                format!(
+                    "line {pln}: expected the 2D points of image {image_id} (line {ln}) as X Y POINT3D_ID \
+                     triples, {m}; each image takes two lines, the second possibly empty (is a line \
+                     missing?)"
+                )
+            })?;
+        }
+        out.push(Image { image_id, q, t, camera_id, name, line: Some(ln) });
     }
     Ok(out)
+}
+
+/// Checks an `images.txt` 2D-point line: `X Y POINT3D_ID` triples (POINT3D_ID a whole
+/// number, -1 for none), or nothing.
+fn check_points2d_line(l: &str) -> std::result::Result<(), String> {
+    let tok: Vec<&str> = l.split_whitespace().collect();
+    if !tok.len().is_multiple_of(3) {
+        return Err(format!("found {} values (not a multiple of 3)", tok.len()));
+    }
+    for t in tok.chunks_exact(3) {
+        let id = t[2].parse::<f64>().ok().filter(|v| v.fract() == 0.0);
+        if t[0].parse::<f64>().is_err() || t[1].parse::<f64>().is_err() || id.is_none() {
+            return Err(format!("found {:?}", t.join(" ")));
+        }
+    }
+    Ok(())
 }
 
 /// The first whitespace-separated token of `s` and what follows it.

@@ -231,8 +231,8 @@ fn colmap_bad_inputs() {
         (
             "zero width",
             Box::new(|c: &mut Vec<Cam>, _: &mut Vec<Img>| c[1].3 = 0),
-            "images.",
-            "image size 0x50",
+            "cameras.",
+            "camera 7: image size 0x50",
         ),
         (
             "duplicate camera",
@@ -515,6 +515,187 @@ fn inria_bad_inputs() {
     }
     std::fs::write(&p, "{\"a\": 1}").unwrap();
     assert!(err_of(load(&p)).contains("unrecognised camera JSON"));
+}
+
+/// One rotation check (`Camera::validate`) for every format: a zero or scaled matrix in
+/// cameras.json is refused as transforms.json refuses it.
+#[test]
+fn inria_rotation_name_and_size_checks() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("cameras.json");
+    let cam = |name: &str, rot: &str, w: u32| {
+        format!(
+            r#"{{"id": 0, "img_name": "{name}", "width": {w}, "height": 4, "position": [0,0,0], "rotation": {rot}, "fy": 2, "fx": 2}}"#
+        )
+    };
+    let id = "[[1,0,0],[0,1,0],[0,0,1]]";
+    let cases = [
+        (vec![cam("a", "[[0,0,0],[0,0,0],[0,0,0]]", 4)], "camera \"a\": rotation is not orthonormal"),
+        (
+            vec![cam("a", "[[1,0,0],[0,1,0],[0,0,3]]", 4)],
+            "not orthonormal (R R^T is off the identity by 8.000",
+        ),
+        (vec![cam("a", "[[1,0.5,0],[0,1,0],[0,0,1]]", 4)], "not orthonormal"),
+        (vec![cam("a", "[[1,0,0],[0,1,0],[0,0,-1]]", 4)], "reflection"),
+        (vec![cam("a", id, 4), cam("", id, 4)], "camera 1: a camera has an empty image name"),
+        (vec![cam("a", id, 4), cam("b", id, 4), cam("a", id, 4)], "two cameras share the image name \"a\";"),
+        (
+            vec![cam("x/a.png", id, 4), cam("y/a.jpg", id, 4)],
+            "two cameras share the image name \"a\" (\"x/a.png\" and \"y/a.jpg\")",
+        ),
+        (vec![cam("a", id, 100_000)], "image size 100000x4 is larger than 32768 pixels a side"),
+    ];
+    for (list, want) in cases {
+        std::fs::write(&p, format!("[{}]", list.join(", "))).unwrap();
+        let e = err_of(inria::read(&p));
+        assert!(e.starts_with(&format!("{}: ", p.display())), "{e}");
+        assert!(e.contains(want), "expected {want:?} in {e:?}");
+        assert_eq!(err_of(load(&p)), e);
+    }
+    // A rotation with a few digits of rounding is still a rotation.
+    std::fs::write(&p, format!("[{}]", cam("a", "[[0.7071,-0.7071,0],[0.7071,0.7071,0],[0,0,1]]", 4)))
+        .unwrap();
+    assert_eq!(inria::read(&p).unwrap().len(), 1);
+}
+
+#[test]
+fn transforms_field_of_view_names_and_rotation() {
+    let m = "[[1,0,0,0],[0,1,0,0],[0,0,1,5],[0,0,0,1]]";
+    let frame = |name: &str| format!(r#"{{"file_path": "{name}", "transform_matrix": {m}}}"#);
+    let cases: Vec<(String, &str)> = vec![
+        (
+            format!(r#"{{"camera_angle_x": 7, "w": 8, "h": 8, "frames": [{}]}}"#, frame("a.png")),
+            "frame 0 (\"a.png\"): \"camera_angle_x\" = 7 is not a field of view in radians between 0 and pi",
+        ),
+        (format!(r#"{{"camera_angle_x": 0, "w": 8, "h": 8, "frames": [{}]}}"#, frame("a.png")), "= 0 is not"),
+        (format!(r#"{{"camera_angle_x": -0.5, "w": 8, "h": 8, "frames": [{}]}}"#, frame("a.png")), "= -0.5 is not"),
+        (
+            format!(r#"{{"camera_angle_x": 0.7, "camera_angle_y": 3.2, "w": 8, "h": 8, "frames": [{}]}}"#, frame("a")),
+            "\"camera_angle_y\" = 3.2 is not",
+        ),
+        (
+            format!(r#"{{"fl_x": 10, "w": 8, "h": 8, "frames": [{}, {}]}}"#, frame("a.png"), frame("")),
+            "camera 1: a camera has an empty image name",
+        ),
+        (
+            format!(r#"{{"fl_x": 10, "w": 8, "h": 8, "frames": [{}, {}]}}"#, frame("i/a.png"), frame("i/a.png")),
+            "two cameras share the image name \"a\"",
+        ),
+        (
+            format!(r#"{{"fl_x": 10, "w": 100000, "h": 100000, "frames": [{}]}}"#, frame("a.png")),
+            "image size 100000x100000",
+        ),
+        (
+            r#"{"fl_x": 10, "w": 8, "h": 8, "frames": [{"file_path": "a", "transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,-1,0]]}]}"#
+                .into(),
+            "camera \"a\": rotation is a reflection",
+        ),
+        (
+            r#"{"fl_x": 10, "w": 8, "h": 8, "frames": [{"file_path": "a", "transform_matrix": [[0,0,0,0],[0,0,0,0],[0,0,0,0]]}]}"#
+                .into(),
+            "camera \"a\": rotation is not orthonormal",
+        ),
+    ];
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("transforms.json");
+    for (json, want) in cases {
+        std::fs::write(&p, &json).unwrap();
+        let e = err_of(transforms::read(&p));
+        assert!(e.starts_with(&format!("{}: ", p.display())), "{json}: {e}");
+        assert!(e.contains(want), "expected {want:?} in {e:?}");
+    }
+    // Angles just inside (0, pi) are accepted.
+    std::fs::write(&p, format!(r#"{{"camera_angle_x": 3.1, "w": 8, "h": 8, "frames": [{}]}}"#, frame("a")))
+        .unwrap();
+    assert!(transforms::read(&p).unwrap().cameras[0].fx > 0.0);
+}
+
+#[test]
+fn colmap_size_cap_names_and_quaternions() {
+    let (cams, imgs, pts) = model();
+    for ext in ["bin", "txt"] {
+        let write = |d: &Path, c: &[Cam], i: &[Img]| {
+            if ext == "bin" {
+                write_bin(d, c, i, &pts)
+            } else {
+                write_txt(d, c, i, &pts)
+            }
+        };
+        let d = tempfile::tempdir().unwrap();
+        // 100000x100000 is refused in the cameras file, before any image is read.
+        let mut c = cams.clone();
+        (c[0].3, c[0].4) = (100_000, 100_000);
+        write(d.path(), &c, &imgs);
+        let e = err_of(read_sparse(d.path()));
+        let file = format!("{}: ", d.path().join(format!("cameras.{ext}")).display());
+        assert!(e.starts_with(&file), "{ext}: {e}");
+        assert!(e.contains("camera 1: image size 100000x100000 is larger than 32768 pixels a side"), "{e}");
+        // Beyond u32 too.
+        c[0].3 = 1 << 40;
+        write(d.path(), &c, &imgs);
+        assert!(err_of(read_sparse(d.path())).contains("is larger than"), "{ext}");
+        // Image names: duplicates (by output name) and empty (binary; text needs a name).
+        let mut i = imgs.clone();
+        i[2].4 = "sub/c.png";
+        write(d.path(), &cams, &i);
+        let e = err_of(read_sparse(d.path()));
+        assert!(e.starts_with(&format!("{}: ", d.path().join(format!("images.{ext}")).display())), "{e}");
+        assert!(e.contains("two cameras share the image name \"c\" (\"c.jpg\" and \"sub/c.png\")"), "{e}");
+        if ext == "bin" {
+            i[2].4 = "";
+            write(d.path(), &cams, &i);
+            assert!(err_of(read_sparse(d.path())).contains("camera 2: a camera has an empty image name"));
+        }
+        // A quaternion of any finite non-zero scale is a rotation; zero or NaN is not.
+        let mut i = imgs.clone();
+        i[1].1 = [1e200, 0.0, 0.0, 0.0];
+        i[0].1 = [0.0, 0.0, 0.0, 1e-200];
+        write(d.path(), &cams, &i);
+        let m = read_sparse(d.path()).unwrap();
+        assert_eq!(m.cameras[0].rotation, [[1., 0., 0.], [0., 1., 0.], [0., 0., 1.]]);
+        assert_eq!(m.cameras[2].rotation, [[-1., 0., 0.], [0., -1., 0.], [0., 0., 1.]]);
+        for q in [[0.0; 4], [f64::NAN, 1.0, 0.0, 0.0], [f64::INFINITY, 0.0, 0.0, 0.0]] {
+            i[1].1 = q;
+            write(d.path(), &cams, &i);
+            let e = err_of(read_sparse(d.path()));
+            assert!(e.contains("image \"a.jpg\" has an invalid quaternion"), "{ext} {q:?}: {e}");
+            assert_eq!(e.contains("line 5: image"), ext == "txt", "{e}");
+        }
+    }
+}
+
+/// An images.txt with a line missing used to read the next image as the points of the
+/// one before and drop it; now the line is named.
+#[test]
+fn colmap_images_txt_missing_a_line_names_it() {
+    let (cams, imgs, pts) = model();
+    let d = tempfile::tempdir().unwrap();
+    write_txt(d.path(), &cams, &imgs, &pts);
+    let p = d.path().join("images.txt");
+    let good = std::fs::read_to_string(&p).unwrap();
+    let lines: Vec<&str> = good.lines().collect();
+    // Header (2 lines), then two lines per image; image 2's points are on line 6.
+    assert!(lines[5].starts_with("0.0 1.5 -1"), "{lines:?}");
+    for drop in [3, 5] {
+        let mut l = lines.clone();
+        l.remove(drop);
+        std::fs::write(&p, l.join("\n") + "\n").unwrap();
+        let e = err_of(read_sparse(d.path()));
+        assert!(e.starts_with(&format!("{}: line ", p.display())), "{e}");
+        assert!(e.contains("expected the 2D points of image") && e.contains("is a line missing?"), "{e}");
+    }
+    // Dropping the last image's points line loses nothing: accepted.
+    std::fs::write(&p, lines[..lines.len() - 1].join("\n") + "\n").unwrap();
+    assert_eq!(read_sparse(d.path()).unwrap().cameras.len(), 3);
+    // Points written as floats (some tools do) are still points; an image line is not.
+    std::fs::write(&p, "1 1 0 0 0 0 0 1 1 a.jpg\n1.5 2.5 -1.0 3 4 7\n").unwrap();
+    assert_eq!(read_sparse(d.path()).unwrap().cameras.len(), 1);
+    std::fs::write(&p, "1 1 0 0 0 0 0 1 1 a.jpg\n2 1 0 0 0 0 0 1 1 b.jpg\n\n").unwrap();
+    let e = err_of(read_sparse(d.path()));
+    assert!(e.contains("line 2: expected the 2D points of image 1 (line 1)"), "{e}");
+    // Duplicate image ids in text name the line.
+    std::fs::write(&p, "1 1 0 0 0 0 0 1 1 a.jpg\n\n1 1 0 0 0 0 0 1 1 b.jpg\n\n").unwrap();
+    assert!(err_of(read_sparse(d.path())).contains("images.txt: line 3: image id 1 appears twice"));
 }
 
 #[test]

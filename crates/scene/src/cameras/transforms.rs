@@ -4,7 +4,8 @@
 //! OpenGL convention (x right, y up, looking down -z). We flip the camera's y and z
 //! axes to get OpenCV. Intrinsics come from the frame or the top level:
 //! `fl_x fl_y cx cy w h`, or Blender's `camera_angle_x` (fx = fy = w / (2 tan(a/2)),
-//! principal point at the centre, `w h` from the image header when not given).
+//! principal point at the centre, `w h` from the image header when not given); an
+//! angle must be a field of view in radians, in (0, π).
 //! Distortion `k1..k4 p1 p2` must be zero and `camera_model` a pinhole one.
 
 use crate::{Camera, Error, Result};
@@ -98,14 +99,22 @@ pub(crate) fn from_value(value: &Value, path: &Path) -> Result<Transforms> {
                 super::image_size::read(&image)?
             }
         };
-        let fx = match (number("fl_x")?, number("camera_angle_x")?) {
+        let angle = |k: &str| -> Result<Option<f64>> {
+            match number(k)? {
+                Some(a) if !(a > 0.0 && a < std::f64::consts::PI) => Err(err(format!(
+                    "{what}: \"{k}\" = {a} is not a field of view in radians between 0 and pi (3.14159)"
+                ))),
+                a => Ok(a),
+            }
+        };
+        let fx = match (number("fl_x")?, angle("camera_angle_x")?) {
             (Some(f), _) => f,
             (None, Some(a)) => 0.5 * width as f64 / (0.5 * a).tan(),
             (None, None) => {
                 return Err(err(format!("{what}: no focal length (\"fl_x\" or \"camera_angle_x\")")))
             }
         };
-        let fy = match (number("fl_y")?, number("camera_angle_y")?) {
+        let fy = match (number("fl_y")?, angle("camera_angle_y")?) {
             (Some(f), _) => f,
             (None, Some(a)) => 0.5 * height as f64 / (0.5 * a).tan(),
             (None, None) => fx,
@@ -115,12 +124,8 @@ pub(crate) fn from_value(value: &Value, path: &Path) -> Result<Transforms> {
         let m = fobj.get("transform_matrix").and_then(matrix).ok_or_else(|| {
             err(format!("{what}: \"transform_matrix\" is not a 4x4 (or 3x4) matrix of numbers"))
         })?;
-        if !is_rotation(&m) {
-            return Err(err(format!(
-                "{what}: the rotation part of \"transform_matrix\" is not orthonormal (scaled or sheared poses are \
-                 not supported)"
-            )));
-        }
+        // Whether the rotation part is a rotation is checked with every other camera
+        // format's, in `Camera::validate` (through `validated` below).
         // OpenGL -> OpenCV: negate the camera's y and z axes (columns 1 and 2).
         let mut r = [[0.0f32; 3]; 3];
         for (row, src) in r.iter_mut().zip(&m) {
@@ -151,15 +156,6 @@ fn matrix(v: &Value) -> Option<[[f64; 4]; 3]> {
         }
     }
     Some(m)
-}
-
-fn is_rotation(m: &[[f64; 4]; 3]) -> bool {
-    (0..3).all(|a| {
-        (0..3).all(|b| {
-            let dot: f64 = (0..3).map(|k| m[k][a] * m[k][b]).sum();
-            (dot - if a == b { 1.0 } else { 0.0 }).abs() < 1e-2
-        })
-    })
 }
 
 /// The image for a frame: `file_path` as is, or with a common extension added
