@@ -1,7 +1,8 @@
 //! SIGTERM (what `timeout`, docker and batch schedulers send) is handled like Ctrl-C:
 //! an `edit` whose command editor hangs stops, ends the editor's whole process group,
-//! removes its staging folder and exits 2; a second signal quits at once (130) and
-//! still leaves no staging folder and no editor process behind.
+//! removes its staging folder and exits 2, also when the editor ignores SIGTERM; a
+//! second signal quits at once (130) and still leaves no staging folder and no editor
+//! process behind.
 
 #![cfg(unix)]
 
@@ -30,8 +31,10 @@ fn processes_with(token: &str) -> Vec<String> {
 fn edit_with_hung_editor(dir: &Path, token: &str, signals: usize) -> Option<i32> {
     let ds = quick_scene(dir);
     let out = dir.join("out");
-    // A grandchild that would outlive the editor's shell, then a hang.
-    let script = format!("sh -c 'sleep 302; true # {token}' & sleep 301; echo {token}");
+    // An editor that ignores SIGTERM (so ending it takes the grace period and then
+    // SIGKILL, and a second signal arrives while it is being ended), a grandchild that
+    // would outlive the editor's shell, then a hang.
+    let script = format!("trap '' TERM; sh -c 'sleep 302; true # {token}' & sleep 301; echo {token}");
     let mut child = bin()
         .args(["edit", "--scene"])
         .arg(&ds)
