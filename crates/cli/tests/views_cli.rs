@@ -51,16 +51,30 @@ fn views_export_writes_the_edit_views_and_refuses_foreign_files() {
     assert!(back[0].as_ref().unwrap().attention.iter().all(|&a| a < 1e-5));
     assert!(back[1].is_none(), "test view 8 was not exported");
 
-    // a folder holding other images of the same names is refused with exit status 2
-    let before = std::fs::read(ds.join("images").join(format!("{}.png", cams[1].stem()))).unwrap();
-    let o = bin()
-        .args(["views", "export", "--scene"])
-        .arg(&ds)
-        .arg("--out")
-        .arg(ds.join("images"))
-        .output()
-        .unwrap();
+    // the dataset's own images folder is refused by the output rule, exit status 2
+    let name = format!("{}.png", cams[1].stem());
+    let before = std::fs::read(ds.join("images").join(&name)).unwrap();
+    let export = |out: &std::path::Path| {
+        bin().args(["views", "export", "--scene"]).arg(&ds).arg("--out").arg(out).output().unwrap()
+    };
+    let o = export(&ds.join("images"));
     assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("did not write"));
-    assert_eq!(std::fs::read(ds.join("images").join(format!("{}.png", cams[1].stem()))).unwrap(), before);
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("lies inside the input folder"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert_eq!(std::fs::read(ds.join("images").join(&name)).unwrap(), before);
+    // a folder elsewhere holding other images of the same names is refused too
+    let foreign = dir.path().join("foreign");
+    std::fs::create_dir(&foreign).unwrap();
+    std::fs::write(foreign.join(&name), &before).unwrap();
+    let o = export(&foreign);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("did not write"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert_eq!(std::fs::read(foreign.join(&name)).unwrap(), before);
 }
