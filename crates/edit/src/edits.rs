@@ -115,10 +115,11 @@ pub fn gather(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn camera(name: &str) -> Camera {
+    /// A 4×3 pinhole camera at the origin, for tests of the stages.
+    pub(crate) fn camera(name: &str) -> Camera {
         let eye = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
         let (fx, fy, cx, cy) = (4.0, 4.0, 2.0, 1.5);
         Camera {

@@ -138,22 +138,7 @@ pub fn set_semantic_extras(g: &mut Gaussians, s: &[f32], d: usize) {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn camera(name: &str) -> Camera {
-        let eye = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-        let (fx, fy, cx, cy) = (4.0, 4.0, 2.0, 1.5);
-        Camera {
-            name: name.into(),
-            width: 4,
-            height: 3,
-            fx,
-            fy,
-            cx,
-            cy,
-            rotation: eye,
-            translation: [0.0; 3],
-        }
-    }
+    use crate::edits::tests::camera;
 
     /// One rule for source renders and edited images: a failing model stops the fit with
     /// a message naming the view and which image it was.
