@@ -38,6 +38,8 @@ fn outputs_over_inputs_are_refused_by_every_command() {
         let data = if name == "b.npy" { vec![0.5; 2] } else { data };
         transsplat_scene::npy::write(&dir.path().join(name), &shape, &data).unwrap();
     }
+    std::fs::create_dir(dir.path().join("weights")).unwrap();
+    std::fs::write(dir.path().join("weights/config.json"), b"{}").unwrap();
     let before = snapshot(dir.path());
     let cases: Vec<(Vec<String>, &str, &str)> = vec![
         (vec!["render".into(), "--scene".into(), d("ds"), "--out".into(), d("ds/images")], "ds/images", "ds"),
@@ -85,6 +87,25 @@ fn outputs_over_inputs_are_refused_by_every_command() {
             ],
             "ds/edit",
             "ds",
+        ),
+        (
+            [
+                "edit",
+                "--scene",
+                "ds",
+                "--prompt",
+                "make the ball blue",
+                "--editor",
+                "simulated",
+                "--dino-weights",
+                "weights",
+                "--out",
+                "weights/edit",
+            ]
+            .map(|a| if a == "ds" || a.starts_with("weights") { d(a) } else { a.to_string() })
+            .to_vec(),
+            "weights/edit",
+            "weights",
         ),
         (
             [

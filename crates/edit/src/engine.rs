@@ -184,7 +184,8 @@ fn optimise_step(
     let mut rec = StepLosses { step, img, ..Default::default() };
     method.add_gradients(tr, vd, &mut grads, &mut rec);
     optimise::check_losses(&rec, tr.step)?;
-    let mask = if cfg.schedule.densify_every > 0 { method.densify_mask() } else { None };
+    // The mask is read only at densification steps: built only then.
+    let mask = if tr.config.densify.densifies(tr.step) { method.densify_mask() } else { None };
     let report =
         tr.finish_step(&grads, &frame, mask.as_deref()).map_err(|e| EditError::Train(e.to_string()))?;
     if let Some(r) = &report.reindex {

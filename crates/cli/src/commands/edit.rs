@@ -147,7 +147,9 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         c.validate().map_err(|e| anyhow::anyhow!("{}: {e}", cam_path.display()))?;
     }
     let mut inputs = vec![args.scene.scene.as_path(), scene_path.as_path(), cam_path.as_path()];
-    inputs.extend(args.edits.as_deref());
+    for extra in [&args.edits, &args.config, &args.ip2p_weights, &args.dino_weights] {
+        inputs.extend(extra.as_deref());
+    }
     check_output(&args.out, &inputs)?;
     let test: Vec<usize> = (0..cams.len()).filter(|&i| is_test(i)).collect();
     let mut edit_views: Vec<usize> = (0..cams.len()).filter(|&i| !is_test(i)).collect();

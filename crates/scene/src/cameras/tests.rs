@@ -434,14 +434,7 @@ fn transforms_bad_inputs() {
         (r#"{"fl_x": 10, "frames": 3}"#.into(), "missing \"frames\""),
         (r#"{"frames": [ 1, 2"#.into(), "not valid JSON"),
     ];
-    let d = tempfile::tempdir().unwrap();
-    let p = d.path().join("transforms.json");
-    for (json, want) in cases {
-        std::fs::write(&p, &json).unwrap();
-        let e = err_of(transforms::read(&p));
-        assert!(e.starts_with(&format!("{}: ", p.display())), "{json}: {e}");
-        assert!(e.contains(want), "expected {want:?} in {e:?}");
-    }
+    refused_transforms(&cases);
 }
 
 // ---------------------------------------------------------------- INRIA cameras.json
@@ -596,15 +589,10 @@ fn transforms_field_of_view_names_and_rotation() {
             "camera \"a\": rotation is not orthonormal",
         ),
     ];
+    refused_transforms(&cases);
+    // Angles just inside (0, pi) are accepted.
     let d = tempfile::tempdir().unwrap();
     let p = d.path().join("transforms.json");
-    for (json, want) in cases {
-        std::fs::write(&p, &json).unwrap();
-        let e = err_of(transforms::read(&p));
-        assert!(e.starts_with(&format!("{}: ", p.display())), "{json}: {e}");
-        assert!(e.contains(want), "expected {want:?} in {e:?}");
-    }
-    // Angles just inside (0, pi) are accepted.
     std::fs::write(&p, format!(r#"{{"camera_angle_x": 3.1, "w": 8, "h": 8, "frames": [{}]}}"#, frame("a")))
         .unwrap();
     assert!(transforms::read(&p).unwrap().cameras[0].fx > 0.0);
@@ -747,5 +735,18 @@ fn mutated_colmap_and_images_never_panic() {
                 _ => drop(image_size::from_bytes(&b)),
             }
         }
+    }
+}
+
+/// Each `(transforms.json text, expected words)` is refused with an error that starts
+/// with the file's path and holds the words.
+fn refused_transforms(cases: &[(String, &str)]) {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("transforms.json");
+    for (json, want) in cases {
+        std::fs::write(&p, json).unwrap();
+        let e = err_of(transforms::read(&p));
+        assert!(e.starts_with(&format!("{}: ", p.display())), "{json}: {e}");
+        assert!(e.contains(want), "expected {want:?} in {e:?}");
     }
 }
