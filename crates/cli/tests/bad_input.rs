@@ -285,6 +285,22 @@ fn cases() -> Vec<Case> {
             .with_scene()
             .dir("edits")
             .expect(&["no-dino", "hf download facebook/dinov2"]),
+        Case::new("edit: DINOv2 config with zero attention heads", EDIT)
+            .arg("make it blue")
+            .args("--dino-weights {d}/dino")
+            .with_scene()
+            .dir("edits")
+            .file("dino/config.json", dino_config_with("num_attention_heads", 0))
+            .file("dino/model.safetensors", dino_fixture("model.safetensors"))
+            .expect(&["dino/config.json", "num_attention_heads is 0"]),
+        Case::new("edit: DINOv2 config that does not match its weights", EDIT)
+            .arg("make it blue")
+            .args("--dino-weights {d}/dino")
+            .with_scene()
+            .dir("edits")
+            .file("dino/config.json", dino_config_with("hidden_size", 64))
+            .file("dino/model.safetensors", dino_fixture("model.safetensors"))
+            .expect(&["dino", "has shape [32] in the weights", "implies [64]"]),
         Case::new(
             "eval: CLIP weights folder missing",
             "eval --clip {d}/no-clip --source {d}/src --edited {d}/edit --source-prompt a \
@@ -952,4 +968,17 @@ fn info_on_huge_finite_log_scales_prints_finite_statistics() {
         }
         assert_eq!(snapshot(tmp.path()), before, "info wrote something");
     }
+}
+
+/// A file of the tiny DINOv2 fixture of the models crate.
+fn dino_fixture(name: &str) -> Vec<u8> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/tests/fixtures/dinov2");
+    std::fs::read(dir.join(name)).unwrap()
+}
+
+/// The DINOv2 fixture's config.json with one field changed.
+fn dino_config_with(field: &str, value: u64) -> Vec<u8> {
+    let mut config: serde_json::Value = serde_json::from_slice(&dino_fixture("config.json")).unwrap();
+    config[field] = value.into();
+    config.to_string().into_bytes()
 }

@@ -16,6 +16,7 @@ use candle_core::{DType, Device, Module, Tensor, D};
 use candle_nn::{layer_norm, linear, linear_no_bias, Embedding, LayerNorm, Linear, VarBuilder};
 use serde::Deserialize;
 
+use crate::check::{self, ModelConfig};
 use crate::resample;
 use crate::tokenizer::{ClipTokenizer, CONTEXT_LENGTH, END_OF_TEXT};
 use crate::{Error, ModelDir};
@@ -89,6 +90,74 @@ pub struct ClipConfig {
     pub projection_dim: usize,
 }
 
+/// The transformer sizes both towers share: width, heads dividing it, MLP width, depth.
+fn check_tower(
+    hidden: usize,
+    heads: usize,
+    intermediate: usize,
+    layers: usize,
+    eps: f64,
+    act: &str,
+) -> Result<(), String> {
+    Activation::named(act)?;
+    check::size("hidden_size", hidden)?;
+    check::divides("hidden_size", hidden, "num_attention_heads", heads)?;
+    check::size("intermediate_size", intermediate)?;
+    check::layers("num_hidden_layers", layers)?;
+    check::positive("layer_norm_eps", eps)
+}
+
+impl ModelConfig for ClipTextConfig {
+    fn check(&self) -> Result<(), String> {
+        check_tower(
+            self.hidden_size,
+            self.num_attention_heads,
+            self.intermediate_size,
+            self.num_hidden_layers,
+            self.layer_norm_eps,
+            &self.hidden_act,
+        )?;
+        check::size("vocab_size", self.vocab_size)?;
+        check::size("max_position_embeddings", self.max_position_embeddings)?;
+        check::size("projection_dim", self.projection_dim)?;
+        if self.eos_token_id as usize >= self.vocab_size {
+            return Err(format!(
+                "eos_token_id {} is outside vocab_size {}",
+                self.eos_token_id, self.vocab_size
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl ModelConfig for ClipVisionConfig {
+    fn check(&self) -> Result<(), String> {
+        check_tower(
+            self.hidden_size,
+            self.num_attention_heads,
+            self.intermediate_size,
+            self.num_hidden_layers,
+            self.layer_norm_eps,
+            &self.hidden_act,
+        )?;
+        check::size("num_channels", self.num_channels)?;
+        check::size("patch_size", self.patch_size)?;
+        check::size("image_size", self.image_size)?;
+        if self.image_size < self.patch_size {
+            return Err(format!("image_size {} is below patch_size {}", self.image_size, self.patch_size));
+        }
+        Ok(())
+    }
+}
+
+impl ModelConfig for ClipConfig {
+    fn check(&self) -> Result<(), String> {
+        self.text_config.check().map_err(|m| format!("text_config: {m}"))?;
+        self.vision_config.check().map_err(|m| format!("vision_config: {m}"))?;
+        check::size("projection_dim", self.projection_dim)
+    }
+}
+
 #[derive(Debug, Clone, Copy)]
 enum Activation {
     QuickGelu,
@@ -98,14 +167,15 @@ enum Activation {
 
 impl Activation {
     fn parse(name: &str, path: &std::path::Path) -> Result<Self, Error> {
+        Self::named(name).map_err(|msg| Error::Corrupt { path: path.to_path_buf(), msg })
+    }
+
+    fn named(name: &str) -> Result<Self, String> {
         match name {
             "quick_gelu" => Ok(Self::QuickGelu),
             "gelu" => Ok(Self::GeluErf),
             "gelu_new" | "gelu_pytorch_tanh" => Ok(Self::GeluTanh),
-            other => Err(Error::Corrupt {
-                path: path.to_path_buf(),
-                msg: format!("unsupported hidden_act {other:?}"),
-            }),
+            other => Err(format!("unsupported hidden_act {other:?}")),
         }
     }
 
@@ -234,11 +304,9 @@ pub struct TextOutput {
 
 /// The text config from a `CLIPModel` config (`text_config`) or a `CLIPTextModel` config.
 fn text_config(dir: &ModelDir) -> Result<ClipTextConfig, Error> {
-    let value: serde_json::Value = dir.config("config.json")?;
-    let path = dir.path.join("config.json");
+    let value = dir.json("config.json")?;
     let text = value.get("text_config").cloned().unwrap_or(value);
-    serde_json::from_value(text)
-        .map_err(|e| Error::Corrupt { path, msg: format!("not a CLIP text config: {e}") })
+    dir.checked("config.json", text)
 }
 
 impl ClipTextModel {
@@ -247,7 +315,7 @@ impl ClipTextModel {
     pub fn load(dir: &ModelDir, device: &Device) -> Result<Self, Error> {
         let config = text_config(dir)?;
         let vb = dir.var_builder("model", DType::F32, device)?;
-        Self::new(vb, config, &dir.path.join("config.json"))
+        dir.build(|| Self::new(vb, config, &dir.path.join("config.json")))
     }
 
     /// Builds the tower from weights under `text_model.*` (the hub checkpoints, e.g.
@@ -419,7 +487,7 @@ impl Clip {
                 msg: "no visual_projection weights: this is not a full CLIPModel (text and vision)".into(),
             });
         }
-        Self::new(vb, &config, &dir.path.join("config.json"))
+        dir.build(|| Self::new(vb, &config, &dir.path.join("config.json")))
     }
 
     /// Builds the model from weights in the `CLIPModel` layout.

@@ -21,6 +21,7 @@ use candle_core::{DType, Device, Module, Tensor};
 use candle_nn::{layer_norm, linear, LayerNorm, Linear, VarBuilder};
 use serde::Deserialize;
 
+use crate::check::{self, ModelConfig};
 use crate::clip::Attention;
 use crate::resample;
 use crate::{Error, ModelDir};
@@ -66,6 +67,28 @@ pub struct Dinov2Config {
     pub use_swiglu_ffn: bool,
 }
 
+impl ModelConfig for Dinov2Config {
+    fn check(&self) -> Result<(), String> {
+        if self.hidden_act != "gelu" || self.use_swiglu_ffn || !self.qkv_bias {
+            return Err(
+                "only the gelu-MLP DINOv2 models with qkv bias (dinov2-small/-base/-large) are supported"
+                    .into(),
+            );
+        }
+        check::size("hidden_size", self.hidden_size)?;
+        check::layers("num_hidden_layers", self.num_hidden_layers)?;
+        check::divides("hidden_size", self.hidden_size, "num_attention_heads", self.num_attention_heads)?;
+        check::size("patch_size", self.patch_size)?;
+        check::size("image_size", self.image_size)?;
+        if self.image_size < self.patch_size {
+            return Err(format!("image_size {} is below patch_size {}", self.image_size, self.patch_size));
+        }
+        check::positive("mlp_ratio", self.mlp_ratio)?;
+        check::size("hidden_size × mlp_ratio", (self.hidden_size as f64 * self.mlp_ratio) as usize)?;
+        check::positive("layer_norm_eps", self.layer_norm_eps)
+    }
+}
+
 #[derive(Debug, Clone)]
 struct Layer {
     norm1: LayerNorm,
@@ -95,17 +118,8 @@ impl Dinov2 {
     /// Loads a `Dinov2Model` folder (`config.json`, `model.safetensors`).
     pub fn load(dir: &ModelDir, device: &Device) -> Result<Self, Error> {
         let config: Dinov2Config = dir.config("config.json")?;
-        let path = dir.path.join("config.json");
-        if config.hidden_act != "gelu" || config.use_swiglu_ffn || !config.qkv_bias {
-            return Err(Error::Corrupt {
-                path,
-                msg:
-                    "only the gelu-MLP DINOv2 models with qkv bias (dinov2-small/-base/-large) are supported"
-                        .into(),
-            });
-        }
         let vb = dir.var_builder("model", DType::F32, device)?;
-        Self::new(vb, config)
+        dir.build(|| Self::new(vb, config))
     }
 
     /// Builds the model from weights in the hub layout.

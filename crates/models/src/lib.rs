@@ -8,6 +8,7 @@
 //! - [`tokenizer`]: the CLIP byte-pair tokenizer with its vocabulary bundled.
 //! - [`resample`]: torch-exact bicubic / bilinear resizing for the models' preprocessing.
 //! - [`bench`](mod@bench): the model cases of `transsplat bench models`.
+//! - [`check`]: field-by-field checks of model configs before building.
 //! - [`weights`]: locating, validating and memory-mapping weight folders.
 //!
 //! Every model is proven against the reference Python implementation (diffusers,
@@ -15,6 +16,7 @@
 //! `tools/model_fixtures_*.py` and committed under `tests/fixtures`.
 
 pub mod bench;
+pub mod check;
 pub mod clip;
 pub mod dinov2;
 pub mod ip2p;
@@ -22,4 +24,5 @@ pub mod resample;
 pub mod tokenizer;
 pub mod weights;
 
+pub use check::ModelConfig;
 pub use weights::{default_device, Error, ModelDir};

@@ -12,7 +12,8 @@ use std::path::{Path, PathBuf};
 
 use candle_core::{DType, Device};
 use candle_nn::{VarBuilder, VarMap};
-use serde::de::DeserializeOwned;
+
+use crate::check::ModelConfig;
 
 /// What went wrong while locating or opening weights.
 #[derive(Debug, thiserror::Error)]
@@ -69,11 +70,37 @@ impl ModelDir {
         }
     }
 
-    /// Parses `name` (usually `config.json`) in this folder.
-    pub fn config<T: DeserializeOwned>(&self, name: &str) -> Result<T, Error> {
+    /// Parses `name` (usually `config.json`) in this folder as JSON, unchecked.
+    pub fn json(&self, name: &str) -> Result<serde_json::Value, Error> {
         let path = self.path.join(name);
         let text = std::fs::read_to_string(&path).map_err(|_| self.missing(name))?;
         serde_json::from_str(&text).map_err(|e| Error::Corrupt { path, msg: format!("invalid JSON: {e}") })
+    }
+
+    /// Parses `name` (usually `config.json`) in this folder and checks it field by field
+    /// ([`ModelConfig::check`]); a problem is an error naming the file and the field.
+    pub fn config<T: ModelConfig>(&self, name: &str) -> Result<T, Error> {
+        self.checked(name, self.json(name)?)
+    }
+
+    /// `value` (read from `name` in this folder, or a part of it) as a checked config.
+    pub fn checked<T: ModelConfig>(&self, name: &str, value: serde_json::Value) -> Result<T, Error> {
+        let path = self.path.join(name);
+        let config: T = serde_json::from_value(value)
+            .map_err(|e| Error::Corrupt { path: path.clone(), msg: format!("invalid config: {e}") })?;
+        config.check().map_err(|msg| Error::Corrupt { path, msg })?;
+        Ok(config)
+    }
+
+    /// Runs `build` (a model constructor reading this folder's weights) and turns the
+    /// tensor library's errors into one line naming this folder: a tensor whose shape in
+    /// the weights differs from the one the config implies names the tensor and both
+    /// shapes; a missing tensor is named; no backtrace is printed.
+    pub fn build<T>(&self, build: impl FnOnce() -> Result<T, Error>) -> Result<T, Error> {
+        build().map_err(|e| match e {
+            Error::Candle(e) => Error::Corrupt { path: self.path.clone(), msg: weights_mismatch(e) },
+            other => other,
+        })
     }
 
     /// The path of a file that must exist in this folder.
@@ -150,6 +177,27 @@ impl ModelDir {
             path: files[0].clone(),
             msg: format!("not a readable safetensors file: {e}"),
         })
+    }
+}
+
+/// One line for a tensor-library error raised while building a model from weights.
+fn weights_mismatch(e: candle_core::Error) -> String {
+    use candle_core::Error as C;
+    match e {
+        C::WithBacktrace { inner, .. } => weights_mismatch(*inner),
+        C::UnexpectedShape { msg, expected, got } => {
+            let name = msg.strip_prefix("shape mismatch for ").unwrap_or(&msg);
+            format!(
+                "tensor {name} has shape {:?} in the weights but the config implies {:?}: \
+                 config.json does not match these weights",
+                got.dims(),
+                expected.dims()
+            )
+        }
+        C::CannotFindTensor { path } => {
+            format!("the weights have no tensor {path}: config.json does not match these weights")
+        }
+        other => other.to_string().lines().next().unwrap_or_default().to_string(),
     }
 }
 

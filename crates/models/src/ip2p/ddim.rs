@@ -10,6 +10,8 @@
 use candle_core::Tensor;
 use serde::Deserialize;
 
+use crate::check::{self, ModelConfig};
+
 fn beta_start() -> f64 {
     0.0001
 }
@@ -97,13 +99,33 @@ pub struct Ddim {
     prediction: Prediction,
 }
 
+/// Most training timesteps a scheduler config may declare (SD uses 1000).
+const MAX_TIMESTEPS: usize = 100_000;
+
+impl ModelConfig for DdimConfig {
+    /// Errors naming the first field that cannot describe a schedule.
+    fn check(&self) -> Result<(), String> {
+        let n = self.num_train_timesteps;
+        if !(2..=MAX_TIMESTEPS).contains(&n) {
+            return Err(format!("num_train_timesteps is {n}: must be between 2 and {MAX_TIMESTEPS}"));
+        }
+        if self.steps_offset >= n {
+            return Err(format!("steps_offset {} is not below num_train_timesteps {n}", self.steps_offset));
+        }
+        for (field, b) in [("beta_start", self.beta_start), ("beta_end", self.beta_end)] {
+            if !(b > 0.0 && b < 1.0) {
+                return Err(format!("{field} is {b}: must lie in (0, 1)"));
+            }
+        }
+        check::positive("clip_sample_range", self.clip_sample_range)
+    }
+}
+
 impl Ddim {
     /// The schedule of `config`; errors name unsupported settings.
     pub fn new(config: DdimConfig) -> Result<Self, String> {
+        config.check()?;
         let n = config.num_train_timesteps;
-        if n < 2 {
-            return Err(format!("num_train_timesteps {n} is too small"));
-        }
         let betas: Vec<f64> = match config.beta_schedule.as_str() {
             "linear" => (0..n)
                 .map(|i| {

@@ -84,7 +84,6 @@ impl Ip2p {
     pub fn load(pipeline: &ModelDir, device: &Device) -> Result<Self, Error> {
         let unet_dir = pipeline.component("unet", "InstructPix2Pix UNet")?;
         let config: UNetConfig = unet_dir.config("config.json")?;
-        config.check().map_err(|m| corrupt(&unet_dir, "config.json", m))?;
         if config.in_channels != 2 * config.out_channels {
             return Err(corrupt(
                 &unet_dir,
@@ -96,12 +95,10 @@ impl Ip2p {
             ));
         }
         let vb = unet_dir.var_builder("diffusion_pytorch_model", DType::F32, device)?;
-        let unet = UNet::new(vb, config)
-            .map_err(|e| corrupt(&unet_dir, "diffusion_pytorch_model", e.to_string()))?;
+        let unet = unet_dir.build(|| Ok(UNet::new(vb, config)?))?;
 
         let vae_dir = pipeline.component("vae", "InstructPix2Pix VAE")?;
         let config: VaeConfig = vae_dir.config("config.json")?;
-        config.check().map_err(|m| corrupt(&vae_dir, "config.json", m))?;
         if config.latent_channels != unet.config.out_channels {
             return Err(corrupt(
                 &vae_dir,
@@ -113,8 +110,7 @@ impl Ip2p {
             ));
         }
         let vb = vae_dir.var_builder("diffusion_pytorch_model", DType::F32, device)?;
-        let vae =
-            Vae::new(vb, config).map_err(|e| corrupt(&vae_dir, "diffusion_pytorch_model", e.to_string()))?;
+        let vae = vae_dir.build(|| Ok(Vae::new(vb, config)?))?;
 
         let sched = pipeline.path.join("scheduler").join("scheduler_config.json");
         let config = if sched.is_file() {

@@ -14,6 +14,8 @@ use candle_transformers::models::stable_diffusion::embeddings::{TimestepEmbeddin
 use candle_transformers::models::stable_diffusion::resnet::{ResnetBlock2D, ResnetBlock2DConfig};
 use serde::Deserialize;
 
+use crate::check::{self, ModelConfig};
+
 /// A config value diffusers writes either once for all blocks or once per block.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(untagged)]
@@ -106,14 +108,30 @@ fn one_usize() -> usize {
     1
 }
 
-impl UNetConfig {
-    /// Errors naming the first setting this implementation does not support.
-    pub fn check(&self) -> Result<(), String> {
+/// Most resolutions (blocks) a UNet or VAE config may list; SD has 4.
+pub(crate) const MAX_BLOCKS: usize = 16;
+
+impl ModelConfig for UNetConfig {
+    /// Errors naming the first field that cannot describe a UNet or that this
+    /// implementation does not support.
+    fn check(&self) -> Result<(), String> {
         let n = self.block_out_channels.len();
-        if n == 0 || self.down_block_types.len() != n || self.up_block_types.len() != n {
-            return Err("block_out_channels, down_block_types and up_block_types must have one \
-                        entry per resolution"
-                .into());
+        if n == 0 || n > MAX_BLOCKS || self.down_block_types.len() != n || self.up_block_types.len() != n {
+            return Err(format!(
+                "block_out_channels, down_block_types and up_block_types must have one \
+                 entry per resolution (1 to {MAX_BLOCKS})"
+            ));
+        }
+        check::size("in_channels", self.in_channels)?;
+        check::size("out_channels", self.out_channels)?;
+        check::size("cross_attention_dim", self.cross_attention_dim)?;
+        check::positive("norm_eps", self.norm_eps)?;
+        check::positive("mid_block_scale_factor", self.mid_block_scale_factor)?;
+        if !self.freq_shift.is_finite() {
+            return Err(format!("freq_shift is {}: must be finite", self.freq_shift));
+        }
+        if self.downsample_padding > 1 {
+            return Err(format!("downsample_padding is {}: must be 0 or 1", self.downsample_padding));
         }
         let lists = [
             ("layers_per_block", Some(&self.layers_per_block)),
@@ -159,17 +177,21 @@ impl UNetConfig {
             return Err("only resnet_time_scale_shift \"default\" is supported".into());
         }
         for (i, &c) in self.block_out_channels.iter().enumerate() {
-            let heads = self.heads(i);
-            if c % self.norm_num_groups != 0 || heads == 0 || c % heads != 0 {
-                return Err(format!(
-                    "block {i}: {c} channels do not divide into {} groups / {heads} heads",
-                    self.norm_num_groups
-                ));
-            }
+            let channels = format!("block_out_channels[{i}]");
+            check::size(&channels, c)?;
+            check::divides(&channels, c, "norm_num_groups", self.norm_num_groups)?;
+            check::divides(&channels, c, &format!("attention heads of block {i}"), self.heads(i))?;
+            check::layers(&format!("layers_per_block of block {i}"), self.layers_per_block.get(i))?;
+            check::layers(
+                &format!("transformer_layers_per_block of block {i}"),
+                self.transformer_layers_per_block.get(i),
+            )?;
         }
         Ok(())
     }
+}
 
+impl UNetConfig {
     /// Attention heads of block `i`: diffusers reads the (misnamed) `attention_head_dim`
     /// as the number of heads when `num_attention_heads` is absent.
     fn heads(&self, i: usize) -> usize {

@@ -13,6 +13,9 @@ use candle_transformers::models::stable_diffusion::unet_2d_blocks::{
 };
 use serde::Deserialize;
 
+use super::unet::MAX_BLOCKS;
+use crate::check::{self, ModelConfig};
+
 fn three() -> usize {
     3
 }
@@ -55,11 +58,23 @@ pub struct VaeConfig {
     pub shift_factor: Option<f64>,
 }
 
-impl VaeConfig {
-    /// Errors naming the first setting this implementation does not support.
-    pub fn check(&self) -> Result<(), String> {
-        if self.block_out_channels.is_empty() {
-            return Err("block_out_channels is empty".into());
+impl ModelConfig for VaeConfig {
+    /// Errors naming the first field that cannot describe an auto-encoder or that this
+    /// implementation does not support.
+    fn check(&self) -> Result<(), String> {
+        let n = self.block_out_channels.len();
+        if n == 0 || n > MAX_BLOCKS {
+            return Err(format!("block_out_channels must list 1 to {MAX_BLOCKS} resolutions, not {n}"));
+        }
+        check::size("in_channels", self.in_channels)?;
+        check::size("out_channels", self.out_channels)?;
+        check::size("latent_channels", self.latent_channels)?;
+        check::layers("layers_per_block", self.layers_per_block)?;
+        check::positive("scaling_factor", self.scaling_factor)?;
+        for (i, &c) in self.block_out_channels.iter().enumerate() {
+            let channels = format!("block_out_channels[{i}]");
+            check::size(&channels, c)?;
+            check::divides(&channels, c, "norm_num_groups", self.norm_num_groups)?;
         }
         if !self.mid_block_add_attention {
             return Err("mid_block_add_attention = false is not supported".into());
@@ -67,12 +82,11 @@ impl VaeConfig {
         if self.shift_factor.is_some_and(|s| s != 0.0) {
             return Err("shift_factor is not supported (SD 1.x VAEs have none)".into());
         }
-        if let Some(c) = self.block_out_channels.iter().find(|&&c| c % self.norm_num_groups != 0) {
-            return Err(format!("{c} channels do not divide into {} groups", self.norm_num_groups));
-        }
         Ok(())
     }
+}
 
+impl VaeConfig {
     /// Image pixels per latent pixel along each axis (8 for SD).
     pub fn downscale(&self) -> usize {
         1 << (self.block_out_channels.len() - 1)
