@@ -43,7 +43,7 @@ pub fn layers(field: &str, value: usize) -> Result<(), String> {
 /// groups into channels).
 pub fn divides(total_field: &str, total: usize, parts_field: &str, parts: usize) -> Result<(), String> {
     size(parts_field, parts)?;
-    if total % parts != 0 {
+    if !total.is_multiple_of(parts) {
         return Err(format!("{total_field} {total} does not divide into {parts_field} {parts}"));
     }
     Ok(())
