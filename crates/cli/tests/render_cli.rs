@@ -58,7 +58,8 @@ fn render_writes_png_and_npy_matching_the_library() {
         }
     }
     let names: Vec<_> = std::fs::read_dir(&out).unwrap().map(|e| e.unwrap().file_name()).collect();
-    assert_eq!(names.len(), 4, "{names:?}");
+    assert_eq!(names.len(), 5, "{names:?}");
+    assert!(names.iter().any(|n| n == "render.json"), "{names:?}");
 }
 
 #[test]

@@ -36,7 +36,11 @@ fn scene_writes_a_dataset_the_readers_open() {
         serde_json::from_slice(&std::fs::read(out.join("labels.json")).unwrap()).unwrap();
     assert_eq!(meta["test_views"], serde_json::json!(["view_000", "view_008"]));
 
-    // a non-empty folder is refused (exit 2) unless --force
+    // a rerun replaces the earlier dataset; a foreign non-empty folder is refused (exit 2)
+    // unless --force
+    let st = bin().args(["scene", "tabletop", "--out"]).arg(&out).args(args).status().unwrap();
+    assert!(st.success());
+    std::fs::remove_file(out.join("labels.json")).unwrap();
     let o = bin().args(["scene", "tabletop", "--out"]).arg(&out).args(args).output().unwrap();
     assert_eq!(o.status.code(), Some(2));
     let err = String::from_utf8_lossy(&o.stderr);

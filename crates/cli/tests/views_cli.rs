@@ -72,7 +72,7 @@ fn views_export_writes_the_edit_views_and_refuses_foreign_files() {
     let o = export(&foreign);
     assert_eq!(o.status.code(), Some(2));
     assert!(
-        String::from_utf8_lossy(&o.stderr).contains("did not write"),
+        String::from_utf8_lossy(&o.stderr).contains("was not written by this command"),
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );

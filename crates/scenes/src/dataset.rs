@@ -77,36 +77,18 @@ pub fn write_dataset(
         return Err(out_err(dir, "exists and is not a folder"));
     }
     let non_empty = exists && std::fs::read_dir(dir).map_err(|e| out_err(dir, e))?.next().is_some();
-    if non_empty && !opts.force {
+    if non_empty && opts.force {
+        return write_into(scene, dir, progress);
+    }
+    if non_empty && !dir.join("labels.json").is_file() {
         return Err(out_err(dir, "output folder exists and is not empty (use --force to write into it)"));
     }
-    if non_empty {
-        let summary = write_into(scene, dir, progress)?;
-        return Ok(summary);
-    }
-    let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "dataset".into());
-    let parent = match dir.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    std::fs::create_dir_all(&parent).map_err(|e| out_err(&parent, format!("cannot create folder: {e}")))?;
-    let tmp = parent.join(format!(".{name}.partial-{}", std::process::id()));
-    if tmp.exists() {
-        std::fs::remove_dir_all(&tmp).map_err(|e| out_err(&tmp, e))?;
-    }
-    let result = write_into(scene, &tmp, progress).and_then(|mut s| {
-        if exists {
-            std::fs::remove_dir(dir).map_err(|e| out_err(dir, e))?;
-        }
-        std::fs::rename(&tmp, dir)
-            .map_err(|e| out_err(dir, format!("cannot move the dataset into place: {e}")))?;
-        s.dir = dir.to_path_buf();
-        Ok(s)
-    });
-    if result.is_err() {
-        let _ = std::fs::remove_dir_all(&tmp);
-    }
-    result
+    // Staged beside `dir` and moved into place when complete (an earlier dataset, marked
+    // by its labels.json, is replaced): an interrupted run leaves `dir` as it was.
+    let staged = atomic::StagedDir::begin(dir, "labels.json")?;
+    let mut summary = write_into(scene, staged.path(), progress)?;
+    summary.dir = staged.commit()?;
+    Ok(summary)
 }
 
 fn mkdir(p: &Path) -> Result<(), Error> {

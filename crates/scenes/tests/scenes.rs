@@ -325,9 +325,17 @@ fn dataset_round_trips_through_the_scene_readers() {
         }
     }
 
-    // a non-empty folder is refused unless forced; forcing rewrites the files
-    let e = write_dataset(&s, &dir, &WriteOptions::default(), &mut |_, _| {}).unwrap_err().to_string();
+    // an earlier dataset is replaced as a whole; a foreign non-empty folder is refused
+    // unless forced, and forcing rewrites the files and deletes nothing
+    std::fs::write(dir.join("stale.txt"), b"old").unwrap();
+    write_dataset(&s, &dir, &WriteOptions::default(), &mut |_, _| {}).unwrap();
+    assert!(!dir.join("stale.txt").exists() && dir.join("labels.json").is_file());
+    let foreign = tmp.path().join("foreign");
+    std::fs::create_dir(&foreign).unwrap();
+    std::fs::write(foreign.join("mine.txt"), b"mine").unwrap();
+    let e = write_dataset(&s, &foreign, &WriteOptions::default(), &mut |_, _| {}).unwrap_err().to_string();
     assert!(e.contains("not empty"), "{e}");
+    assert_eq!(std::fs::read_dir(&foreign).unwrap().count(), 1);
     std::fs::write(dir.join("keep.txt"), b"mine").unwrap();
     std::fs::remove_file(dir.join("images/view_003.png")).unwrap();
     write_dataset(&s, &dir, &WriteOptions { force: true }, &mut |_, _| {}).unwrap();

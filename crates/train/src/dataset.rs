@@ -22,11 +22,13 @@
 //! the file. `resolution = R` then divides the size by R (rounded, as INRIA `-r`),
 //! averaging pixels (area resampling) and scaling fx, fy, cx, cy by the same ratio.
 //!
-//! Masks: `masks/<image stem>.png` (or `.jpg`, or the image's file name), greyscale
-//! in [0, 1], resized with the image. A mask is a per-pixel loss weight: the loss
-//! and the test PSNR only see pixels where it is non-zero (0/1 masks: "loss only
-//! inside the mask"). A folder with a `labels.json` (the built-in scenes) holds
-//! object-label maps in `masks/`, not training masks; they are ignored there.
+//! Masks ([`Masks`]): only when asked for (a folder of `<image stem>.png` / `.jpg` or the
+//! image's file name) or declared by the dataset per frame (transforms.json
+//! `mask_path`). A `masks/` folder alone is not a request: datasets prepared for editing
+//! often carry one holding the edit target, and training only inside it would leave the
+//! rest of the scene unfitted. Masks are greyscale in [0, 1], resized with the image; a
+//! mask is a per-pixel loss weight: the loss (and the masked test PSNR) only see pixels
+//! where it is non-zero.
 //!
 //! Split: cameras sorted by image name; every `test_every`-th (index % 8 == 0, INRIA
 //! `llffhold`) is a test view. With fewer than two cameras nothing is held out.
@@ -44,16 +46,30 @@ pub struct LoadOptions {
     pub resolution: u32,
     /// Colour RGBA images are composited over (and the render background).
     pub background: [f32; 3],
-    /// Use `masks/` when present.
-    pub use_masks: bool,
+    /// Where training masks come from.
+    pub masks: Masks,
     /// Every this-many-th camera is a test view (0 = none).
     pub test_every: usize,
 }
 
 impl Default for LoadOptions {
     fn default() -> Self {
-        LoadOptions { resolution: 1, background: [0.0; 3], use_masks: true, test_every: LLFF_HOLD }
+        LoadOptions { resolution: 1, background: [0.0; 3], masks: Masks::Declared, test_every: LLFF_HOLD }
     }
+}
+
+/// Where training masks come from.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub enum Masks {
+    /// The masks the dataset declares per frame (transforms.json `mask_path`); none
+    /// for frames (and formats) that declare none.
+    #[default]
+    Declared,
+    /// `DIR/<image stem>.png` (or `.jpg`, or the image's file name) for every view; a
+    /// view without one is an error naming the camera.
+    Folder(PathBuf),
+    /// No masks, not even declared ones.
+    Off,
 }
 
 /// One training or test view at the loaded resolution.
@@ -105,6 +121,7 @@ pub fn load(dir: &Path, opts: &LoadOptions) -> Result<Dataset> {
     let sparse = [dir.join("sparse").join("0"), dir.join("sparse")]
         .into_iter()
         .find(|d| d.join("cameras.bin").is_file() || d.join("cameras.txt").is_file());
+    let mut declared: Vec<Option<PathBuf>> = Vec::new();
     let (kind, mut cams, images, points_path, points): (_, _, Vec<PathBuf>, _, _) = if let Some(sp) = sparse {
         let model = colmap::read_sparse(&sp)?;
         let imgs = model.cameras.iter().map(|c| find_image(&dir.join("images"), &c.name)).collect();
@@ -116,6 +133,7 @@ pub fn load(dir: &Path, opts: &LoadOptions) -> Result<Dataset> {
     } else if dir.join("transforms.json").is_file() {
         let tpath = dir.join("transforms.json");
         let t = transforms::read(&tpath)?;
+        declared = t.mask_paths.clone();
         let imgs = t.cameras.iter().map(|c| find_image(dir, &c.name)).collect();
         let pts = match &t.ply_file_path {
             Some(p) => Some(points::read(p)?),
@@ -139,23 +157,17 @@ pub fn load(dir: &Path, opts: &LoadOptions) -> Result<Dataset> {
     }
     let mut order: Vec<usize> = (0..cams.len()).collect();
     order.sort_by(|&a, &b| cams[a].name.cmp(&cams[b].name));
-    let mut pairs: Vec<(Camera, PathBuf)> =
-        order.iter().map(|&i| (std::mem::replace(&mut cams[i], placeholder()), images[i].clone())).collect();
-    let label_maps = dir.join("labels.json").is_file();
-    let masks_dir = dir.join("masks");
-    let use_masks = opts.use_masks && masks_dir.is_dir() && !label_maps;
-    if opts.use_masks && masks_dir.is_dir() && label_maps {
-        tracing::info!(
-            "{}: masks/ holds object-label maps (labels.json present); not using them as training masks",
-            dir.display()
-        );
-    }
+    declared.resize(cams.len(), None);
+    let mut pairs: Vec<(Camera, PathBuf, Option<PathBuf>)> = order
+        .iter()
+        .map(|&i| (std::mem::replace(&mut cams[i], placeholder()), images[i].clone(), declared[i].take()))
+        .collect();
     let mut resized = 0usize;
     let mut train = Vec::new();
     let mut test = Vec::new();
     let n = pairs.len();
     let cameras: Vec<Camera> = pairs.iter().map(|p| p.0.clone()).collect();
-    for (k, (cam, path)) in pairs.drain(..).enumerate() {
+    for (k, (cam, path, declared)) in pairs.drain(..).enumerate() {
         if !path.is_file() {
             return Err(Error::format(&path, format!("image for camera {:?} is missing", cam.name)));
         }
@@ -164,26 +176,29 @@ pub fn load(dir: &Path, opts: &LoadOptions) -> Result<Dataset> {
         resized += was_resized as usize;
         let (w, h) = scaled_size(img.width, img.height, opts.resolution);
         let data = resample(&img.data, img.width, img.height, 3, w, h);
-        let weights = if use_masks {
-            match find_mask(&masks_dir, &cam.name) {
-                Some(mp) => {
-                    let m = image::read(&mp)?;
-                    if (m.width, m.height) != (img.width, img.height) {
-                        return Err(Error::format(
-                            &mp,
-                            format!(
-                                "mask is {}x{} but its image is {}x{}",
-                                m.width, m.height, img.width, img.height
-                            ),
-                        ));
-                    }
-                    let grey: Vec<f32> = m.data.chunks_exact(3).map(|p| p[0]).collect();
-                    Some(resample(&grey, m.width, m.height, 1, w, h))
+        let mask = match &opts.masks {
+            Masks::Off => None,
+            Masks::Declared => declared,
+            Masks::Folder(d) => Some(find_mask(d, &cam.name).ok_or_else(|| {
+                Error::format(d, format!("no mask for camera {:?} (expected {}.png)", cam.name, cam.stem()))
+            })?),
+        };
+        let weights = match mask {
+            Some(mp) => {
+                let m = image::read(&mp)?;
+                if (m.width, m.height) != (img.width, img.height) {
+                    return Err(Error::format(
+                        &mp,
+                        format!(
+                            "mask is {}x{} but its image is {}x{}",
+                            m.width, m.height, img.width, img.height
+                        ),
+                    ));
                 }
-                None => None,
+                let grey: Vec<f32> = m.data.chunks_exact(3).map(|p| p[0]).collect();
+                Some(resample(&grey, m.width, m.height, 1, w, h))
             }
-        } else {
-            None
+            None => None,
         };
         let view = View { camera: scale_camera(&cam, w, h), image: data, weights, path };
         if n > 1 && is_held_out(k, opts.test_every) {
@@ -199,6 +214,7 @@ pub fn load(dir: &Path, opts: &LoadOptions) -> Result<Dataset> {
             dir.display()
         );
     }
+    log_masks(dir, opts, &train, &test);
     let points = match points {
         Some(p) if p.is_empty() => {
             tracing::warn!(
@@ -210,6 +226,29 @@ pub fn load(dir: &Path, opts: &LoadOptions) -> Result<Dataset> {
         p => p,
     };
     Ok(Dataset { kind, cameras, train, test, points, points_path })
+}
+
+/// Says which masks training uses, and that an unrequested `masks/` folder is not used.
+fn log_masks(dir: &Path, opts: &LoadOptions, train: &[View], test: &[View]) {
+    let masked = train.iter().chain(test).filter(|v| v.weights.is_some()).count();
+    let total = train.len() + test.len();
+    let source = match &opts.masks {
+        Masks::Folder(d) => format!("from {}", d.display()),
+        Masks::Declared => "declared by the dataset (mask_path)".into(),
+        Masks::Off => String::new(),
+    };
+    if masked > 0 {
+        tracing::info!(
+            "training masks {source} on {masked} of {total} views: the loss and the masked test PSNR see only \
+             the pixels inside them"
+        );
+    } else if opts.masks != Masks::Off && dir.join("masks").is_dir() {
+        tracing::info!(
+            "{}: not used as training masks (pass --masks {} to train only inside them)",
+            dir.join("masks").display(),
+            dir.join("masks").display()
+        );
+    }
 }
 
 fn placeholder() -> Camera {

@@ -69,23 +69,34 @@ pub fn initial_model(ds: &Dataset, opts: &FitOptions) -> (Model, InitSource) {
 /// Mean test metrics.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Eval {
+    /// Mean PSNR over whole images.
     pub psnr: f32,
+    /// Mean PSNR inside the views' masks, when the test views have masks.
+    pub masked_psnr: Option<f32>,
     pub views: usize,
 }
 
-/// Mean PSNR of the current model over `views` (mask-weighted where masks exist).
+/// Mean PSNR of the current model over `views`: over whole images, and inside the
+/// masks where the views have them (a number that alone would hide an unfitted
+/// background).
 pub fn evaluate(trainer: &Trainer, views: &[View]) -> Eval {
     if views.is_empty() {
         return Eval::default();
     }
-    let total: f32 = views
-        .iter()
-        .map(|v| {
-            let (img, _) = trainer.render(&v.camera);
-            psnr(&img.rgb, &v.image, v.weights.as_deref())
-        })
-        .sum();
-    Eval { psnr: total / views.len() as f32, views: views.len() }
+    let (mut whole, mut masked, mut with_masks) = (0.0f32, 0.0f32, 0usize);
+    for v in views {
+        let (img, _) = trainer.render(&v.camera);
+        whole += psnr(&img.rgb, &v.image, None);
+        if let Some(w) = v.weights.as_deref() {
+            masked += psnr(&img.rgb, &v.image, Some(w));
+            with_masks += 1;
+        }
+    }
+    Eval {
+        psnr: whole / views.len() as f32,
+        masked_psnr: (with_masks > 0).then(|| masked / with_masks as f32),
+        views: views.len(),
+    }
 }
 
 /// Progress of a run, for a progress bar.
@@ -240,6 +251,10 @@ pub fn fit_with(
     }
     Ok(evaluate(trainer, &ds.test))
 }
+
+/// The run summary `train.json` in a training output folder (steps, Gaussians, test
+/// PSNR); it also marks the folder as `train`'s own, which a rerun may replace.
+pub const SUMMARY_FILE: &str = "train.json";
 
 /// Writes the INRIA output layout: `out/point_cloud/iteration_N/point_cloud.ply`
 /// and `out/cameras.json`, each file atomically. Returns the PLY path.

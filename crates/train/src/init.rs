@@ -195,6 +195,10 @@ fn sees(cam: &Camera, p: [f32; 3]) -> bool {
     u >= 0.0 && v >= 0.0 && u < cam.width as f32 && v < cam.height as f32
 }
 
+/// Most random initial points a run may ask for (10 million: far more than any
+/// capture needs, and about 2.5 GB of Gaussians with their optimiser state).
+pub const MAX_RANDOM_POINTS: usize = 10_000_000;
+
 /// `n` random points in the cameras' common view: uniform in a box around the point
 /// the cameras look at (half-size: the mean camera distance to it), kept when at
 /// least half the cameras see them (any camera, if too few pass), with random

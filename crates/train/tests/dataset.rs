@@ -3,6 +3,7 @@
 use std::path::Path;
 use transsplat_scene::cameras::inria;
 use transsplat_scene::{image, Camera};
+use transsplat_train::dataset::Masks;
 use transsplat_train::{dataset, LoadOptions};
 
 fn camera(name: &str, w: u32, h: u32, z: f32) -> Camera {
@@ -114,13 +115,34 @@ fn transforms_with_point_cloud_and_masks() {
         "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n\
 property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n0 0 1 255 0 0\n1 1 2 0 0 255\n";
     std::fs::write(dir.join("points.ply"), ply).unwrap();
+    let mask = Some(&[0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0][..]);
+    // A masks/ folder alone is not used.
     let ds = dataset::load(dir, &LoadOptions::default()).unwrap();
     assert_eq!(ds.kind, dataset::DatasetKind::Transforms);
     assert_eq!(ds.points.as_ref().unwrap().len(), 2);
-    assert_eq!(ds.train[0].weights.as_deref(), Some(&[0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0][..]));
+    assert!(ds.train[0].weights.is_none() && ds.test[0].weights.is_none());
+    // Asked for: every view needs one (test view f0 has none).
+    let folder = LoadOptions { masks: Masks::Folder(dir.join("masks")), ..Default::default() };
+    let e = dataset::load(dir, &folder).unwrap_err().to_string();
+    assert!(e.contains("masks") && e.contains("no mask for camera \"images/f0.png\""), "{e}");
+    image::write_png(&dir.join("masks/f0.png"), 4, 2, &[1.0; 24]).unwrap();
+    let ds = dataset::load(dir, &folder).unwrap();
+    assert_eq!(ds.train[0].weights.as_deref(), mask);
+    assert_eq!(ds.test[0].weights.as_deref(), Some(&[1.0; 8][..]));
+    // Declared per frame (transforms.json mask_path): used by default, off with Masks::Off.
+    let mut t2 = t.clone();
+    t2["frames"][1]["mask_path"] = "masks/f1.png".into();
+    std::fs::write(dir.join("transforms.json"), t2.to_string()).unwrap();
+    let ds = dataset::load(dir, &LoadOptions::default()).unwrap();
+    assert_eq!(ds.train[0].weights.as_deref(), mask);
     assert!(ds.test[0].weights.is_none());
-    let ds = dataset::load(dir, &LoadOptions { use_masks: false, ..Default::default() }).unwrap();
+    let ds = dataset::load(dir, &LoadOptions { masks: Masks::Off, ..Default::default() }).unwrap();
     assert!(ds.train[0].weights.is_none());
+    t2["frames"][1]["mask_path"] = 3.into();
+    std::fs::write(dir.join("transforms.json"), t2.to_string()).unwrap();
+    let e = dataset::load(dir, &LoadOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("transforms.json") && e.contains("\"mask_path\" is not a file name"), "{e}");
+    std::fs::write(dir.join("transforms.json"), t.to_string()).unwrap();
     // An empty point cloud falls back to random initialisation.
     std::fs::write(dir.join("points.ply"), "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n").unwrap();
     assert!(dataset::load(dir, &LoadOptions::default()).unwrap().points.is_none());

@@ -3,6 +3,7 @@
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
+use transsplat_scene::atomic::StagedDir;
 use transsplat_scene::{cameras, ply, scene_paths, Camera, Gaussians};
 use transsplat_train::{Checkpointer, Control};
 
@@ -100,31 +101,13 @@ pub fn check_output(out: &Path, inputs: &[&Path]) -> Result<()> {
     Ok(())
 }
 
-/// Creates the output folder, refusing one that is an input file or holds the inputs
-/// in a way outputs could overwrite.
-pub fn prepare_out_dir(out: &Path, inputs: &[&Path]) -> Result<PathBuf> {
+/// Begins a folder output: the one output rule ([`check_output`]), then a staging
+/// folder beside `out` that replaces it only on commit. Nothing appears at `out` until
+/// the command completes; any failure, full disk or signal leaves `out` as it was. An
+/// existing `out` must be empty or hold `marker` (an earlier output of the same command).
+pub fn staged_output(out: &Path, inputs: &[&Path], marker: &str) -> Result<StagedDir> {
     check_output(out, inputs)?;
-    if out.exists() && !out.is_dir() {
-        bail!("{}: output path exists and is not a folder", out.display());
-    }
-    std::fs::create_dir_all(out)
-        .with_context(|| format!("{}: cannot create output folder", out.display()))?;
-    let out =
-        out.canonicalize().with_context(|| format!("{}: cannot resolve output folder", out.display()))?;
-    // Outputs are written straight into this folder: the folder of an input file is
-    // refused too.
-    if let Some(input) = inputs.iter().find(|i| i.canonicalize().is_ok_and(|i| i.parent() == Some(&out))) {
-        bail!(
-            "{}: output folder is the folder of the input {}; choose another so no input can be overwritten",
-            out.display(),
-            input.display()
-        );
-    }
-    let probe = out.join(".transsplat-write-test");
-    std::fs::write(&probe, b"")
-        .with_context(|| format!("{}: output folder is not writable", out.display()))?;
-    let _ = std::fs::remove_file(probe);
-    Ok(out)
+    Ok(StagedDir::begin(out, marker)?)
 }
 
 /// Parses a finite number (a flag value; NaN and infinities are refused).

@@ -1,11 +1,11 @@
 //! `transsplat render`: renders every camera of a scene to PNG (and raw `.npy`).
 
-use super::common::{load_cameras, load_scene, parse_rgb, prepare_out_dir, progress, SceneArgs};
-use anyhow::{bail, Result};
+use super::common::{load_cameras, load_scene, parse_rgb, progress, staged_output, SceneArgs};
+use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use transsplat_raster::{render, RenderOptions, Splats};
-use transsplat_scene::{image, npy, Camera, Gaussians};
+use transsplat_scene::{atomic, image, npy, Camera, Gaussians};
 
 /// Arguments of `transsplat render`.
 #[derive(clap::Args, Debug)]
@@ -15,7 +15,8 @@ pub struct RenderArgs {
     /// Cameras: cameras.json, transforms.json, a COLMAP folder (sparse/0); default: beside the scene.
     #[arg(long)]
     pub cameras: Option<PathBuf>,
-    /// Output folder: `<image name>.png` per camera.
+    /// Output folder: `<image name>.png` per camera and render.json; it appears only when
+    /// every view is written (an existing one must be empty or an earlier render output).
     #[arg(long)]
     pub out: PathBuf,
     /// Also write float32 H×W×3 RGB as `<image name>.npy`.
@@ -30,11 +31,22 @@ pub struct RenderArgs {
 pub fn run(args: &RenderArgs, cancel: &AtomicBool) -> Result<()> {
     let (g, scene_path) = load_scene(&args.scene)?;
     let (cams, cam_path) = load_cameras(args.cameras.as_deref(), &args.scene.scene)?;
-    let out = prepare_out_dir(&args.out, &[&args.scene.scene, &scene_path, &cam_path])?;
-    render_views(&g, &cams, &out, args.background, args.raw, cancel)?;
+    let staged = staged_output(&args.out, &[&args.scene.scene, &scene_path, &cam_path], MARKER)?;
+    render_views(&g, &cams, staged.path(), args.background, args.raw, cancel)
+        .with_context(|| format!("nothing was written to {}", args.out.display()))?;
+    let summary = serde_json::json!({
+        "scene": std::path::absolute(&scene_path)?, "cameras": std::path::absolute(&cam_path)?,
+        "views": cams.len(), "background": args.background, "raw": args.raw,
+    });
+    atomic::write_bytes(&staged.path().join(MARKER), format!("{summary:#}\n").as_bytes())?;
+    let out = staged.commit()?;
     tracing::info!("rendered {} views to {}", cams.len(), out.display());
     Ok(())
 }
+
+/// What `render` writes beside the images (the scene, cameras and settings); it marks a
+/// folder as `render`'s own, which a rerun may replace.
+pub const MARKER: &str = "render.json";
 
 /// Renders `g` from every camera to `out/<image name>.png` (and `.npy` with `raw`).
 /// Stops between views when `cancel` is set; every file written is complete (each is
@@ -53,11 +65,7 @@ pub fn render_views(
     for (i, cam) in cams.iter().enumerate() {
         if cancel.load(Ordering::SeqCst) {
             pb.finish_and_clear();
-            bail!(
-                "interrupted after {i} of {} views; the views in {} are complete",
-                cams.len(),
-                out.display()
-            );
+            bail!("interrupted after {i} of {} views", cams.len());
         }
         let (img, _) = render(&splats, cam, &opts);
         let stem = cam.stem();

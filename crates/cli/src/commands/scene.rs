@@ -11,7 +11,8 @@ use transsplat_scenes::{build, write_dataset, SceneConfig, WriteOptions};
 pub struct BuiltinSceneArgs {
     /// Scene name: tabletop or occluded.
     pub name: String,
-    /// Output folder (must be missing or empty unless --force).
+    /// Output folder: missing, empty or an earlier scene dataset (replaced), unless --force;
+    /// it appears only when the whole dataset is written.
     #[arg(long)]
     pub out: PathBuf,
     /// Image width in pixels (default 256; 128 with --quick).

@@ -1,11 +1,14 @@
 //! `transsplat train`: 3DGS training from a COLMAP, transforms.json or INRIA-layout
 //! dataset into an INRIA output folder; and `transsplat bench train`.
 
-use super::common::{parse_rgb, prepare_out_dir, progress, CheckpointArgs};
+use super::common::{parse_rgb, progress, staged_output, CheckpointArgs};
 use anyhow::{bail, Context, Result};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
-use transsplat_train::fit::{train_run_id, TRAIN_FILE};
+use transsplat_scene::atomic;
+use transsplat_train::dataset::Masks;
+use transsplat_train::fit::{train_run_id, SUMMARY_FILE, TRAIN_FILE};
+use transsplat_train::init::MAX_RANDOM_POINTS;
 use transsplat_train::{
     dataset, fit_with, initial_model, scene_extent, write_output, DensifyConfig, FitOptions, FitState,
     InitSource, LearningRates, LoadOptions, TrainConfig, TrainError, Trainer,
@@ -17,7 +20,9 @@ pub struct TrainArgs {
     /// Dataset folder: COLMAP (sparse/0 + images/), transforms.json, or cameras.json + images/.
     #[arg(long)]
     pub data: PathBuf,
-    /// Output folder (INRIA layout: point_cloud/iteration_N/point_cloud.ply, cameras.json).
+    /// Output folder (INRIA layout: point_cloud/iteration_N/point_cloud.ply, cameras.json,
+    /// and train.json with the run's summary). It appears only when training is complete;
+    /// an existing one must be empty or an earlier train output, which is replaced.
     #[arg(long)]
     pub out: PathBuf,
     /// Training steps (INRIA: 30000).
@@ -38,10 +43,15 @@ pub struct TrainArgs {
     /// Highest SH degree (0-3).
     #[arg(long, default_value_t = 3)]
     pub sh_degree: u32,
-    /// Random points when the dataset has no point cloud.
+    /// Random points when the dataset has no point cloud (at most 10 million).
     #[arg(long, default_value_t = 100_000)]
     pub random_points: usize,
-    /// Ignore masks/ even when present.
+    /// Train only inside these masks: DIR/<image stem>.png (or .jpg) for every view, grey
+    /// in [0, 1], a per-pixel loss weight. Without it, only masks the dataset declares per
+    /// frame (transforms.json mask_path) are used; a masks/ folder alone is not.
+    #[arg(long, value_name = "DIR", conflicts_with = "no_masks")]
+    pub masks: Option<PathBuf>,
+    /// Ignore the masks the dataset declares (transforms.json mask_path).
     #[arg(long)]
     pub no_masks: bool,
     /// Opacity learning rate (INRIA: 0.025; up to 0.05).
@@ -68,18 +78,27 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
     if !(args.opacity_lr.is_finite() && args.opacity_lr >= 0.0) {
         bail!("--opacity-lr must be a non-negative number");
     }
-    let load = LoadOptions {
-        resolution: args.resolution,
-        background: args.background,
-        use_masks: !args.no_masks,
-        ..Default::default()
+    if args.random_points > MAX_RANDOM_POINTS {
+        bail!("--random-points must be at most {MAX_RANDOM_POINTS}, got {}", args.random_points);
+    }
+    let masks = match (&args.masks, args.no_masks) {
+        (Some(dir), _) => Masks::Folder(dir.clone()),
+        (None, true) => Masks::Off,
+        (None, false) => Masks::Declared,
     };
-    // The dataset is checked before the output folder is created: a bad dataset leaves nothing behind.
+    let load =
+        LoadOptions { resolution: args.resolution, background: args.background, masks, ..Default::default() };
+    // The dataset is checked before anything is written: a bad dataset leaves nothing behind.
     let ds = dataset::load(&args.data, &load)?;
     if ds.train.is_empty() {
         bail!("{}: no training views", args.data.display());
     }
-    let out = prepare_out_dir(&args.out, &[&args.data])?;
+    // The output is written into a hidden staging folder beside it and appears only when
+    // complete: any failure or signal leaves no output folder and no partial files.
+    let mut inputs: Vec<&Path> = vec![&args.data];
+    inputs.extend(args.masks.as_deref());
+    let staged = staged_output(&args.out, &inputs, SUMMARY_FILE)?;
+    let out = std::path::absolute(&args.out).unwrap_or_else(|_| args.out.clone());
     let (w, h) = (ds.train[0].camera.width, ds.train[0].camera.height);
     tracing::info!(
         "{}: {:?} dataset, {} training and {} test views at {w}x{h}",
@@ -156,12 +175,21 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
         }
     };
     pb.finish_and_clear();
-    let ply = write_output(&out, &trainer, &ds.cameras)?;
+    let ply = write_output(staged.path(), &trainer, &ds.cameras)?;
+    let ply = out.join(ply.strip_prefix(staged.path()).unwrap_or(&ply));
+    let summary = serde_json::json!({
+        "steps": trainer.step, "gaussians": trainer.model.len(),
+        "test_psnr": (eval.views > 0).then_some(eval.psnr), "test_psnr_masked": eval.masked_psnr,
+        "test_views": eval.views, "seconds": started.elapsed().as_secs_f64(), "scene": ply,
+    });
+    atomic::write_bytes(&staged.path().join(SUMMARY_FILE), format!("{summary:#}\n").as_bytes())?;
+    staged.commit()?;
     if let Some(ck) = &control.checkpoint {
         ck.remove();
     }
+    let masked = eval.masked_psnr.map_or(String::new(), |m| format!(" ({m:.2} dB inside the masks)"));
     tracing::info!(
-        "{} steps in {:.1} s: {} Gaussians, test PSNR {:.2} dB over {} views; wrote {}",
+        "{} steps in {:.1} s: {} Gaussians, test PSNR {:.2} dB over {} whole views{masked}; wrote {}",
         trainer.step,
         started.elapsed().as_secs_f64(),
         trainer.model.len(),
@@ -169,14 +197,7 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
         eval.views,
         ply.display()
     );
-    println!(
-        "{}",
-        serde_json::json!({
-            "steps": trainer.step, "gaussians": trainer.model.len(),
-            "test_psnr": if eval.views > 0 { Some(eval.psnr) } else { None }, "test_views": eval.views,
-            "seconds": started.elapsed().as_secs_f64(), "scene": ply,
-        })
-    );
+    println!("{summary}");
     Ok(())
 }
 

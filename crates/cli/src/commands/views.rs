@@ -1,7 +1,7 @@
 //! `transsplat views export`: renders the edit views (the training views, index % 8 != 0)
 //! for editing with any 2D tool; the edited folder goes back in with `--editor folder`.
 
-use super::common::{load_cameras, load_scene, parse_rgb, prepare_out_dir, progress, SceneArgs};
+use super::common::{load_cameras, load_scene, parse_rgb, progress, staged_output, SceneArgs};
 use anyhow::Result;
 use std::path::PathBuf;
 use transsplat_editors::export_views_with;
@@ -52,27 +52,20 @@ pub fn export(args: &ExportArgs) -> Result<()> {
             cams.len()
         );
     }
-    let out = prepare_out_dir(&args.out, &[&args.scene.scene, &scene_path, &cam_path])?;
-    // never overwrite images this command did not write (e.g. a dataset's own images)
-    if !out.join("views.json").is_file() {
-        if let Some(&i) = edit.iter().find(|&&i| out.join(format!("{}.png", cams[i].stem())).exists()) {
-            anyhow::bail!(
-                "{}: already holds {}.png, which views export did not write; choose an empty folder",
-                out.display(),
-                cams[i].stem()
-            );
-        }
-    }
+    // Never overwrites what this command did not write (e.g. a dataset's own images):
+    // an existing folder must be empty or an earlier export (with views.json).
+    let staged = staged_output(&args.out, &[&args.scene.scene, &scene_path, &cam_path], "views.json")?;
     let splats = Splats::new(&g);
     let opts = RenderOptions { background: args.background };
     let pb = progress(edit.len() as u64, "render");
     let views: Vec<(usize, &Camera)> = edit.iter().map(|&i| (i, &cams[i])).collect();
-    export_views_with(&views, &out, |_, _, cam| {
+    export_views_with(&views, staged.path(), |_, _, cam| {
         let (img, _) = render(&splats, cam, &opts);
         pb.inc(1);
         Ok(img.rgb)
     })?;
     pb.finish_and_clear();
+    let out = staged.commit()?;
     tracing::info!("exported {} edit views to {}", views.len(), out.display());
     Ok(())
 }

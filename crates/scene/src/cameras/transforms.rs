@@ -6,7 +6,8 @@
 //! `fl_x fl_y cx cy w h`, or Blender's `camera_angle_x` (fx = fy = w / (2 tan(a/2)),
 //! principal point at the centre, `w h` from the image header when not given); an
 //! angle must be a field of view in radians, in (0, π).
-//! Distortion `k1..k4 p1 p2` must be zero and `camera_model` a pinhole one.
+//! Distortion `k1..k4 p1 p2` must be zero and `camera_model` a pinhole one. A frame's
+//! optional `mask_path` names its training mask (nerfstudio's convention).
 
 use crate::{Camera, Error, Result};
 use serde_json::Value;
@@ -19,6 +20,9 @@ pub struct Transforms {
     pub cameras: Vec<Camera>,
     /// `ply_file_path` resolved relative to the JSON file's folder.
     pub ply_file_path: Option<PathBuf>,
+    /// Each frame's `mask_path` (nerfstudio's per-frame training mask), resolved
+    /// relative to the JSON file's folder; one entry per camera.
+    pub mask_paths: Vec<Option<PathBuf>>,
 }
 
 /// Reads a `transforms.json`.
@@ -43,6 +47,7 @@ pub(crate) fn from_value(value: &Value, path: &Path) -> Result<Transforms> {
         top.get("frames").and_then(Value::as_array).ok_or_else(|| err("missing \"frames\" list".into()))?;
     let base = path.parent().unwrap_or(Path::new(""));
     let mut cameras = Vec::with_capacity(frames.len());
+    let mut mask_paths = Vec::with_capacity(frames.len());
     for (i, frame) in frames.iter().enumerate() {
         let fobj = frame.as_object().ok_or_else(|| err(format!("frame {i} is not an object")))?;
         let name = fobj
@@ -51,6 +56,11 @@ pub(crate) fn from_value(value: &Value, path: &Path) -> Result<Transforms> {
             .ok_or_else(|| err(format!("frame {i}: missing \"file_path\"")))?
             .to_string();
         let what = format!("frame {i} ({name:?})");
+        mask_paths.push(match fobj.get("mask_path") {
+            None | Some(Value::Null) => None,
+            Some(Value::String(s)) if !s.trim().is_empty() => Some(base.join(s)),
+            Some(_) => return Err(err(format!("{what}: \"mask_path\" is not a file name"))),
+        });
         let get = |k: &str| fobj.get(k).or_else(|| top.get(k)).filter(|v| !v.is_null());
         let number = |k: &str| -> Result<Option<f64>> {
             match get(k) {
@@ -142,7 +152,7 @@ pub(crate) fn from_value(value: &Value, path: &Path) -> Result<Transforms> {
         Some(Value::String(s)) => Some(base.join(s)),
         Some(_) => return Err(err("\"ply_file_path\" is not a string".into())),
     };
-    Ok(Transforms { cameras, ply_file_path })
+    Ok(Transforms { cameras, ply_file_path, mask_paths })
 }
 
 /// The first three rows of a 4x4 or 3x4 matrix.
