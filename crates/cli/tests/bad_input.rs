@@ -379,6 +379,41 @@ fn cases() -> Vec<Case> {
             .file("ds/sparse/0/images.txt", "1 1 0 0 0 0 0 3 1 view_0.png\n\n")
             .file("ds/images/view_0.png", png(40, 30))
             .expect(&["images.txt", "focal length fx = 0"]),
+        Case::new("train: --random-points beyond the bound", "train --data {d}/ds --out {d}/out --iters 1")
+            .args("--random-points 1000000000000")
+            .file("ds/cameras.json", cameras_json(&cams(2)))
+            .file("ds/images/view_0.png", png(40, 30))
+            .file("ds/images/view_1.png", png(40, 30))
+            .expect(&["--random-points must be at most 10000000"]),
+        Case::new(
+            "train: --masks folder without a view's mask",
+            "train --data {d}/ds --out {d}/out --iters 1",
+        )
+        .args("--masks {d}/m")
+        .file("ds/cameras.json", cameras_json(&cams(2)))
+        .file("ds/images/view_0.png", png(40, 30))
+        .file("ds/images/view_1.png", png(40, 30))
+        .file("m/view_0.png", png(40, 30))
+        .expect(&["{d}/m", "no mask for camera \"view_1\""]),
+        Case::new(
+            "train: a declared mask_path that is not a name",
+            "train --data {d}/ds --out {d}/out --iters 1",
+        )
+        .file(
+            "ds/transforms.json",
+            r#"{"fl_x": 40, "w": 40, "h": 30, "frames": [{"file_path": "a.png", "mask_path": 7,
+                    "transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}]}"#,
+        )
+        .file("ds/a.png", png(40, 30))
+        .expect(&["transforms.json", "\"mask_path\" is not a file name"]),
+        Case::new("train: a declared mask that is missing", "train --data {d}/ds --out {d}/out --iters 1")
+            .file(
+                "ds/transforms.json",
+                r#"{"fl_x": 40, "w": 40, "h": 30, "frames": [{"file_path": "a.png", "mask_path": "m/a.png",
+                    "transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}]}"#,
+            )
+            .file("ds/a.png", png(40, 30))
+            .expect(&["m/a.png"]),
         // ---- uot
         Case::new("uot: cost is not a .npy", UOT)
             .args("--cost {d}/cost.npy --source {d}/a.npy --target {d}/b.npy")
