@@ -78,7 +78,7 @@ fn failed_and_stopped_training_leaves_no_output_folder() {
 }
 
 #[test]
-fn render_views_and_scene_on_a_full_disk_leave_nothing_and_rerun() {
+fn render_views_edit_and_scene_on_a_full_disk_leave_nothing_and_rerun() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     quick_scene_in(d, "data");
@@ -91,6 +91,13 @@ fn render_views_and_scene_on_a_full_disk_leave_nothing_and_rerun() {
     nothing_left(d, "v", &limited(d, 4, &export), &[".png"]);
     ok(&bin().current_dir(d).args(export).output().unwrap());
     assert!(d.join("v/views.json").is_file());
+
+    let edit = ["edit", "--scene", "data", "--prompt", "make the ball blue", "--editor", "simulated"];
+    let edit: Vec<&str> =
+        edit.into_iter().chain(["--steps", "5", "--checkpoint-every", "0", "--out", "e"]).collect();
+    nothing_left(d, "e", &limited(d, 4, &edit), &[]);
+    ok(&bin().current_dir(d).args(&edit).output().unwrap());
+    assert!(d.join("e/transport.json").is_file());
 
     let scene = ["scene", "tabletop", "--quick", "--out", "s"];
     nothing_left(d, "s", &limited(d, 4, &scene), &[]);
