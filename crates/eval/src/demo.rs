@@ -26,6 +26,10 @@ pub struct DemoOptions {
     pub methods: Vec<Method>,
     pub config: EditConfig,
     pub seed: u64,
+    /// Train the scene from its own renders for this many steps and edit the trained
+    /// scene (0: edit the built-in Gaussians). Scenes trained from photos are what users
+    /// bring; see [`crate::trained`].
+    pub trained: u64,
 }
 
 impl Default for DemoOptions {
@@ -39,6 +43,7 @@ impl Default for DemoOptions {
             methods: Method::ALL.to_vec(),
             config: EditConfig::default(),
             seed: 0,
+            trained: 0,
         }
     }
 }
@@ -65,6 +70,8 @@ pub enum DemoError {
     Edit(#[from] EditError),
     #[error(transparent)]
     Io(#[from] transsplat_scene::Error),
+    #[error("training the scene from its renders: {0}")]
+    Train(#[from] transsplat_train::TrainError),
 }
 
 /// Marker file of a finished demo folder.
@@ -85,8 +92,25 @@ pub fn run(
     let label = sim.target_label();
     let truth = sim.ground_truth().clone();
     tracing::info!("demo: scene {} ({} Gaussians), {description}", scene.name, scene.gaussians.len());
-    let reference = Reference::new(&scene, &truth, label);
-    let source = scene.gaussians_with_labels();
+    let mut reference = Reference::new(&scene, &truth, label);
+    let (source, trained_psnr) = if opts.trained > 0 {
+        let (g, psnr) = crate::trained::train_from_renders(
+            &scene,
+            opts.trained,
+            opts.seed,
+            &dir,
+            cancel,
+            &mut |s, n| {
+                on_progress("train", Progress::Step { step: s as usize, steps: n as usize, loss: 0.0 })
+            },
+        )?;
+        // Background PSNR then measures what the edit changed outside the target, not
+        // the trained scene's own error.
+        reference = reference.with_source(&scene, &g);
+        (g, Some(psnr))
+    } else {
+        (scene.gaussians_with_labels(), None)
+    };
     let bg = scene.background;
     let test = scene.test_views();
     let stems: Vec<String> = test.iter().map(|&v| scene.cameras[v].stem()).collect();
@@ -120,9 +144,14 @@ pub fn run(
         let mut editor = sim.clone();
         let res = transsplat_edit::run(&job, &mut editor, &cfg, cancel, &mut |p| on_progress(m.name(), p))?;
         let metrics = reference.score(&scene, &res.gaussians);
-        let labels = labels_from_extra(&res.gaussians).unwrap_or_else(|| scene.labels.clone());
+        // Gaussian labels exist for the built-in Gaussians only (not for a trained scene).
+        let labels = labels_from_extra(&res.gaussians)
+            .or_else(|| (opts.trained == 0).then(|| scene.labels.clone()))
+            .filter(|l| l.len() == res.gaussians.len())
+            .unwrap_or_default();
         let is_target: Vec<bool> = labels.iter().map(|&l| l == label).collect();
-        let gate_auroc = res.gate.as_ref().and_then(|g| auroc(g, &is_target));
+        let gate_auroc =
+            res.gate.as_ref().filter(|_| !is_target.is_empty()).and_then(|g| auroc(g, &is_target));
         if let Some(g) = &res.gate {
             let mean = |want: bool| {
                 let v: Vec<f32> =
@@ -182,7 +211,8 @@ pub fn run(
         .collect();
     let metrics = serde_json::json!({
         "scene": scene.name, "prompt": opts.prompt, "edit": description, "severity": opts.severity,
-        "quick": opts.quick, "gaussians": scene.gaussians.len(), "test_views": test,
+        "quick": opts.quick, "gaussians": source.len(), "test_views": test,
+        "trained_steps": opts.trained, "trained_test_psnr": trained_psnr,
         "methods": methods,
     });
     write_report(&dir, &opts.prompt, &description, &scene.name, &stems, &scores, &results, &config)?;

@@ -62,6 +62,16 @@ impl Reference {
         r
     }
 
+    /// The same references with the source renders taken from `source` (a scene
+    /// trained from the built-in scene's renders): background PSNR then measures what an
+    /// edit changed outside the target rather than the trained scene's own error.
+    pub fn with_source(mut self, scene: &Scene, source: &Gaussians) -> Self {
+        let opts = RenderOptions { background: self.background };
+        let s = Splats::new(source);
+        self.source = self.views.iter().map(|&v| render(&s, &scene.cameras[v], &opts).0.rgb).collect();
+        self
+    }
+
     /// Scores `edited` (rendered on the same test views).
     pub fn score(&self, scene: &Scene, edited: &Gaussians) -> GtMetrics {
         let opts = RenderOptions { background: self.background };

@@ -6,6 +6,7 @@
 //!   its ground-truth edit on the test views (docs/method.md#v2-ground-truth-metrics: target PSNR inside
 //!   the target mask against the ground-truth edit, background PSNR outside it
 //!   against the original, SSIM, gate AUROC against the per-Gaussian target label).
+//! - [`trained`]: a built-in scene trained from its own renders (`demo --trained N`).
 //! - [`heatmap`]: per-Gaussian values (the gate) rendered as a colour map.
 //! - [`demo`]: the built-in benchmark: a scene, the simulated editor, TransSplat and
 //!   every baseline and ablation, `metrics.json` and `report.html` ([`report`]).
@@ -17,3 +18,4 @@ pub mod ground_truth;
 pub mod heatmap;
 pub mod metrics;
 pub mod report;
+pub mod trained;

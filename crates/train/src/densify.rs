@@ -81,6 +81,10 @@ impl Default for DensifyConfig {
     }
 }
 
+/// Steps a run needs after an opacity reset to recover (see
+/// [`DensifyConfig::resets_opacity`]).
+pub const RESET_RECOVERY_STEPS: u64 = 500;
+
 impl DensifyConfig {
     /// No densification, pruning or opacity reset at all.
     pub fn disabled() -> Self {
@@ -100,11 +104,17 @@ impl DensifyConfig {
             && step.is_multiple_of(self.interval)
     }
 
-    /// Whether to reset opacities after `step`.
-    pub fn resets_opacity(&self, step: u64) -> bool {
+    /// Whether to reset opacities after `step` of a run of `iterations` steps: every
+    /// `opacity_reset_interval` steps while densifying, but never within the last
+    /// [`RESET_RECOVERY_STEPS`] of the run. A reset sets every opacity to at most 0.01
+    /// and needs a few hundred steps to recover; INRIA's 30k schedule always leaves
+    /// that time (its last reset is at 12000), but a run of 3000 steps would otherwise
+    /// reset at its very last step and end with every Gaussian nearly transparent.
+    pub fn resets_opacity(&self, step: u64, iterations: u64) -> bool {
         step < self.until_step
             && self.opacity_reset_interval > 0
             && step.is_multiple_of(self.opacity_reset_interval)
+            && step.saturating_add(RESET_RECOVERY_STEPS) <= iterations
     }
 
     /// Whether the size-based pruning applies at `step` (after the first reset).

@@ -280,7 +280,7 @@ impl Trainer {
             report.reindex = Some(r);
             report.densified = Some(counts);
         }
-        if d.resets_opacity(step) {
+        if d.resets_opacity(step, self.config.iterations) {
             // The mask refers to the rows before densification.
             let mask = match (&report.reindex, densify_mask) {
                 (Some(r), Some(m)) => Some(r.src.iter().map(|&s| m[s as usize]).collect::<Vec<bool>>()),

@@ -202,7 +202,10 @@ fn opacity_reset_caps_opacity_and_zeroes_its_moments() {
 fn schedule_defaults_follow_inria() {
     let d = DensifyConfig::default();
     assert!(!d.densifies(500) && d.densifies(600) && !d.densifies(650) && !d.densifies(15_000));
-    assert!(d.resets_opacity(3000) && !d.resets_opacity(3100) && !d.resets_opacity(15_000));
+    let run = 30_000;
+    assert!(d.resets_opacity(3000, run) && !d.resets_opacity(3100, run) && !d.resets_opacity(15_000, run));
+    // Never in the last 500 steps of a run: a 3000-step run keeps its opacities.
+    assert!(d.resets_opacity(3000, 3500) && !d.resets_opacity(3000, 3499) && !d.resets_opacity(3000, 3000));
     assert!(!d.prunes_large(3000) && d.prunes_large(3001));
     assert!(!DensifyConfig::disabled().densifies(600) && !DensifyConfig::disabled().records(1));
 }

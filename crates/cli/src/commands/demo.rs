@@ -38,6 +38,10 @@ pub struct DemoArgs {
     pub set: Vec<String>,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Train the scene from its own renders for N steps first and edit the trained scene
+    /// (what users bring: a scene trained from photos); scored against the same truth.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub trained: u64,
 }
 
 /// Runs `transsplat demo`.
@@ -68,6 +72,7 @@ pub fn run(args: &DemoArgs, cancel: &AtomicBool) -> Result<()> {
         methods,
         config,
         seed: args.seed,
+        trained: args.trained,
     };
     let mut bar: Option<(String, indicatif::ProgressBar)> = None;
     let (out, scores) = demo::run(&opts, Some(cancel), &mut |name, p| {
