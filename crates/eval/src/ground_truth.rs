@@ -62,6 +62,25 @@ impl Reference {
         r
     }
 
+    /// How well `scene_like` (a scene trained from the built-in scene's renders)
+    /// reproduces the unedited truth on the test views: PSNR inside the target mask and
+    /// over the background, against the source renders. The target value bounds what an
+    /// edit of that scene can reach on target PSNR (its reconstruction error stays).
+    pub fn fidelity(&self, scene: &Scene, scene_like: &Gaussians) -> (f64, f64) {
+        let opts = RenderOptions { background: self.background };
+        let s = Splats::new(scene_like);
+        let (mut se_t, mut n_t, mut se_b, mut n_b) = (0.0, 0, 0.0, 0);
+        for (k, &v) in self.views.iter().enumerate() {
+            let img = render(&s, &scene.cameras[v], &opts).0.rgb;
+            let (a, b) = squared_error(&img, &self.source[k], Some(&self.target_mask[k]));
+            (se_t, n_t) = (se_t + a, n_t + b);
+            let (a, b) = squared_error(&img, &self.source[k], Some(&self.background_mask[k]));
+            (se_b, n_b) = (se_b + a, n_b + b);
+        }
+        let masked = |se: f64, n: usize| if n == 0 { f64::NAN } else { psnr_from_mse(se / n as f64) };
+        (masked(se_t, n_t), masked(se_b, n_b))
+    }
+
     /// The same references with the source renders taken from `source` (a scene
     /// trained from the built-in scene's renders): background PSNR then measures what an
     /// edit changed outside the target rather than the trained scene's own error.
