@@ -70,8 +70,8 @@ pub enum DemoError {
     Edit(#[from] EditError),
     #[error(transparent)]
     Io(#[from] transsplat_scene::Error),
-    #[error("training the scene from its renders: {0}")]
-    Train(#[from] transsplat_train::TrainError),
+    #[error(transparent)]
+    Trained(#[from] crate::trained::TrainedError),
 }
 
 /// Marker file of a finished demo folder.

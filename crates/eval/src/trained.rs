@@ -17,7 +17,16 @@ use transsplat_train::{
     fit_with, initial_model, scene_extent, Control, FitOptions, FitState, TrainConfig, Trainer,
 };
 
-use crate::demo::DemoError;
+/// Why a scene could not be trained from its renders.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainedError {
+    #[error(transparent)]
+    Scene(#[from] transsplat_scenes::Error),
+    #[error(transparent)]
+    Io(#[from] transsplat_scene::Error),
+    #[error("training the scene from its renders: {0}")]
+    Train(#[from] transsplat_train::TrainError),
+}
 
 /// The scene trained for `steps` steps from the renders of `scene`'s training views
 /// (every 8th view held out), its dataset written under `work` and removed afterwards;
@@ -29,7 +38,7 @@ pub fn train_from_renders(
     work: &Path,
     cancel: Option<&AtomicBool>,
     on_step: &mut dyn FnMut(u64, u64),
-) -> Result<(Gaussians, f32), DemoError> {
+) -> Result<(Gaussians, f32), TrainedError> {
     let data = work.join("dataset");
     write_dataset(scene, &data, &WriteOptions::default(), &mut |_, _| {})?;
     let ds = dataset::load(&data, &LoadOptions { background: scene.background, ..Default::default() })?;
