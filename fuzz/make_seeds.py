@@ -290,3 +290,25 @@ put("archive", "file_truncated", b"\x00" + archive_body(ENTRIES)[:40])
 # Writer-driven: type, name length, name, count, values (see build() in the target)
 put("archive", "writer_f32_text", b"\x02" + b"\x00\x03abc\x02" + struct.pack("<2f", 1.5, -2) + b"\x04\x01t\x03hi!")
 put("archive", "writer_mutated", b"\x03" + b"\x10\x00\x0b\x7f" + b"\x02\x01s\x01" + struct.pack("<Q", 9) + b"\x03\x00\x01")
+
+# ---------------------------------------------------------------- model configs
+# First byte: 0 DINOv2, 1 CLIP text, 2 CLIP vision, 3 CLIP, 4 UNet, 5 VAE, 6 DDIM.
+import json
+
+FIX = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "crates", "models", "tests", "fixtures")
+
+
+def fixture(path):
+    with open(os.path.join(FIX, path)) as f:
+        return json.load(f)
+
+
+clip_full = fixture("clip/full/config.json")
+for kind, name, cfg in [(0, "dinov2", fixture("dinov2/config.json")), (1, "clip_text", fixture("clip/text/config.json")),
+                        (2, "clip_vision", clip_full["vision_config"]), (3, "clip", clip_full),
+                        (4, "unet", fixture("ip2p/unet/config.json")), (5, "vae", fixture("ip2p/vae/config.json")),
+                        (6, "ddim", fixture("ip2p/scheduler/scheduler_config.json"))]:
+    put("model_config", name, bytes([kind]) + json.dumps(cfg).encode())
+put("model_config", "dinov2_zero_heads", b"\x00" + json.dumps(dict(fixture("dinov2/config.json"), num_attention_heads=0)).encode())
+put("model_config", "unet_zero_groups", b"\x04" + json.dumps(dict(fixture("ip2p/unet/config.json"), norm_num_groups=0)).encode())
+put("model_config", "vae_many_blocks", b"\x05" + json.dumps(dict(fixture("ip2p/vae/config.json"), block_out_channels=[8] * 70)).encode())
