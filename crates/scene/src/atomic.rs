@@ -40,6 +40,53 @@ pub fn read(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(|e| Error::io(path, e))
 }
 
+/// `p` made absolute with every existing part resolved (links, `..`), so paths that
+/// do not exist yet compare with the inputs they might overwrite.
+fn resolved(p: &Path) -> PathBuf {
+    let abs = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let mut existing = abs.as_path();
+    let mut rest = Vec::new();
+    while !existing.exists() {
+        let (Some(parent), Some(name)) = (existing.parent(), existing.file_name()) else { return abs };
+        rest.push(name.to_os_string());
+        existing = parent;
+    }
+    let mut out = existing.canonicalize().unwrap_or_else(|_| existing.to_path_buf());
+    out.extend(rest.iter().rev());
+    out
+}
+
+/// The one rule for every command's output, file or folder: refused (naming both paths)
+/// when it is an input, contains an input, or lies inside an input folder (a dataset
+/// given as a folder) or the `images` folder of a dataset beside an input file.
+/// `inputs` are the paths as given and as resolved (both may be listed).
+pub fn check_output(out: &Path, inputs: &[&Path]) -> Result<()> {
+    let o = resolved(out);
+    for input in inputs {
+        let i = resolved(input);
+        let images = i.parent().map(|d| d.join("images"));
+        let why = if o == i {
+            "is the input"
+        } else if i.starts_with(&o) {
+            "contains the input"
+        } else if i.is_dir() && o.starts_with(&i) {
+            "lies inside the input folder"
+        } else if images.is_some_and(|d| d.is_dir() && o.starts_with(&d)) {
+            "lies inside the images folder of the dataset of"
+        } else {
+            continue;
+        };
+        return Err(Error::format(
+            out,
+            format!(
+                "the output {why} {}; choose another output so no input can be overwritten",
+                input.display()
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// Staging folders of this process not yet committed or dropped, for [`remove_staged`].
 static STAGED: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
 
@@ -146,8 +193,14 @@ impl Drop for StagedDir {
 mod tests {
     use super::*;
 
+    /// [`remove_staged`] removes every staging folder of the process, so the tests that
+    /// stage folders run one at a time (CI once saw one test's `remove_staged` remove
+    /// the other's folder while it was being committed).
+    static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
     #[test]
     fn staged_dir_replaces_only_its_own_output_and_cleans_up() {
+        let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
         let dir = tempfile::tempdir().unwrap();
         let target = dir.path().join("out");
         let s = StagedDir::begin(&target, "done.json").unwrap();
@@ -174,6 +227,7 @@ mod tests {
 
     #[test]
     fn hard_exits_and_killed_runs_leave_no_staging_folder() {
+        let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
         let dir = tempfile::tempdir().unwrap();
         let target = dir.path().join("out");
         let s = StagedDir::begin(&target, "done.json").unwrap();
