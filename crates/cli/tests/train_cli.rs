@@ -29,6 +29,24 @@ fn train_on_a_built_in_scene_writes_an_inria_folder() {
     assert!(last["test_psnr"].as_f64().unwrap() > 5.0);
     assert!(out.join("point_cloud/iteration_60/point_cloud.ply").is_file());
     assert!(out.join("cameras.json").is_file());
+    // Every test view is scored (whole image) and rendered; the mean is their mean.
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("train.json")).unwrap()).unwrap();
+    let views = summary["per_test_view"].as_array().unwrap();
+    assert_eq!(views.len() as u64, summary["test_views"].as_u64().unwrap());
+    assert!(views.len() >= 2, "{summary}");
+    let mut sum = 0.0;
+    for v in views {
+        let (psnr, ssim) = (v["psnr"].as_f64().unwrap(), v["ssim"].as_f64().unwrap());
+        assert!(psnr.is_finite() && ssim > 0.0 && ssim <= 1.0, "{v}");
+        sum += psnr;
+        let stem = std::path::Path::new(v["name"].as_str().unwrap()).file_stem().unwrap().to_owned();
+        assert!(out.join("test_renders").join(stem).with_extension("png").is_file(), "{v}");
+    }
+    assert!((sum / views.len() as f64 - summary["test_psnr"].as_f64().unwrap()).abs() < 1e-3);
+    let worst = summary["worst_test_view"]["psnr"].as_f64().unwrap();
+    assert!(views.iter().all(|v| v["psnr"].as_f64().unwrap() >= worst));
+    assert!(summary["train_psnr_sample"].as_f64().unwrap().is_finite());
     let renders = dir.path().join("renders");
     let st = bin().args(["render", "--scene"]).arg(&out).arg("--out").arg(&renders).output().unwrap();
     assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));

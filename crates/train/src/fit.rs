@@ -7,7 +7,7 @@ use crate::checkpoint::{get_rng, get_trainer, non_finite_parameters, put_rng, pu
 use crate::checkpoint::{Checkpointer, Control, RunId};
 use crate::dataset::{Dataset, LoadOptions, View};
 use crate::init::{gaussians_from_points, random_points};
-use crate::loss::psnr;
+use crate::loss::{psnr, ssim};
 use crate::model::Model;
 use crate::trainer::{scene_extent, StepReport, TrainConfig, TrainError, Trainer};
 use rand::seq::SliceRandom;
@@ -66,36 +66,67 @@ pub fn initial_model(ds: &Dataset, opts: &FitOptions) -> (Model, InitSource) {
     (Model::new(g, 0), source)
 }
 
-/// Mean test metrics.
+/// Test metrics of one view.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ViewScore {
+    /// The camera's image name.
+    pub name: String,
+    /// PSNR and SSIM over the whole image.
+    pub psnr: f32,
+    pub ssim: f32,
+}
+
+/// Mean test metrics, and each view's.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Eval {
     /// Mean PSNR over whole images.
     pub psnr: f32,
+    /// Mean SSIM over whole images.
+    pub ssim: f32,
     /// Mean PSNR inside the views' masks, when the test views have masks.
     pub masked_psnr: Option<f32>,
     pub views: usize,
+    /// Every view's scores, in the order given.
+    pub per_view: Vec<ViewScore>,
 }
 
-/// Mean PSNR of the current model over `views`: over whole images, and inside the
-/// masks where the views have them (a number that alone would hide an unfitted
-/// background).
+impl Eval {
+    /// The view with the lowest PSNR (a view far below the mean is the floater
+    /// symptom: haze in front of that camera).
+    pub fn worst(&self) -> Option<&ViewScore> {
+        self.per_view.iter().min_by(|a, b| a.psnr.total_cmp(&b.psnr))
+    }
+}
+
+/// PSNR and SSIM of the current model over `views`: over whole images, and the PSNR
+/// inside the masks where the views have them (a number that alone would hide an
+/// unfitted background).
 pub fn evaluate(trainer: &Trainer, views: &[View]) -> Eval {
     if views.is_empty() {
         return Eval::default();
     }
-    let (mut whole, mut masked, mut with_masks) = (0.0f32, 0.0f32, 0usize);
+    let (mut masked, mut with_masks) = (0.0f32, 0usize);
+    let mut per_view = Vec::with_capacity(views.len());
     for v in views {
         let (img, _) = trainer.render(&v.camera);
-        whole += psnr(&img.rgb, &v.image, None);
-        if let Some(w) = v.weights.as_deref() {
-            masked += psnr(&img.rgb, &v.image, Some(w));
+        let (w, h) = (v.camera.width as usize, v.camera.height as usize);
+        per_view.push(ViewScore {
+            name: v.camera.name.clone(),
+            psnr: psnr(&img.rgb, &v.image, None),
+            ssim: ssim(&img.rgb, &v.image, w, h),
+        });
+        if let Some(wt) = v.weights.as_deref() {
+            masked += psnr(&img.rgb, &v.image, Some(wt));
             with_masks += 1;
         }
     }
+    let n = views.len() as f32;
     Eval {
-        psnr: whole / views.len() as f32,
+        psnr: per_view.iter().map(|v| v.psnr).sum::<f32>() / n,
+        ssim: per_view.iter().map(|v| v.ssim).sum::<f32>() / n,
         masked_psnr: (with_masks > 0).then(|| masked / with_masks as f32),
         views: views.len(),
+        per_view,
     }
 }
 

@@ -44,6 +44,7 @@ pub use dataset::{Dataset, LoadOptions, View};
 pub use densify::{DensifyConfig, DensifyCounts, DensifyStats};
 pub use fit::{
     evaluate, fit, fit_with, initial_model, write_output, Eval, FitOptions, FitState, InitSource, Progress,
+    ViewScore,
 };
 pub use loss::{image_loss, psnr, ssim, ImageLoss};
 pub use model::{Model, Reindex};

@@ -177,10 +177,20 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
     pb.finish_and_clear();
     let ply = write_output(staged.path(), &trainer, &ds.cameras)?;
     let ply = out.join(ply.strip_prefix(staged.path()).unwrap_or(&ply));
+    write_test_renders(&staged.path().join(TEST_RENDERS), &trainer, &ds.test)?;
+    let train_psnr = warn_on_floaters(&trainer, &ds, &eval);
+    let per_view: Vec<_> = eval
+        .per_view
+        .iter()
+        .map(|v| serde_json::json!({"name": v.name, "psnr": v.psnr, "ssim": v.ssim}))
+        .collect();
+    let worst = eval.worst().map(|v| serde_json::json!({"name": v.name, "psnr": v.psnr}));
     let summary = serde_json::json!({
         "steps": trainer.step, "gaussians": trainer.model.len(),
-        "test_psnr": (eval.views > 0).then_some(eval.psnr), "test_psnr_masked": eval.masked_psnr,
-        "test_views": eval.views, "seconds": started.elapsed().as_secs_f64(), "scene": ply,
+        "test_psnr": (eval.views > 0).then_some(eval.psnr), "test_ssim": (eval.views > 0).then_some(eval.ssim),
+        "test_psnr_masked": eval.masked_psnr, "test_views": eval.views, "worst_test_view": worst,
+        "train_psnr_sample": train_psnr, "per_test_view": per_view,
+        "seconds": started.elapsed().as_secs_f64(), "scene": ply,
     });
     atomic::write_bytes(&staged.path().join(SUMMARY_FILE), format!("{summary:#}\n").as_bytes())?;
     staged.commit()?;
@@ -188,17 +198,67 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
         ck.remove();
     }
     let masked = eval.masked_psnr.map_or(String::new(), |m| format!(" ({m:.2} dB inside the masks)"));
+    let worst = eval.worst().map_or(String::new(), |v| format!(", worst {} {:.2} dB", v.name, v.psnr));
     tracing::info!(
-        "{} steps in {:.1} s: {} Gaussians, test PSNR {:.2} dB over {} whole views{masked}; wrote {}",
+        "{} steps in {:.1} s: {} Gaussians, test PSNR {:.2} dB, SSIM {:.4} over {} whole views{masked}{worst}; wrote {}",
         trainer.step,
         started.elapsed().as_secs_f64(),
         trainer.model.len(),
         eval.psnr,
+        eval.ssim,
         eval.views,
         ply.display()
     );
     println!("{summary}");
     Ok(())
+}
+
+/// Folder of the test views' renders in a training output.
+pub const TEST_RENDERS: &str = "test_renders";
+
+/// A test view this far (dB) below the mean test PSNR, or a mean test PSNR this far
+/// below the training views', is warned about: the floater symptom (haze in front of
+/// cameras the training views do not constrain).
+const FLOATER_WARN_DB: f32 = 3.0;
+
+/// Renders every test view to `dir/<image stem>.png`.
+fn write_test_renders(dir: &Path, trainer: &Trainer, test: &[transsplat_train::View]) -> Result<()> {
+    if test.is_empty() {
+        return Ok(());
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    for v in test {
+        let (img, _) = trainer.render(&v.camera);
+        let path = dir.join(format!("{}.png", v.camera.stem()));
+        transsplat_scene::image::write_png(&path, img.width, img.height, &img.rgb)?;
+    }
+    Ok(())
+}
+
+/// Warns when a test view lies far below the mean test PSNR or the test PSNR far below
+/// the training views' (every 8th training view is scored); returns that training PSNR.
+fn warn_on_floaters(trainer: &Trainer, ds: &dataset::Dataset, eval: &transsplat_train::Eval) -> Option<f32> {
+    let worst = eval.worst()?;
+    if worst.psnr < eval.psnr - FLOATER_WARN_DB {
+        tracing::warn!(
+            "test view {} is at {:.2} dB, {:.1} dB below the mean test PSNR: look for floaters in front of it \
+             (test_renders/)",
+            worst.name,
+            worst.psnr,
+            eval.psnr - worst.psnr
+        );
+    }
+    let sample: Vec<_> = ds.train.iter().step_by(8).cloned().collect();
+    let train = transsplat_train::evaluate(trainer, &sample);
+    if train.psnr - eval.psnr > FLOATER_WARN_DB {
+        tracing::warn!(
+            "test PSNR {:.2} dB is {:.1} dB below the training views' {:.2} dB: the test views may see floaters",
+            eval.psnr,
+            train.psnr - eval.psnr,
+            train.psnr
+        );
+    }
+    Some(train.psnr)
 }
 
 /// Arguments of `transsplat bench train`.
