@@ -56,50 +56,7 @@ pub fn load_cameras(cameras_arg: Option<&Path>, scene: &Path) -> Result<(Vec<Cam
     Ok((cams, path))
 }
 
-/// `p` made absolute with every existing part resolved (links, `..`), so paths that
-/// do not exist yet compare with the inputs they might overwrite.
-fn resolved(p: &Path) -> PathBuf {
-    let abs = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
-    let mut existing = abs.as_path();
-    let mut rest = Vec::new();
-    while !existing.exists() {
-        let (Some(parent), Some(name)) = (existing.parent(), existing.file_name()) else { return abs };
-        rest.push(name.to_os_string());
-        existing = parent;
-    }
-    let mut out = existing.canonicalize().unwrap_or_else(|_| existing.to_path_buf());
-    out.extend(rest.iter().rev());
-    out
-}
-
-/// The one rule for every command's output, file or folder: refused (naming both paths)
-/// when it is an input, contains an input, or lies inside an input folder (a dataset
-/// given as a folder) or the `images` folder of a dataset beside an input file.
-/// `inputs` are the paths as given and as resolved (both may be listed).
-pub fn check_output(out: &Path, inputs: &[&Path]) -> Result<()> {
-    let o = resolved(out);
-    for input in inputs {
-        let i = resolved(input);
-        let images = i.parent().map(|d| d.join("images"));
-        let why = if o == i {
-            "is the input"
-        } else if i.starts_with(&o) {
-            "contains the input"
-        } else if i.is_dir() && o.starts_with(&i) {
-            "lies inside the input folder"
-        } else if images.is_some_and(|d| d.is_dir() && o.starts_with(&d)) {
-            "lies inside the images folder of the dataset of"
-        } else {
-            continue;
-        };
-        bail!(
-            "{}: the output {why} {}; choose another output so no input can be overwritten",
-            out.display(),
-            input.display()
-        );
-    }
-    Ok(())
-}
+pub use transsplat_scene::atomic::check_output;
 
 /// Begins a folder output: the one output rule ([`check_output`]), then a staging
 /// folder beside `out` that replaces it only on commit. Nothing appears at `out` until

@@ -1,0 +1,297 @@
+"""The TransSplat edit with any Python callable as the 2D editor."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Union
+
+import numpy as np
+
+from . import _core
+
+
+@dataclass(frozen=True)
+class View:
+    """One edit view as the editor receives it.
+
+    Attributes:
+        index: position of the view in the scene's camera list.
+        name: the camera's image name (e.g. ``"00012.png"``).
+        image: the current render, (H, W, 3) float32 in [0, 1].
+        viewmat: (4, 4) world-to-camera matrix (OpenCV convention).
+        K: (3, 3) intrinsics.
+        width, height: image size in pixels.
+    """
+
+    index: int
+    name: str
+    image: np.ndarray
+    viewmat: np.ndarray
+    K: np.ndarray
+    width: int
+    height: int
+
+
+def _plane(view: View, what: str, x: Any, channels: Optional[int]) -> Optional[np.ndarray]:
+    """An editor's output plane as a C-contiguous float32 array; uint8 images become
+    [0, 1]; (H, W, 1) planes become (H, W). Shapes are checked here, values in Rust."""
+    if x is None:
+        return None
+    a = np.asarray(x)
+    if a.dtype == np.uint8:
+        a = a.astype(np.float32) / 255.0
+    elif a.dtype.kind not in "fiub":
+        raise ValueError(f"view {view.name!r}: {what} has dtype {a.dtype}, expected float or uint8")
+    if channels is None and a.ndim == 3 and a.shape[2] == 1:
+        a = a[:, :, 0]
+    if channels == 3 and a.ndim == 3 and a.shape[2] == 4:
+        raise ValueError(f"view {view.name!r}: {what} has 4 channels; composite it to RGB first")
+    want = (view.height, view.width) if channels is None else (view.height, view.width, channels)
+    if a.shape != want:
+        raise ValueError(
+            f"view {view.name!r}: {what} has shape {a.shape}, expected {want} (the view is "
+            f"{view.width}x{view.height}; resize the editor's output to the view)"
+        )
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def _output(view: View, item: Any):
+    """``None``, or ``(image, attention, mask)`` from what the editor returned for a view:
+    an image, a tuple ``(image[, attention[, mask]])`` or a dict with those keys."""
+    if item is None:
+        return None
+    if isinstance(item, Mapping):
+        unknown = set(item) - {"image", "attention", "mask"}
+        if unknown:
+            raise ValueError(f"view {view.name!r}: unknown keys {sorted(unknown)} (image, attention, mask)")
+        image, attention, mask = item.get("image"), item.get("attention"), item.get("mask")
+    elif isinstance(item, tuple):
+        if not 1 <= len(item) <= 3:
+            raise ValueError(f"view {view.name!r}: expected (image[, attention[, mask]]), got {len(item)} items")
+        image, attention, mask = (list(item) + [None, None])[:3]
+    else:
+        image, attention, mask = item, None, None
+    if image is None:
+        raise ValueError(f"view {view.name!r}: no edited image")
+    return (
+        _plane(view, "edited image", image, 3),
+        _plane(view, "attention", attention, None),
+        _plane(view, "mask", mask, None),
+    )
+
+
+def call_editor(editor: Callable, raw: List[tuple], prompt: str) -> List[Any]:
+    """Calls the user's editor on the views and checks what it returns (used by the
+    compiled edit; exceptions raised by the editor propagate unchanged)."""
+    views = [View(i, n, img, vm, k, w, h) for (i, n, img, vm, k, w, h) in raw]
+    for v in views:
+        v.image.setflags(write=False)
+    out = editor(views, prompt)
+    if out is None or isinstance(out, (str, bytes, np.ndarray)) or not hasattr(out, "__len__"):
+        raise ValueError(f"the editor must return a list with one entry per view, got {type(out).__name__}")
+    out = list(out)
+    if len(out) != len(views):
+        raise ValueError(f"the editor returned {len(out)} views for {len(views)} inputs")
+    return [_output(v, item) for v, item in zip(views, out)]
+
+
+class _Progress:
+    """tqdm when it is installed (``tqdm.auto``: a widget in notebooks), else a line on
+    stderr every few seconds."""
+
+    def __init__(self) -> None:
+        self.bar = None
+        self.last = 0.0
+        try:
+            from tqdm.auto import tqdm
+
+            self.tqdm = tqdm
+        except ImportError:
+            self.tqdm = None
+
+    def __call__(self, kind: str, a: int, b: int, x: float) -> None:
+        if kind == "edited":
+            print(f"transsplat: the editor edited {a} views in {x:.1f} s", file=sys.stderr)
+        elif kind == "step":
+            if self.tqdm is not None:
+                if self.bar is None:
+                    self.bar = self.tqdm(total=b, desc="edit", unit="step")
+                self.bar.update(a - self.bar.n)
+                if a % 10 == 0:
+                    self.bar.set_postfix(loss=f"{x:.4f}")
+                if a == b:
+                    self.bar.close()
+            elif time.monotonic() - self.last > 2.0 or a == b:
+                self.last = time.monotonic()
+                print(f"transsplat: edit step {a}/{b}, loss {x:.4f}", file=sys.stderr)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _overrides(settings: Mapping[str, Any]) -> List[str]:
+    out = []
+    for k, v in settings.items():
+        if isinstance(v, bool):
+            text = "true" if v else "false"
+        elif isinstance(v, (int, float, np.integer, np.floating)):
+            if isinstance(v, (float, np.floating)) and not math.isfinite(v):
+                raise ValueError(f"config: {k} = {v} is not a finite number")
+            text = repr(v.item() if hasattr(v, "item") else v)
+        elif isinstance(v, str):
+            text = json.dumps(v)
+        else:
+            raise ValueError(f"config: {k} has a value of type {type(v).__name__}")
+        out.append(f"{k}={text}")
+    return out
+
+
+def edit(
+    scene: Union[str, "os.PathLike[str]", Mapping[str, Any]],
+    cameras: Union[str, "os.PathLike[str]", Mapping[str, Any], None],
+    prompt: str,
+    editor: Callable[[List[View], str], Sequence[Any]],
+    config: Union[str, "os.PathLike[str]", Mapping[str, Any], None] = None,
+    method: Optional[str] = "transsplat",
+    out: Union[str, "os.PathLike[str]", None] = None,
+    steps: Optional[int] = None,
+    background: Sequence[float] = (0.0, 0.0, 0.0),
+    progress: Union[bool, Callable[[str, int, int, float], None]] = True,
+) -> Dict[str, Any]:
+    """Edits a scene with a 2D editor and lifts the edits onto the Gaussians by
+    unbalanced semantic transport (the TransSplat method; the baselines and ablations
+    by ``method``).
+
+    Args:
+        scene: a PLY file or INRIA output folder, or the dict :func:`load_ply` returns.
+        cameras: a camera source :func:`load_cameras` reads, or its dict; None takes
+            the cameras beside a scene given as a path. Every 8th camera is held out as
+            a test view; the others are edited.
+        prompt: the instruction, e.g. ``"make the ball blue"``.
+        editor: ``editor(views, prompt)`` with ``views`` a list of :class:`View`;
+            returns one entry per view: ``None`` (no edit for that view), the edited
+            image (H, W, 3) float in [0, 1] or uint8, a tuple ``(image, attention,
+            mask)`` or a dict with those keys. ``attention`` (H, W) >= 0 marks where
+            the instruction applies; ``mask`` (H, W) in [0, 1] is the target. Without
+            both, attention is the mask, or the change between render and edit (as the
+            command line tool's folder editor does).
+        config: a TOML file of settings (as ``transsplat edit --config``) or a dict of
+            ``{"section.key": value}`` overrides (as ``--set``).
+        method: ``transsplat``, ``naive``, ``masklift``, ``no_leaksup``,
+            ``no_prototype`` or ``geometric``.
+        out: when given, the output folder of ``transsplat edit`` is written there
+            (edited PLY, renders, gate maps, transport.json, report.html); it appears
+            only when complete.
+        steps: optimisation steps (overrides the config).
+        background: colour behind the Gaussians.
+        progress: True shows progress (tqdm if installed), False none, or a callable
+            ``progress(kind, a, b, x)`` (kind "edited", "step" or "round").
+
+    Returns:
+        A dict: ``gaussians`` (the edited scene, as :func:`load_ply` returns it, with
+        the semantic latents under ``extra``), ``gate`` (N,) or None, ``rounds`` (per
+        transport round: step, objective, dual, gap, transported mass, mean gate),
+        ``losses`` (per step), ``timing``, ``prototypes``, ``edit_views`` and ``out``.
+
+    KeyboardInterrupt stops the loop between steps and is raised; nothing is written.
+    """
+    from . import load_cameras, load_ply, _f32
+
+    inputs: List[str] = []
+    if isinstance(scene, Mapping):
+        g = scene
+    else:
+        inputs.append(os.fspath(scene))
+        g = load_ply(scene)
+    if cameras is None:
+        if isinstance(scene, Mapping):
+            raise ValueError("cameras: needed when the scene is given as arrays")
+        cameras = scene
+    if isinstance(cameras, Mapping):
+        cams = cameras
+    else:
+        inputs.append(os.fspath(cameras))
+        cams = load_cameras(cameras)
+    for key in ("viewmats", "Ks", "widths", "heights", "names"):
+        if key not in cams:
+            raise ValueError(f"cameras: missing {key!r}")
+    if not isinstance(prompt, str) or not prompt.strip():
+        raise ValueError("prompt: the instruction is empty; give one such as \"make the ball blue\"")
+    if not callable(editor):
+        raise ValueError(f"editor: expected a callable, got {type(editor).__name__}")
+    toml_text = None
+    overrides: List[str] = []
+    if isinstance(config, Mapping):
+        overrides = _overrides(config)
+    elif config is not None:
+        path = os.fspath(config)
+        inputs.append(path)
+        with open(path, encoding="utf-8") as f:
+            toml_text = f.read()
+    bg = [float(v) for v in background]
+    if len(bg) != 3:
+        raise ValueError(f"background: expected 3 values, got {len(bg)}")
+    if steps is not None and (not isinstance(steps, (int, np.integer)) or steps < 0):
+        raise ValueError(f"steps: expected a non-negative integer, got {steps!r}")
+    if progress is True:
+        bar = _Progress()
+    elif progress is False or progress is None:
+        bar = None
+    elif callable(progress):
+        bar = progress
+    else:
+        raise ValueError("progress: expected True, False or a callable")
+    for key in ("means", "quats", "log_scales", "opacity_logits", "sh"):
+        if key not in g:
+            raise ValueError(f"scene: missing array {key!r}")
+    extra = dict(g.get("extra") or {})
+    names = list(extra)
+    values = np.stack([_f32(f"extra[{k!r}]", extra[k]).reshape(-1) for k in names], axis=1) if names else None
+
+    def adapter(raw, text):
+        return call_editor(editor, raw, text)
+
+    try:
+        r = _core.edit(
+            _f32("means", g["means"]),
+            _f32("quats", g["quats"]),
+            _f32("log_scales", g["log_scales"]),
+            _f32("opacity_logits", g["opacity_logits"]),
+            _f32("sh", g["sh"]),
+            names,
+            values,
+            _f32("viewmats", cams["viewmats"]),
+            _f32("Ks", cams["Ks"]),
+            [int(w) for w in cams["widths"]],
+            [int(h) for h in cams["heights"]],
+            [str(n) for n in cams["names"]],
+            prompt,
+            adapter,
+            toml_text,
+            overrides,
+            method,
+            None if steps is None else int(steps),
+            bg,
+            None if out is None else os.fspath(out),
+            inputs,
+            bar,
+        )
+    finally:
+        if isinstance(bar, _Progress):
+            bar.close()
+    return {
+        "gaussians": r["gaussians"],
+        "gate": r["gate"],
+        "rounds": json.loads(r["rounds_json"]),
+        "losses": json.loads(r["losses_json"]),
+        "timing": json.loads(r["timing_json"]),
+        "prototypes": r["prototypes"],
+        "edit_views": r["edit_views"],
+        "out": r["out"],
+    }

@@ -1,0 +1,336 @@
+//! The TransSplat edit with a Python callable as the 2D editor (docs/method.md#e1-the-editor-contract).
+//!
+//! The edit runs with the GIL released; the editor and the progress callback take it
+//! back when they are called. Ctrl-C (KeyboardInterrupt) is noticed at every step and
+//! stops the loop before the next one; the Python exception is raised as it was.
+
+use crate::arrays::{scene_error, slice, to_numpy, value_error};
+use crate::io::{cameras_from_arrays, gaussians_from_arrays, gaussians_to_dict};
+use numpy::{PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use pyo3::exceptions::{PyKeyboardInterrupt, PyRuntimeError};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList, PyTuple};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Mutex;
+use transsplat_edit::{semantic, EditConfig, EditError, EditJob, Method, Progress};
+use transsplat_editors::{change_attention, EditedView, Editor, SourceView};
+use transsplat_eval::edit_output::{self, EditOutput, MARKER};
+use transsplat_scene::atomic::{check_output, StagedDir};
+use transsplat_scene::Camera;
+
+/// Name of the Python editor in logs and outputs.
+const EDITOR_NAME: &str = "python";
+
+/// True for the held-out test views (every 8th camera, the llffhold split): the edit
+/// uses the others.
+#[pyfunction]
+pub fn is_test_view(index: usize) -> bool {
+    transsplat_scenes::is_test(index)
+}
+
+/// An editor that calls `adapter(views, prompt)`; the adapter (Python,
+/// `transsplat._edit.call_editor`) calls the user's editor and returns per view `None`
+/// or `(image, attention or None, mask or None)` as float32 arrays.
+struct PyEditor {
+    adapter: Py<PyAny>,
+    /// The Python exception that stopped the editor, raised again by [`edit`].
+    raised: Mutex<Option<PyErr>>,
+}
+
+impl PyEditor {
+    /// The views as the adapter receives them: `(index, name, image (H, W, 3), viewmat,
+    /// K, width, height)`.
+    fn views<'py>(py: Python<'py>, views: &[SourceView]) -> PyResult<Bound<'py, PyList>> {
+        let list = PyList::empty(py);
+        for v in views {
+            let (w, h) = v.size();
+            let c = v.camera;
+            let image = to_numpy(py, v.image.to_vec(), &[h, w, 3])?;
+            let mut vm = Vec::with_capacity(16);
+            for i in 0..3 {
+                vm.extend_from_slice(&c.rotation[i]);
+                vm.push(c.translation[i]);
+            }
+            vm.extend_from_slice(&[0.0, 0.0, 0.0, 1.0]);
+            let k = vec![c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0];
+            let item =
+                (v.index, c.name.clone(), image, to_numpy(py, vm, &[4, 4])?, to_numpy(py, k, &[3, 3])?, w, h);
+            list.append(item)?;
+        }
+        Ok(list)
+    }
+
+    /// One view's output from the adapter's `(image, attention, mask)`.
+    fn output(v: &SourceView, item: &Bound<'_, PyAny>) -> Result<Option<EditedView>, String> {
+        if item.is_none() {
+            return Ok(None);
+        }
+        let name = &v.camera.name;
+        let (w, h) = v.size();
+        let t = item
+            .downcast::<PyTuple>()
+            .map_err(|_| format!("view '{name}': the adapter returned no tuple"))?;
+        let plane = |k: usize, what: &str, ch: Option<usize>| -> Result<Option<Vec<f32>>, String> {
+            let obj = t.get_item(k).map_err(|e| e.to_string())?;
+            if obj.is_none() {
+                return Ok(None);
+            }
+            let arr = obj
+                .downcast::<numpy::PyArrayDyn<f32>>()
+                .map_err(|_| format!("view '{name}': {what} is not a float32 array"))?
+                .readonly();
+            let want: Vec<Option<usize>> = match ch {
+                Some(c) => vec![Some(h), Some(w), Some(c)],
+                None => vec![Some(h), Some(w)],
+            };
+            if arr.shape().len() != want.len() {
+                let s = arr.shape();
+                return Err(format!("view '{name}': {what} has shape {s:?}, the view is {h}x{w} (H x W)"));
+            }
+            slice(&format!("view '{name}': {what}"), &arr, &want)
+                .map(|s| Some(s.to_vec()))
+                .map_err(|e| Python::with_gil(|py| e.value(py).to_string()))
+        };
+        let image =
+            plane(0, "edited image", Some(3))?.ok_or_else(|| format!("view '{name}': no edited image"))?;
+        let attention = plane(1, "attention", None)?;
+        let mask = plane(2, "mask", None)?;
+        // The folder editor's rule: the given attention, else the mask, else the change map.
+        let attention = match (attention, &mask) {
+            (Some(a), _) => a,
+            (None, Some(m)) => m.clone(),
+            (None, None) => change_attention(v.image, &image, w, h),
+        };
+        Ok(Some(EditedView::new(image, w, h, attention, mask)))
+    }
+}
+
+impl Editor for PyEditor {
+    fn name(&self) -> &str {
+        EDITOR_NAME
+    }
+
+    fn edit(
+        &mut self,
+        views: &[SourceView],
+        prompt: &str,
+    ) -> Result<Vec<Option<EditedView>>, transsplat_editors::Error> {
+        Python::with_gil(|py| {
+            let result = Self::views(py, views).and_then(|list| self.adapter.call1(py, (list, prompt)));
+            let out = match result {
+                Ok(out) => out,
+                Err(e) => {
+                    let msg = e.to_string();
+                    *self.raised.lock().unwrap_or_else(|p| p.into_inner()) = Some(e);
+                    return Err(transsplat_editors::Error::Command(format!("the editor raised {msg}")));
+                }
+            };
+            let bad = |m: String| transsplat_editors::Error::Invalid(m);
+            let list =
+                out.bind(py).downcast::<PyList>().map_err(|_| bad("the adapter returned no list".into()))?;
+            if list.len() != views.len() {
+                return Err(bad(format!(
+                    "the editor returned {} views for {} inputs",
+                    list.len(),
+                    views.len()
+                )));
+            }
+            views.iter().zip(list.iter()).map(|(v, item)| Self::output(v, &item).map_err(bad)).collect()
+        })
+    }
+}
+
+/// Settings from TOML text, `key=value` overrides, a method and a step count, checked.
+fn config(
+    toml: Option<&str>,
+    overrides: &[String],
+    method: Option<&str>,
+    steps: Option<usize>,
+) -> PyResult<EditConfig> {
+    let mut cfg = match toml {
+        Some(t) => EditConfig::from_toml(t).map_err(value_error)?,
+        None => EditConfig::default(),
+    };
+    if let Some(m) = method {
+        let method = Method::parse(m).ok_or_else(|| {
+            value_error(format!(
+                "method: unknown method {m:?}; expected transsplat, naive, masklift, no_leaksup, no_prototype or geometric"
+            ))
+        })?;
+        cfg = cfg.for_method(method);
+    }
+    cfg = cfg.with_overrides(overrides).map_err(value_error)?;
+    if let Some(s) = steps {
+        cfg.schedule.steps = s;
+    }
+    cfg.validate().map_err(value_error)?;
+    Ok(cfg)
+}
+
+/// Runs the edit (see `transsplat.edit`). Returns a dict with the edited Gaussians, the
+/// gate, the per-round statistics, the per-step losses and the timing, and writes the
+/// CLI's output folder when `out` is given.
+#[pyfunction]
+#[pyo3(signature = (
+    means, quats, log_scales, opacity_logits, sh, extra_names, extra,
+    viewmats, ks, widths, heights, names,
+    prompt, adapter, config_toml, overrides, method, steps, background, out, inputs, progress
+))]
+#[allow(clippy::too_many_arguments)]
+pub fn edit<'py>(
+    py: Python<'py>,
+    means: PyReadonlyArrayDyn<'py, f32>,
+    quats: PyReadonlyArrayDyn<'py, f32>,
+    log_scales: PyReadonlyArrayDyn<'py, f32>,
+    opacity_logits: PyReadonlyArrayDyn<'py, f32>,
+    sh: PyReadonlyArrayDyn<'py, f32>,
+    extra_names: Vec<String>,
+    extra: Option<PyReadonlyArrayDyn<'py, f32>>,
+    viewmats: PyReadonlyArrayDyn<'py, f32>,
+    ks: PyReadonlyArrayDyn<'py, f32>,
+    widths: Vec<u32>,
+    heights: Vec<u32>,
+    names: Vec<String>,
+    prompt: String,
+    adapter: Py<PyAny>,
+    config_toml: Option<String>,
+    overrides: Vec<String>,
+    method: Option<String>,
+    steps: Option<usize>,
+    background: [f32; 3],
+    out: Option<PathBuf>,
+    inputs: Vec<PathBuf>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let g = gaussians_from_arrays(
+        &means,
+        &quats,
+        &log_scales,
+        &opacity_logits,
+        &sh,
+        extra_names,
+        extra.as_ref(),
+    )?;
+    if g.is_empty() {
+        return Err(value_error("scene: the scene has no Gaussians"));
+    }
+    if widths.len() != heights.len() {
+        return Err(value_error("cameras: widths and heights differ in length"));
+    }
+    let sizes: Vec<(u32, u32)> = widths.into_iter().zip(heights).collect();
+    let cams: Vec<Camera> = cameras_from_arrays(&viewmats, &ks, &sizes, Some(names))?;
+    let mut stems = std::collections::HashSet::new();
+    if let Some(c) = cams.iter().find(|c| !stems.insert(c.stem())) {
+        return Err(value_error(format!(
+            "cameras: two cameras share the image name {:?}; outputs would overwrite each other",
+            c.stem()
+        )));
+    }
+    if background.iter().any(|v| !v.is_finite()) {
+        return Err(value_error(format!("background: non-finite value in {background:?}")));
+    }
+    let cfg = config(config_toml.as_deref(), &overrides, method.as_deref(), steps)?;
+    let staged = match &out {
+        Some(o) => {
+            let refs: Vec<&std::path::Path> = inputs.iter().map(PathBuf::as_path).collect();
+            check_output(o, &refs).map_err(scene_error)?;
+            Some(StagedDir::begin(o, MARKER).map_err(scene_error)?)
+        }
+        None => None,
+    };
+    let test: Vec<usize> = (0..cams.len()).filter(|&i| transsplat_scenes::is_test(i)).collect();
+    let mut edit_views: Vec<usize> = (0..cams.len()).filter(|&i| !transsplat_scenes::is_test(i)).collect();
+    if edit_views.is_empty() {
+        edit_views = (0..cams.len()).collect();
+    }
+    let mut editor = PyEditor { adapter, raised: Mutex::new(None) };
+    let cancel = AtomicBool::new(false);
+    let interrupt: Mutex<Option<PyErr>> = Mutex::new(None);
+    let semantic_fn = semantic::builtin;
+    let job = EditJob {
+        gaussians: &g,
+        cameras: &cams,
+        edit_views: edit_views.clone(),
+        background,
+        prompt: &prompt,
+        semantic: &semantic_fn,
+    };
+    let result = py.allow_threads(|| {
+        let mut report = |p: Progress| {
+            Python::with_gil(|py| {
+                if let Err(e) = py.check_signals() {
+                    *interrupt.lock().unwrap_or_else(|p| p.into_inner()) = Some(e);
+                    cancel.store(true, Ordering::SeqCst);
+                    return;
+                }
+                let Some(cb) = &progress else { return };
+                let call = match p {
+                    Progress::Step { step, steps, loss } => cb.call1(py, ("step", step, steps, loss)),
+                    Progress::Edited { views, seconds } => cb.call1(py, ("edited", views, 0usize, seconds)),
+                    Progress::Round(r) => cb.call1(py, ("round", r.round, r.step, r.mean_gate)),
+                };
+                if let Err(e) = call {
+                    *interrupt.lock().unwrap_or_else(|p| p.into_inner()) = Some(e);
+                    cancel.store(true, Ordering::SeqCst);
+                }
+            })
+        };
+        transsplat_edit::run(&job, &mut editor, &cfg, Some(&cancel), &mut report)
+    });
+    let result = match result {
+        Ok(r) => r,
+        Err(e) => {
+            if let Some(raised) = editor.raised.lock().unwrap_or_else(|p| p.into_inner()).take() {
+                return Err(raised);
+            }
+            return Err(match e {
+                EditError::Interrupted(step) => {
+                    interrupt.lock().unwrap_or_else(|p| p.into_inner()).take().unwrap_or_else(|| {
+                        PyKeyboardInterrupt::new_err(format!("edit interrupted at step {step}"))
+                    })
+                }
+                EditError::Input(m) => value_error(m),
+                e @ EditError::NoEvidence => value_error(e.to_string()),
+                EditError::Editor(transsplat_editors::Error::Invalid(m)) => value_error(m),
+                e => PyRuntimeError::new_err(e.to_string()),
+            });
+        }
+    };
+    let written = match staged {
+        Some(staged) => {
+            let o = EditOutput {
+                source: &g,
+                result: &result,
+                cameras: &cams,
+                test_views: &test,
+                edit_views: &edit_views,
+                background,
+                prompt: &prompt,
+                editor: EDITOR_NAME,
+                config: &cfg,
+            };
+            py.allow_threads(|| {
+                edit_output::write(staged.path(), &o)?;
+                staged.commit()
+            })
+            .map_err(scene_error)?;
+            out
+        }
+        None => None,
+    };
+    let d = PyDict::new(py);
+    let json = |v: serde_json::Value| v.to_string();
+    d.set_item("rounds_json", json(serde_json::json!(result.rounds)))?;
+    d.set_item("losses_json", json(serde_json::json!(result.losses)))?;
+    d.set_item("timing_json", json(serde_json::json!(result.timing)))?;
+    d.set_item("prototypes", result.prototypes.clone())?;
+    d.set_item("edit_views", edit_views)?;
+    match &result.gate {
+        Some(gate) => d.set_item("gate", to_numpy(py, gate.clone(), &[gate.len()])?)?,
+        None => d.set_item("gate", py.None())?,
+    }
+    d.set_item("out", written)?;
+    d.set_item("gaussians", gaussians_to_dict(py, result.gaussians)?)?;
+    Ok(d)
+}
