@@ -47,8 +47,9 @@ class InstructPix2PixEditor:
 
     @torch.no_grad()
     def embed(self, text):
-        ids = self.tokenizer(text, padding="max_length", max_length=self.tokenizer.model_max_length,
-                             truncation=True, return_tensors="pt").input_ids.to(self.device)
+        length = self.text_encoder.config.max_position_embeddings  # 77 for CLIP
+        ids = self.tokenizer(text, padding="max_length", max_length=length, truncation=True,
+                             return_tensors="pt").input_ids.to(self.device)
         return self.text_encoder(ids)[0]
 
     @torch.no_grad()
@@ -57,7 +58,7 @@ class InstructPix2PixEditor:
         h, w = image.shape[:2]
         scale = self.size / max(h, w)
         hh, ww = max(8, round(h * scale / 8) * 8), max(8, round(w * scale / 8) * 8)
-        x = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].to(self.device, self.dtype)
+        x = torch.from_numpy(np.array(image, dtype=np.float32)).permute(2, 0, 1)[None].to(self.device, self.dtype)
         x = F.interpolate(x, size=(hh, ww), mode="bilinear", align_corners=False)
         sf = self.vae.config.scaling_factor
         posterior = self.vae.encode(2 * x - 1).latent_dist

@@ -16,6 +16,7 @@ use crate::io::cameras_from_arrays;
 use numpy::{PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use rayon::prelude::*;
 use transsplat_raster::{backward, render, Frame, Grads, ImageGrads, RenderOptions, Splats};
 use transsplat_scene::{sh_coeffs, sigmoid, Camera};
 
@@ -121,10 +122,10 @@ fn inputs<'a>(
     if let Some(i) = o.iter().position(|&v| !(0.0..=1.0).contains(&v)) {
         return Err(value_error(format!("opacities: value {} at Gaussian {i} is outside [0, 1]", o[i])));
     }
-    let scales_used: Vec<[f32; 3]> = rows::<3>(s).iter().map(|r| r.map(|v| v.max(MIN_SCALE))).collect();
-    let log_scales = scales_used.iter().map(|r| r.map(f32::ln)).collect();
+    let scales_used: Vec<[f32; 3]> = rows::<3>(s).par_iter().map(|r| r.map(|v| v.max(MIN_SCALE))).collect();
+    let log_scales = scales_used.par_iter().map(|r| r.map(f32::ln)).collect();
     let logits = o
-        .iter()
+        .par_iter()
         .map(|&v| {
             let v = (v as f64).clamp(OPACITY_EPS, 1.0 - OPACITY_EPS);
             (v.ln() - (-v).ln_1p()) as f32
@@ -375,19 +376,23 @@ pub fn rasterize_backward<'py>(
             let (rgb, features) = if sh_mode { (&g_color[..], &[][..]) } else { (&[][..], &g_color[..]) };
             let ig = ImageGrads { rgb, alpha: &g_alpha, depth: &g_depth, features };
             backward(&splats, cam, &state.frames[ci], &ig, &mut grads);
-            let m2 = std::mem::replace(&mut grads.means2d, vec![[0.0; 2]; n]);
+            let m2 = if ci + 1 < c {
+                std::mem::replace(&mut grads.means2d, vec![[0.0; 2]; n])
+            } else {
+                std::mem::take(&mut grads.means2d)
+            };
             means2d.extend(m2.into_iter().flatten());
         }
         // Back to gsplat's parameterisation.
-        let mut g_scales = grads.log_scales.clone();
-        for (g, s) in g_scales.iter_mut().zip(&inp.scales) {
+        let mut g_scales = std::mem::take(&mut grads.log_scales);
+        g_scales.par_iter_mut().zip(&inp.scales).for_each(|(g, s)| {
             for k in 0..3 {
                 g[k] /= s[k];
             }
-        }
+        });
         let g_opacities: Vec<f32> = grads
             .opacity_logits
-            .iter()
+            .par_iter()
             .zip(&inp.logits)
             .map(|(&g, &l)| {
                 let o = sigmoid(l);
