@@ -9,10 +9,11 @@ cd "$(dirname "$0")/.."
 venv=target/python-venv
 [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
 "$venv/bin/python" -m pip install --quiet --upgrade pip
-"$venv/bin/python" -m pip install --quiet "maturin>=1.5,<2" "pytest>=7" "pot>=0.9" numpy
+"$venv/bin/python" -m pip install --quiet "maturin>=1.5,<2" "pytest>=7" "pot>=0.9" numpy "ray>=2.9"
 [ -x target/release/transsplat ] || cargo build --release -p transsplat
 rm -rf target/wheels
 "$venv/bin/maturin" build --release -m crates/python/Cargo.toml -o target/wheels
 "$venv/bin/python" -m pip install --quiet --force-reinstall target/wheels/transsplat-*.whl
 cd crates/python
-exec ../../"$venv/bin/python" -m pytest -q tests "$@"
+# A bound on the whole suite: a hung Ray cluster must fail CI, not stall it.
+exec timeout 1200 ../../"$venv/bin/python" -m pytest -q tests "$@"

@@ -70,7 +70,10 @@ class InstructPix2PixEditor:
         n_train = self.scheduler_config["num_train_timesteps"]
         lo, hi = int(n_train * self.lower), int(n_train * self.upper)
         T = int(torch.randint(lo, hi + 1, [1], generator=generator, device=self.device))
-        scheduler = DDIMScheduler.from_config({**self.scheduler_config, "num_train_timesteps": T})
+        # As Instruct-NeRF2NeRF: the betas stay those of the 1000-step schedule; only the
+        # spacing of the inference steps is taken over [0, T).
+        scheduler = DDIMScheduler.from_config(self.scheduler_config)
+        scheduler.register_to_config(num_train_timesteps=T)
         scheduler.set_timesteps(self.steps)
         noise = torch.randn(latents.shape, generator=generator, device=self.device, dtype=self.dtype)
         latents = scheduler.add_noise(latents, noise, scheduler.timesteps[:1])

@@ -278,18 +278,20 @@ pub fn edit<'py>(
         };
         transsplat_edit::run(&job, &mut editor, &cfg, Some(&cancel), &mut report)
     });
-    let result = match result {
-        Ok(r) => r,
-        Err(e) => {
+    // The exception that asked for the stop; one raised in the last step's report
+    // comes after the loop's last check, so it is looked at on success too.
+    let stop = interrupt.into_inner().unwrap_or_else(|p| p.into_inner());
+    let result = match (result, stop) {
+        (Ok(r), None) => r,
+        (Ok(_), Some(stop)) => return Err(stop),
+        (Err(e), stop) => {
             if let Some(raised) = editor.raised.lock().unwrap_or_else(|p| p.into_inner()).take() {
                 return Err(raised);
             }
             return Err(match e {
-                EditError::Interrupted(step) => {
-                    interrupt.lock().unwrap_or_else(|p| p.into_inner()).take().unwrap_or_else(|| {
-                        PyKeyboardInterrupt::new_err(format!("edit interrupted at step {step}"))
-                    })
-                }
+                EditError::Interrupted(step) => stop.unwrap_or_else(|| {
+                    PyKeyboardInterrupt::new_err(format!("edit interrupted at step {step}"))
+                }),
                 EditError::Input(m) => value_error(m),
                 e @ EditError::NoEvidence => value_error(e.to_string()),
                 EditError::Editor(transsplat_editors::Error::Invalid(m)) => value_error(m),
@@ -333,4 +335,17 @@ pub fn edit<'py>(
     d.set_item("out", written)?;
     d.set_item("gaussians", gaussians_to_dict(py, result.gaussians)?)?;
     Ok(d)
+}
+
+/// Checks edit settings as [`edit`] would (TOML text, `key=value` overrides, a method, a
+/// step count) without running anything: for manifests checked before a run starts.
+#[pyfunction]
+#[pyo3(signature = (config_toml, overrides, method, steps))]
+pub fn check_config(
+    config_toml: Option<String>,
+    overrides: Vec<String>,
+    method: Option<String>,
+    steps: Option<usize>,
+) -> PyResult<()> {
+    config(config_toml.as_deref(), &overrides, method.as_deref(), steps).map(|_| ())
 }

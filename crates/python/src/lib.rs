@@ -38,6 +38,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<raster::Frames>()?;
     m.add_function(wrap_pyfunction!(transport::sinkhorn_unbalanced, m)?)?;
     m.add_function(wrap_pyfunction!(edit::edit, m)?)?;
+    m.add_function(wrap_pyfunction!(edit::check_config, m)?)?;
     m.add_function(wrap_pyfunction!(edit::is_test_view, m)?)?;
     Ok(())
 }

@@ -183,6 +183,8 @@ pub struct Frames {
     n: usize,
     d: usize,
     sh_degree: Option<u32>,
+    width: usize,
+    height: usize,
 }
 
 #[pymethods]
@@ -287,6 +289,8 @@ pub fn rasterize<'py>(
         n,
         d,
         sh_degree,
+        width: w,
+        height: h,
     };
     Ok((to_numpy(py, colors_out, &[c, h, w, ch])?, to_numpy(py, alphas, &[c, h, w, 1])?, meta, state))
 }
@@ -329,7 +333,7 @@ pub fn rasterize_backward<'py>(
         )));
     }
     let c = state.cams.len();
-    let (w, h) = state.cams.first().map_or((0, 0), |cam| (cam.width as usize, cam.height as usize));
+    let (w, h) = (state.width, state.height);
     let ch = state.mode.channels(state.d);
     let vc = slice("v_render_colors", &v_colors, &[Some(c), Some(h), Some(w), Some(ch)])?;
     let va = match &v_alphas {

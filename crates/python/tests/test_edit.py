@@ -123,15 +123,27 @@ def test_an_editor_that_raises_propagates_its_exception(tabletop, tmp_path):
     assert not (tmp_path / "o").exists()
 
 
-def test_keyboard_interrupt_from_progress_stops_between_steps(tabletop, tmp_path):
+@pytest.mark.parametrize("at", [3, 20])
+def test_keyboard_interrupt_from_progress_stops_between_steps(tabletop, tmp_path, at):
+    """Raised in a step's report (the last step's too), it stops the edit: nothing is
+    written and the exception comes through."""
     def progress(kind, a, b, x):
-        if kind == "step" and a == 3:
+        if kind == "step" and a == at:
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        transsplat.edit(tabletop, None, PROMPT, lambda vs, p: [recolour(v.image) for v in vs], steps=50,
+        transsplat.edit(tabletop, None, PROMPT, lambda vs, p: [recolour(v.image) for v in vs], steps=20,
                         out=tmp_path / "o", progress=progress)
     assert not (tmp_path / "o").exists()
+
+
+def test_config_files_method_is_kept_unless_one_is_given(tabletop, tmp_path):
+    cfg = tmp_path / "naive.toml"
+    cfg.write_text('method = "naive"\n')
+    edit = lambda **kw: transsplat.edit(tabletop, None, PROMPT, lambda vs, p: [recolour(v.image) for v in vs],  # noqa: E731
+                                        config=cfg, steps=2, progress=False, **kw)
+    assert edit()["gate"] is None  # naive has no gate
+    assert edit(method="transsplat")["gate"] is not None
 
 
 def test_bad_settings_and_files(tabletop, tmp_path):

@@ -159,6 +159,18 @@ def test_bad_arguments_raise_value_errors_naming_them():
         m["vjp"](np.zeros((1, 2, 2, 3)))
 
 
+def test_zero_cameras_and_zero_gaussians():
+    _, _, a = load("single")
+    out, al, m = transsplat.rasterization(**dict(a, viewmats=np.zeros((0, 4, 4)), Ks=np.zeros((0, 3, 3))), sh_degree=0)
+    assert out.shape == (0, a["height"], a["width"], 3) and al.shape == (0, a["height"], a["width"], 1)
+    assert m["vjp"](np.zeros(out.shape))["means"].shape == (1, 3)
+    empty = dict(a, means=np.zeros((0, 3)), quats=np.zeros((0, 4)), scales=np.zeros((0, 3)),
+                 opacities=np.zeros(0), colors=np.zeros((0, 1, 3)))
+    out, al, m = transsplat.rasterization(**empty, sh_degree=0, backgrounds=np.array([[0.2, 0.3, 0.4]]))
+    assert (al == 0).all() and np.allclose(out[0], [0.2, 0.3, 0.4])
+    assert m["vjp"](np.ones(out.shape))["colors"].shape == (0, 1, 3)
+
+
 def test_non_contiguous_and_float64_inputs_give_the_same_images():
     _, _, a = load("rand50_d2")
     out, _, _ = transsplat.rasterization(**a, sh_degree=2)

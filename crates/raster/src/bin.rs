@@ -259,7 +259,11 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
         offsets[t] = acc;
         for (c, cnt) in counts.iter().enumerate() {
             starts[c][t] = acc;
-            acc += cnt[t];
+            // The lists are indexed by u32: refuse (rather than wrap and write out of
+            // bounds) a view with 2^32 tile–Gaussian pairs or more (16 GiB of lists).
+            acc = acc.checked_add(cnt[t]).expect(
+                "more than 2^32 tile-Gaussian pairs in one view: the Gaussians are too large or too many for this image size",
+            );
         }
     }
     offsets[num_tiles] = acc;

@@ -230,8 +230,8 @@ def rasterization(
 
 def _size(width: Any, height: Any) -> Tuple[int, int]:
     for name, v in (("width", width), ("height", height)):
-        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v <= 0:
-            raise ValueError(f"{name}: expected a positive integer, got {v!r}")
+        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or not 0 < v <= 32768:
+            raise ValueError(f"{name}: expected a positive integer of at most 32768 pixels, got {v!r}")
     return int(width), int(height)
 
 

@@ -158,7 +158,7 @@ def edit(
     prompt: str,
     editor: Callable[[List[View], str], Sequence[Any]],
     config: Union[str, "os.PathLike[str]", Mapping[str, Any], None] = None,
-    method: Optional[str] = "transsplat",
+    method: Optional[str] = None,
     out: Union[str, "os.PathLike[str]", None] = None,
     steps: Optional[int] = None,
     background: Sequence[float] = (0.0, 0.0, 0.0),
@@ -184,7 +184,8 @@ def edit(
         config: a TOML file of settings (as ``transsplat edit --config``) or a dict of
             ``{"section.key": value}`` overrides (as ``--set``).
         method: ``transsplat``, ``naive``, ``masklift``, ``no_leaksup``,
-            ``no_prototype`` or ``geometric``.
+            ``no_prototype`` or ``geometric``; None keeps the config's (``transsplat``
+            unless the config file says otherwise), as the command line tool does.
         out: when given, the output folder of ``transsplat edit`` is written there
             (edited PLY, renders, gate maps, transport.json, report.html); it appears
             only when complete.
@@ -234,6 +235,10 @@ def edit(
         inputs.append(path)
         with open(path, encoding="utf-8") as f:
             toml_text = f.read()
+    from . import _size
+
+    for w, h in zip(cams["widths"], cams["heights"]):
+        _size(int(w), int(h))
     bg = [float(v) for v in background]
     if len(bg) != 3:
         raise ValueError(f"background: expected 3 values, got {len(bg)}")
@@ -293,5 +298,5 @@ def edit(
         "timing": json.loads(r["timing_json"]),
         "prototypes": r["prototypes"],
         "edit_views": r["edit_views"],
-        "out": r["out"],
+        "out": None if r["out"] is None else os.fspath(r["out"]),
     }

@@ -1,0 +1,51 @@
+"""Editors for the Ray tests, importable by Ray's worker processes (the tests put this
+folder on PYTHONPATH before starting the cluster)."""
+
+import os
+import pathlib
+
+import numpy as np
+
+
+def recolour(image):
+    """A deterministic 'edit': the red-dominant pixels turn blue."""
+    img = image.copy()
+    red = (img[..., 0] > img[..., 2] + 0.1) & (img[..., 0] > img[..., 1] + 0.1)
+    img[red] = img[red][:, [2, 1, 0]]
+    return img
+
+
+class Recolour:
+    """Loads 'a model' once (counted in a file per process) and recolours."""
+
+    def __init__(self, log_dir=None):
+        self.log_dir = log_dir
+        if log_dir:
+            pathlib.Path(log_dir).mkdir(parents=True, exist_ok=True)
+            (pathlib.Path(log_dir) / f"load-{os.getpid()}").write_text("loaded")
+
+    def __call__(self, views, prompt):
+        return [recolour(v.image) for v in views]
+
+
+class KillOnce(Recolour):
+    """Kills its own worker process the first time it is called (a marker file says
+    it happened), like a GPU node lost in the middle of the 2D edits."""
+
+    def __init__(self, marker):
+        super().__init__()
+        self.marker = pathlib.Path(marker)
+
+    def __call__(self, views, prompt):
+        if not self.marker.exists():
+            self.marker.write_text(str(os.getpid()))
+            os._exit(1)
+        return super().__call__(views, prompt)
+
+
+class Broken:
+    def __init__(self):
+        pass
+
+    def __call__(self, views, prompt):
+        raise RuntimeError("the model weights are corrupt")
