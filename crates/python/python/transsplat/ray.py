@@ -18,6 +18,9 @@ Manifest (TOML)::
     summary = "summary.json"        # default: <manifest stem>.summary.json beside it
     editor_workers = 2              # editor actors per editor (default 2)
     shard_size = 4                  # views per editor call (default 4)
+    lift_cpus = 1                   # CPUs a lift task reserves (default 1); a lift is
+                                    # multi-threaded, so the node's core count runs one
+                                    # lift per node at a time
 
     [defaults]                      # merged into every job
     steps = 600
@@ -66,7 +69,7 @@ JOB_KEYS = {
     "name", "scene", "cameras", "prompt", "out", "editor", "editor_args", "num_gpus", "num_cpus",
     "config", "method", "steps", "background",
 }
-TOP_KEYS = {"job", "jobs", "defaults", "cache", "summary", "editor_workers", "shard_size"}
+TOP_KEYS = {"job", "jobs", "defaults", "cache", "summary", "editor_workers", "shard_size", "lift_cpus"}
 
 
 def _ray():
@@ -115,6 +118,7 @@ class Manifest:
     summary: pathlib.Path
     editor_workers: int = 2
     shard_size: int = 4
+    lift_cpus: float = 1.0
 
 
 def resolve_editor(spec: str):
@@ -170,6 +174,9 @@ def load_manifest(path: "os.PathLike[str] | str") -> Manifest:
     if not isinstance(defaults, dict):
         fail("defaults: expected a table")
     workers, shard = doc.get("editor_workers", 2), doc.get("shard_size", 4)
+    lift_cpus = doc.get("lift_cpus", 1)
+    if not isinstance(lift_cpus, (int, float)) or isinstance(lift_cpus, bool) or not 0 < lift_cpus <= 1024:
+        fail(f"lift_cpus: expected a number from 0 (exclusive) to 1024, got {lift_cpus!r}")
     for key, v in (("editor_workers", workers), ("shard_size", shard)):
         if not isinstance(v, int) or isinstance(v, bool) or not 1 <= v <= 4096:
             fail(f"{key}: expected an integer from 1 to 4096, got {v!r}")
@@ -250,7 +257,7 @@ def load_manifest(path: "os.PathLike[str] | str") -> Manifest:
                         res["num_cpus"], config, spec.get("method"), steps, bg))
     cache = pathlib.Path(rel(doc.get("cache", f".{p.stem}.cache")))
     summary = pathlib.Path(rel(doc.get("summary", f"{p.stem}.summary.json")))
-    return Manifest(p, jobs, cache, summary, workers, shard)
+    return Manifest(p, jobs, cache, summary, workers, shard, float(lift_cpus))
 
 
 def scene_fingerprint(g: Dict[str, Any]) -> str:
@@ -404,7 +411,7 @@ def run(manifest: "Manifest | str | os.PathLike[str]", address: Optional[str] = 
             # the actors' edits can hold every CPU of a small cluster.
             opts = dict(max_restarts=-1, max_task_retries=-1, num_gpus=job.num_gpus, num_cpus=job.num_cpus)
             pools[key] = [host.options(**opts).remote(job.editor, job.editor_args) for _ in range(m.editor_workers)]
-    lift = ray.remote(num_cpus=1)(_lift)
+    lift = ray.remote(num_cpus=m.lift_cpus)(_lift)
     started = time.monotonic()
     futures = {lift.remote(job, pools[job.editor_key()], str(m.cache), m.shard_size): job for job in m.jobs}
     rows: Dict[str, Dict[str, Any]] = {}
