@@ -23,6 +23,7 @@ import numpy as np
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "crates/python/tests"))
 import ray_editors  # noqa: E402
+from ray_editors import write_png  # noqa: E402
 import transsplat  # noqa: E402
 from transsplat import ray as tray  # noqa: E402
 
@@ -86,19 +87,6 @@ def main():
     print(f"Ray, 2 CPUs: {wall:.1f} s (+ {start:.1f} s cluster start); ratio CLI/Ray {cli / wall:.2f}")
     print(f"lift_cpus {args.lift_cpus}; sum of the lifts inside Ray tasks {lifts:.1f} s; Ray's overhead per job "
           f"(Ray wall - CLI wall) / jobs = {(wall - cli) / len(rows):.2f} s")
-
-
-def write_png(path, rgb8):
-    import struct
-    import zlib
-    h, w, _ = rgb8.shape
-    raw = b"".join(b"\x00" + rgb8[y].tobytes() for y in range(h))
-
-    def chunk(kind, data):
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-
-    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
-    pathlib.Path(path).write_bytes(png + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
 
 
 if __name__ == "__main__":

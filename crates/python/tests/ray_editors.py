@@ -1,8 +1,10 @@
-"""Editors for the Ray tests, importable by Ray's worker processes (the tests put this
-folder on PYTHONPATH before starting the cluster)."""
+"""Editors and helpers shared by the tests and tools/bench_ray.py, importable by Ray's
+worker processes (the tests put this folder on PYTHONPATH before starting a cluster)."""
 
 import os
 import pathlib
+import struct
+import zlib
 
 import numpy as np
 
@@ -13,6 +15,18 @@ def recolour(image):
     red = (img[..., 0] > img[..., 2] + 0.1) & (img[..., 0] > img[..., 1] + 0.1)
     img[red] = img[red][:, [2, 1, 0]]
     return img
+
+
+def write_png(path, rgb8):
+    """A minimal 8-bit RGB PNG writer (standard library only)."""
+    h, w, _ = rgb8.shape
+    raw = b"".join(b"\x00" + rgb8[y].tobytes() for y in range(h))
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+    pathlib.Path(path).write_bytes(png + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
 
 
 class Recolour:

@@ -3,38 +3,22 @@ editor on the same edited images: the same scene, byte for byte. And the editor
 contract's bad inputs: exceptions naming the view, nothing written."""
 
 import pathlib
-import struct
-import zlib
 
 import numpy as np
 import pytest
 
+import ray_editors
 import transsplat
 from conftest import run_cli
+from ray_editors import write_png
 
 STEPS = "40"
 PROMPT = "make the ball blue"
 
 
-def write_png(path, rgb8):
-    """A minimal 8-bit RGB PNG writer (standard library only)."""
-    h, w, _ = rgb8.shape
-    raw = b"".join(b"\x00" + rgb8[y].tobytes() for y in range(h))
-
-    def chunk(kind, data):
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-
-    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
-    png += chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
-    pathlib.Path(path).write_bytes(png)
-
-
 def recolour(image):
     """A deterministic 'edit': the red-dominant pixels turn blue, as uint8."""
-    img = image.copy()
-    red = (img[..., 0] > img[..., 2] + 0.1) & (img[..., 0] > img[..., 1] + 0.1)
-    img[red] = img[red][:, [2, 1, 0]]
-    return np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)
+    return np.clip(np.round(ray_editors.recolour(image) * 255.0), 0, 255).astype(np.uint8)
 
 
 def test_python_editor_gives_the_cli_folder_editors_scene(tabletop, tmp_path):

@@ -97,24 +97,20 @@ def save_ply(path: PathLike, gaussians: Mapping[str, Any]) -> None:
     The file is written under a temporary name and renamed when complete, so a
     failure never leaves a half-written file at ``path``.
     """
-    for key in ("means", "quats", "log_scales", "opacity_logits", "sh"):
-        if key not in gaussians:
-            raise ValueError(f"gaussians: missing array {key!r}")
-    extra = dict(gaussians.get("extra") or {})
+    _core.save_ply(os.fspath(path), *_scene_arrays("gaussians", gaussians))
+
+
+def _scene_arrays(what: str, g: Mapping[str, Any]) -> list:
+    """The arguments of the core for a scene dict (:func:`load_ply`'s layout): the five
+    parameter arrays as float32, the extra properties' names and their (N, E) values."""
+    keys = ("means", "quats", "log_scales", "opacity_logits", "sh")
+    for key in keys:
+        if key not in g:
+            raise ValueError(f"{what}: missing array {key!r}")
+    extra = dict(g.get("extra") or {})
     names = list(extra)
-    values = None
-    if names:
-        values = np.stack([_f32(f"extra[{k!r}]", extra[k]).reshape(-1) for k in names], axis=1)
-    _core.save_ply(
-        os.fspath(path),
-        _f32("means", gaussians["means"]),
-        _f32("quats", gaussians["quats"]),
-        _f32("log_scales", gaussians["log_scales"]),
-        _f32("opacity_logits", gaussians["opacity_logits"]),
-        _f32("sh", gaussians["sh"]),
-        names,
-        values,
-    )
+    values = np.stack([_f32(f"extra[{k!r}]", extra[k]).reshape(-1) for k in names], axis=1) if names else None
+    return [*(_f32(k, g[k]) for k in keys), names, values]
 
 
 def load_cameras(path: PathLike) -> Dict[str, Any]:

@@ -202,7 +202,7 @@ def edit(
 
     KeyboardInterrupt stops the loop between steps and is raised; nothing is written.
     """
-    from . import load_cameras, load_ply, _f32
+    from . import _f32, _scene_arrays, load_cameras, load_ply
 
     inputs: List[str] = []
     if isinstance(scene, Mapping):
@@ -252,25 +252,14 @@ def edit(
         bar = progress
     else:
         raise ValueError("progress: expected True, False or a callable")
-    for key in ("means", "quats", "log_scales", "opacity_logits", "sh"):
-        if key not in g:
-            raise ValueError(f"scene: missing array {key!r}")
-    extra = dict(g.get("extra") or {})
-    names = list(extra)
-    values = np.stack([_f32(f"extra[{k!r}]", extra[k]).reshape(-1) for k in names], axis=1) if names else None
+    scene_args = _scene_arrays("scene", g)
 
     def adapter(raw, text):
         return call_editor(editor, raw, text)
 
     try:
         r = _core.edit(
-            _f32("means", g["means"]),
-            _f32("quats", g["quats"]),
-            _f32("log_scales", g["log_scales"]),
-            _f32("opacity_logits", g["opacity_logits"]),
-            _f32("sh", g["sh"]),
-            names,
-            values,
+            *scene_args,
             _f32("viewmats", cams["viewmats"]),
             _f32("Ks", cams["Ks"]),
             [int(w) for w in cams["widths"]],
