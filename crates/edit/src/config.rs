@@ -247,6 +247,31 @@ impl EditConfig {
         toml::to_string_pretty(self).expect("config serialises")
     }
 
+    /// The settings of one edit as every front assembles them: `self` (defaults or a
+    /// file), then the method by name (its implied settings), the `key=value` overrides
+    /// and the step count, checked.
+    pub fn assemble(
+        &self,
+        method: Option<&str>,
+        sets: &[String],
+        steps: Option<usize>,
+    ) -> Result<Self, String> {
+        let mut c = match method {
+            Some(m) => self.for_method(Method::parse(m).ok_or_else(|| {
+                format!(
+                    "unknown method {m:?}; expected transsplat, naive, masklift, no_leaksup, no_prototype or geometric"
+                )
+            })?),
+            None => self.clone(),
+        };
+        c = c.with_overrides(sets)?;
+        if let Some(s) = steps {
+            c.schedule.steps = s;
+        }
+        c.validate()?;
+        Ok(c)
+    }
+
     /// Applies this config's method to the settings it implies (ablations).
     pub fn for_method(&self, method: Method) -> Self {
         let mut c = self.clone();

@@ -5,7 +5,7 @@
 //! stops the loop before the next one; the Python exception is raised as it was.
 
 use crate::arrays::{scene_error, slice, to_numpy, value_error};
-use crate::io::{cameras_from_arrays, gaussians_from_arrays, gaussians_to_dict};
+use crate::io::{cameras_from_arrays, gaussians_from_arrays, gaussians_to_dict, intrinsics, viewmat};
 use numpy::{PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyKeyboardInterrupt, PyRuntimeError};
 use pyo3::prelude::*;
@@ -13,7 +13,7 @@ use pyo3::types::{PyDict, PyList, PyTuple};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
-use transsplat_edit::{semantic, EditConfig, EditError, EditJob, Method, Progress};
+use transsplat_edit::{semantic, EditConfig, EditError, EditJob, Progress};
 use transsplat_editors::{change_attention, EditedView, Editor, SourceView};
 use transsplat_eval::edit_output::{self, EditOutput, MARKER};
 use transsplat_scene::atomic::{check_output, StagedDir};
@@ -47,15 +47,9 @@ impl PyEditor {
             let (w, h) = v.size();
             let c = v.camera;
             let image = to_numpy(py, v.image.to_vec(), &[h, w, 3])?;
-            let mut vm = Vec::with_capacity(16);
-            for i in 0..3 {
-                vm.extend_from_slice(&c.rotation[i]);
-                vm.push(c.translation[i]);
-            }
-            vm.extend_from_slice(&[0.0, 0.0, 0.0, 1.0]);
-            let k = vec![c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0];
-            let item =
-                (v.index, c.name.clone(), image, to_numpy(py, vm, &[4, 4])?, to_numpy(py, k, &[3, 3])?, w, h);
+            let vm = to_numpy(py, viewmat(c).to_vec(), &[4, 4])?;
+            let k = to_numpy(py, intrinsics(c).to_vec(), &[3, 3])?;
+            let item = (v.index, c.name.clone(), image, vm, k, w, h);
             list.append(item)?;
         }
         Ok(list)
@@ -148,24 +142,11 @@ fn config(
     method: Option<&str>,
     steps: Option<usize>,
 ) -> PyResult<EditConfig> {
-    let mut cfg = match toml {
+    let base = match toml {
         Some(t) => EditConfig::from_toml(t).map_err(value_error)?,
         None => EditConfig::default(),
     };
-    if let Some(m) = method {
-        let method = Method::parse(m).ok_or_else(|| {
-            value_error(format!(
-                "method: unknown method {m:?}; expected transsplat, naive, masklift, no_leaksup, no_prototype or geometric"
-            ))
-        })?;
-        cfg = cfg.for_method(method);
-    }
-    cfg = cfg.with_overrides(overrides).map_err(value_error)?;
-    if let Some(s) = steps {
-        cfg.schedule.steps = s;
-    }
-    cfg.validate().map_err(value_error)?;
-    Ok(cfg)
+    base.assemble(method, overrides, steps).map_err(value_error)
 }
 
 /// Runs the edit (see `transsplat.edit`). Returns a dict with the edited Gaussians, the
@@ -220,13 +201,6 @@ pub fn edit<'py>(
     }
     let sizes: Vec<(u32, u32)> = widths.into_iter().zip(heights).collect();
     let cams: Vec<Camera> = cameras_from_arrays(&viewmats, &ks, &sizes, Some(names))?;
-    let mut stems = std::collections::HashSet::new();
-    if let Some(c) = cams.iter().find(|c| !stems.insert(c.stem())) {
-        return Err(value_error(format!(
-            "cameras: two cameras share the image name {:?}; outputs would overwrite each other",
-            c.stem()
-        )));
-    }
     if background.iter().any(|v| !v.is_finite()) {
         return Err(value_error(format!("background: non-finite value in {background:?}")));
     }
@@ -239,11 +213,7 @@ pub fn edit<'py>(
         }
         None => None,
     };
-    let test: Vec<usize> = (0..cams.len()).filter(|&i| transsplat_scenes::is_test(i)).collect();
-    let mut edit_views: Vec<usize> = (0..cams.len()).filter(|&i| !transsplat_scenes::is_test(i)).collect();
-    if edit_views.is_empty() {
-        edit_views = (0..cams.len()).collect();
-    }
+    let (test, edit_views) = transsplat_scenes::split_views(cams.len());
     let mut editor = PyEditor { adapter, raised: Mutex::new(None) };
     let cancel = AtomicBool::new(false);
     let interrupt: Mutex<Option<PyErr>> = Mutex::new(None);

@@ -2,7 +2,7 @@
 //! from every format the CLI reads as gsplat's `viewmats` and `Ks`.
 
 use crate::arrays::{rows, scene_error, slice, to_numpy, value_error};
-use numpy::PyReadonlyArrayDyn;
+use numpy::{PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use std::path::PathBuf;
@@ -57,7 +57,7 @@ pub fn gaussians_from_arrays(
     let s = slice("log_scales", log_scales, &[Some(n), Some(3)])?;
     let o = slice("opacity_logits", opacity_logits, &[Some(n)])?;
     let c = slice("sh", sh, &[Some(n), None, Some(3)])?;
-    let k = if n == 0 { sh.shape_k() } else { c.len() / (3 * n) };
+    let k = sh.shape()[1];
     let degree = (0..4u32).find(|&d| sh_coeffs(d) == k).ok_or_else(|| {
         value_error(format!(
             "sh: expected 1, 4, 9 or 16 coefficients per channel (SH degree 0 to 3), got {k}"
@@ -79,18 +79,6 @@ pub fn gaussians_from_arrays(
     };
     g.validate().map_err(value_error)?;
     Ok(g)
-}
-
-/// The number of SH coefficients of an `(N, K, 3)` array, whatever N.
-trait ShapeK {
-    fn shape_k(&self) -> usize;
-}
-
-impl ShapeK for PyReadonlyArrayDyn<'_, f32> {
-    fn shape_k(&self) -> usize {
-        use numpy::PyUntypedArrayMethods;
-        self.shape().get(1).copied().unwrap_or(0)
-    }
 }
 
 /// Writes a scene as an INRIA PLY, atomically (a temporary file renamed when complete).
@@ -130,28 +118,30 @@ pub fn load_cameras<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, 
         } else {
             path.clone()
         };
-        let cams = cameras::load(&file)?;
-        for c in &cams {
-            c.validate().map_err(|e| transsplat_scene::Error::format(&file, e.to_string()))?;
-        }
-        Ok(cams)
+        cameras::load(&file)
     });
     cameras_to_dict(py, &cams.map_err(scene_error)?)
+}
+
+/// gsplat's world-to-camera matrix of a camera, row-major 4 × 4.
+pub fn viewmat(cam: &Camera) -> [f32; 16] {
+    let (r, t) = (&cam.rotation, &cam.translation);
+    [
+        r[0][0], r[0][1], r[0][2], t[0], r[1][0], r[1][1], r[1][2], t[1], r[2][0], r[2][1], r[2][2], t[2],
+        0.0, 0.0, 0.0, 1.0,
+    ]
+}
+
+/// The pinhole intrinsics `K` of a camera, row-major 3 × 3.
+pub fn intrinsics(cam: &Camera) -> [f32; 9] {
+    [cam.fx, 0.0, cam.cx, 0.0, cam.fy, cam.cy, 0.0, 0.0, 1.0]
 }
 
 /// `names`, `viewmats` (C, 4, 4) world-to-camera, `Ks` (C, 3, 3), `widths`, `heights`.
 pub fn cameras_to_dict<'py>(py: Python<'py>, cams: &[Camera]) -> PyResult<Bound<'py, PyDict>> {
     let c = cams.len();
-    let mut viewmats = Vec::with_capacity(c * 16);
-    let mut ks = Vec::with_capacity(c * 9);
-    for cam in cams {
-        for i in 0..3 {
-            viewmats.extend_from_slice(&cam.rotation[i]);
-            viewmats.push(cam.translation[i]);
-        }
-        viewmats.extend_from_slice(&[0.0, 0.0, 0.0, 1.0]);
-        ks.extend_from_slice(&[cam.fx, 0.0, cam.cx, 0.0, cam.fy, cam.cy, 0.0, 0.0, 1.0]);
-    }
+    let viewmats: Vec<f32> = cams.iter().flat_map(viewmat).collect();
+    let ks: Vec<f32> = cams.iter().flat_map(intrinsics).collect();
     let d = PyDict::new(py);
     d.set_item("names", PyList::new(py, cams.iter().map(|c| c.name.clone()))?)?;
     d.set_item("viewmats", to_numpy(py, viewmats, &[c, 4, 4])?)?;
@@ -162,9 +152,9 @@ pub fn cameras_to_dict<'py>(py: Python<'py>, cams: &[Camera]) -> PyResult<Bound<
 }
 
 /// Cameras from gsplat's arrays: `viewmats` (C, 4, 4) world-to-camera, `Ks` (C, 3, 3),
-/// one image size, optional names (default `00000` ...). Each camera is checked as
-/// the CLI checks a camera file (a proper rotation, positive focal lengths, the size
-/// cap).
+/// image sizes, optional names (default `00000` ...). They are checked as a camera
+/// file is ([`cameras::validated`]: a proper rotation, positive focal lengths, the
+/// size cap, unique image names).
 pub fn cameras_from_arrays(
     viewmats: &PyReadonlyArrayDyn<'_, f32>,
     ks: &PyReadonlyArrayDyn<'_, f32>,
@@ -193,7 +183,7 @@ pub fn cameras_from_arrays(
         if m[12] != 0.0 || m[13] != 0.0 || m[14] != 0.0 || m[15] != 1.0 {
             return Err(value_error(format!("viewmats[{i}]: the last row must be [0, 0, 0, 1]")));
         }
-        let cam = Camera {
+        out.push(Camera {
             name,
             width: sizes[i].0,
             height: sizes[i].1,
@@ -203,11 +193,9 @@ pub fn cameras_from_arrays(
             cy: kk[5],
             rotation: std::array::from_fn(|r| std::array::from_fn(|j| m[r * 4 + j])),
             translation: std::array::from_fn(|r| m[r * 4 + 3]),
-        };
-        cam.validate().map_err(|e| value_error(format!("camera {i}: {e}")))?;
-        out.push(cam);
+        });
     }
-    Ok(out)
+    cameras::validated(out, std::path::Path::new("cameras")).map_err(scene_error)
 }
 
 /// Writes a built-in benchmark scene (`tabletop`, `occluded`) as a dataset folder, as
@@ -238,4 +226,13 @@ pub fn bench_scene(py: Python<'_>, n: usize, size: u32) -> PyResult<(Bound<'_, P
     let g = py.allow_threads(|| transsplat_raster::bench::bench_scene(n, 7));
     let cam = transsplat_raster::bench::bench_camera(size, size);
     Ok((gaussians_to_dict(py, g)?, cameras_to_dict(py, &[cam])?))
+}
+
+/// The one output rule (`transsplat_scene::atomic::check_output`): refused with
+/// `ValueError` when `out` is an input, contains one, or lies inside an input folder or
+/// a dataset's images folder.
+#[pyfunction]
+pub fn check_output(out: PathBuf, inputs: Vec<PathBuf>) -> PyResult<()> {
+    let refs: Vec<&std::path::Path> = inputs.iter().map(PathBuf::as_path).collect();
+    transsplat_scene::atomic::check_output(&out, &refs).map_err(scene_error)
 }

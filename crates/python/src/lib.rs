@@ -33,6 +33,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(io::load_cameras, m)?)?;
     m.add_function(wrap_pyfunction!(io::builtin_scene, m)?)?;
     m.add_function(wrap_pyfunction!(io::bench_scene, m)?)?;
+    m.add_function(wrap_pyfunction!(io::check_output, m)?)?;
     m.add_function(wrap_pyfunction!(raster::rasterize, m)?)?;
     m.add_function(wrap_pyfunction!(raster::rasterize_backward, m)?)?;
     m.add_class::<raster::Frames>()?;

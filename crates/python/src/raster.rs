@@ -219,7 +219,7 @@ pub fn rasterize<'py>(
 ) -> PyResult<Rendered<'py>> {
     let mode = Mode::parse(render_mode)?;
     let inp = inputs(&means, &quats, &scales, &opacities, &colors, sh_degree)?;
-    let c = viewmats.shape_c();
+    let c = viewmats.shape().first().copied().unwrap_or(0);
     let cams = cameras_from_arrays(&viewmats, &ks, &vec![(width, height); c], None)?;
     let d = inp.d;
     let bgs = match &backgrounds {
@@ -293,17 +293,6 @@ pub fn rasterize<'py>(
         height: h,
     };
     Ok((to_numpy(py, colors_out, &[c, h, w, ch])?, to_numpy(py, alphas, &[c, h, w, 1])?, meta, state))
-}
-
-/// The number of cameras of a `(C, 4, 4)` array (checked later).
-trait ShapeC {
-    fn shape_c(&self) -> usize;
-}
-
-impl ShapeC for PyReadonlyArrayDyn<'_, f32> {
-    fn shape_c(&self) -> usize {
-        self.shape().first().copied().unwrap_or(0)
-    }
 }
 
 /// Gradients of a loss with respect to every input of [`rasterize`], given its

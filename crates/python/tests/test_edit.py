@@ -140,6 +140,10 @@ def test_bad_settings_and_files(tabletop, tmp_path):
         transsplat.edit(tabletop, None, " ", same, progress=False)
     with pytest.raises(FileNotFoundError, match="missing.ply"):
         transsplat.edit(tmp_path / "missing.ply", tabletop, PROMPT, same, progress=False)
+    cams = transsplat.load_cameras(tabletop)
+    cams["names"] = ["same.png"] * len(cams["names"])
+    with pytest.raises(ValueError, match="cameras: two cameras share the image name 'same'|\"same\""):
+        transsplat.edit(transsplat.load_ply(tabletop), cams, PROMPT, same, progress=False)
     with pytest.raises(ValueError, match="no view has attention"):
         transsplat.edit(tabletop, None, PROMPT, same, steps=2, progress=False)
     with pytest.raises(ValueError, match="the output lies inside the input folder"):

@@ -152,7 +152,7 @@ def test_bad_arguments_raise_value_errors_naming_them():
         transsplat.rasterization(**dict(a, means=np.array([["a", "b", "c"]])), sh_degree=0)
     rot = np.array(a["viewmats"])
     rot[0, 0, 0] = 5.0
-    with pytest.raises(ValueError, match="camera 0"):
+    with pytest.raises(ValueError, match='cameras: camera "00000"'):
         transsplat.rasterization(**dict(a, viewmats=rot), sh_degree=0)
     _, _, m = transsplat.rasterization(**a, sh_degree=0)
     with pytest.raises(ValueError, match="v_render_colors"):

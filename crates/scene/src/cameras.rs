@@ -112,7 +112,7 @@ pub fn parse_json(bytes: &[u8], path: &Path) -> Result<Vec<Camera>> {
 /// Checks every camera ([`Camera::validate`]) and that no two share an image name
 /// (compared by [`Camera::stem`], which names their outputs), naming `path` in the error.
 /// Cameras are counted from 0 in the order given.
-pub(crate) fn validated(cameras: Vec<Camera>, path: &Path) -> Result<Vec<Camera>> {
+pub fn validated(cameras: Vec<Camera>, path: &Path) -> Result<Vec<Camera>> {
     let mut seen = std::collections::HashMap::with_capacity(cameras.len());
     for (i, c) in cameras.iter().enumerate() {
         c.validate().map_err(|m| {

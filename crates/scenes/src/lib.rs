@@ -29,7 +29,7 @@ pub use catalog::{
 pub use dataset::{write_dataset, DatasetSummary, WriteOptions};
 pub use edit::{recolor, retexture, Material};
 pub use masks::{one_hot, render_labels, LabelRender};
-pub use rig::{is_test, Rig};
+pub use rig::{is_test, split_views, Rig};
 
 use std::path::PathBuf;
 

@@ -5,11 +5,11 @@ use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use transsplat_edit::checkpoint::STATE_FILE;
-use transsplat_edit::{semantic, EditConfig, EditError, EditJob, Method, Progress};
+use transsplat_edit::{semantic, EditConfig, EditError, EditJob, Progress};
 use transsplat_editors::{CommandEditor, Editor, FolderEditor, SimulatedEditor};
 use transsplat_eval::edit_output::{self, EditOutput, MARKER};
 use transsplat_scene::atomic::StagedDir;
-use transsplat_scenes::is_test;
+use transsplat_scenes::split_views;
 
 /// DINOv2 features are reduced to this many channels (a fixed random projection) before
 /// the engine's PCA to `semantic_dim`: 384 or 768 channels per pixel of every view would
@@ -127,19 +127,11 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
     if args.prompt.trim().is_empty() {
         bail!("--prompt is empty: give an instruction such as \"make the ball blue\"");
     }
-    let mut config = match &args.config {
+    let base = match &args.config {
         Some(p) => EditConfig::from_toml_file(p).map_err(anyhow::Error::msg)?,
         None => EditConfig::default(),
     };
-    if let Some(m) = &args.method {
-        let method = Method::parse(m).with_context(|| format!("unknown method {m:?}"))?;
-        config = config.for_method(method);
-    }
-    config = config.with_overrides(&args.set).map_err(anyhow::Error::msg)?;
-    if let Some(s) = args.steps {
-        config.schedule.steps = s;
-    }
-    config.validate().map_err(anyhow::Error::msg)?;
+    let config = base.assemble(args.method.as_deref(), &args.set, args.steps).map_err(anyhow::Error::msg)?;
     let (g, scene_path) = load_scene(&args.scene)?;
     let cam_arg = args.cameras.as_deref().or(args.data.as_deref());
     let (cams, cam_path) = load_cameras(cam_arg, &args.scene.scene)?;
@@ -151,11 +143,7 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         inputs.extend(extra.as_deref());
     }
     check_output(&args.out, &inputs)?;
-    let test: Vec<usize> = (0..cams.len()).filter(|&i| is_test(i)).collect();
-    let mut edit_views: Vec<usize> = (0..cams.len()).filter(|&i| !is_test(i)).collect();
-    if edit_views.is_empty() {
-        edit_views = (0..cams.len()).collect();
-    }
+    let (test, edit_views) = split_views(cams.len());
     let dino = match &args.dino_weights {
         Some(dir) => {
             use transsplat_models::{dinov2::Dinov2, ModelDir};

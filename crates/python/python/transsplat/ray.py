@@ -257,6 +257,18 @@ def load_manifest(path: "os.PathLike[str] | str") -> Manifest:
                         res["num_cpus"], config, spec.get("method"), steps, bg))
     cache = pathlib.Path(rel(doc.get("cache", f".{p.stem}.cache")))
     summary = pathlib.Path(rel(doc.get("summary", f"{p.stem}.summary.json")))
+    # The one output rule, before anything starts: no output may be, contain or lie
+    # inside any job's input (scene, cameras, config file) or the manifest.
+    inputs = [str(p.resolve())]
+    for j in jobs:
+        inputs += [j.scene] + [x for x in (j.cameras, j.config) if isinstance(x, str)]
+    outputs = [(f"job {j.name!r}: output", j.out) for j in jobs]
+    outputs += [("cache", str(cache)), ("summary", str(summary)), ("summary", str(summary.with_suffix(".md")))]
+    for what, out in outputs:
+        try:
+            _core.check_output(out, inputs)
+        except ValueError as e:
+            fail(f"{what}: {e}")
     return Manifest(p, jobs, cache, summary, workers, shard, float(lift_cpus))
 
 
