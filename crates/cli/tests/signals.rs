@@ -42,18 +42,32 @@ fn edit_with_hung_editor(dir: &Path, token: &str, signals: usize) -> Option<i32>
         .arg("--out")
         .arg(&out)
         .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
+    // Signals are not queued: two SIGTERMs sent before the first is delivered merge into
+    // one. So each further signal waits until transsplat has reported the one before.
+    let (noticed, notices) = std::sync::mpsc::channel();
+    let stderr = child.stderr.take().unwrap();
+    std::thread::spawn(move || {
+        use std::io::BufRead;
+        for line in std::io::BufReader::new(stderr).lines().map_while(Result::ok) {
+            if line.starts_with("interrupt:") && noticed.send(()).is_err() {
+                break;
+            }
+        }
+    });
     let start = Instant::now();
     while processes_with(token).len() < 2 {
         assert!(start.elapsed() < Duration::from_secs(120), "the editor never started");
         std::thread::sleep(Duration::from_millis(50));
     }
-    for _ in 0..signals {
+    for i in 0..signals {
         // SAFETY: sends a signal to the child we spawned.
         unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
-        std::thread::sleep(Duration::from_millis(20));
+        if i + 1 < signals {
+            notices.recv_timeout(Duration::from_secs(60)).expect("the first signal was never reported");
+        }
     }
     let status = child.wait().unwrap();
     std::thread::sleep(Duration::from_millis(300));
