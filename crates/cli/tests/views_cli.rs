@@ -1,9 +1,9 @@
 //! End-to-end test of `transsplat views export` through the binary.
 
 use std::process::Command;
-use transsplat_editors::{Editor, FolderEditor, SourceView};
+use transsplat_editors::{content_name, Editor, FolderEditor, SourceView};
 use transsplat_raster::{render, RenderOptions, Splats};
-use transsplat_scene::{cameras, image, ply};
+use transsplat_scene::{cameras, fingerprint, image, ply};
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_transsplat"))
@@ -27,14 +27,15 @@ fn views_export_writes_the_edit_views_and_refuses_foreign_files() {
     let listed: Vec<u64> =
         json["views"].as_array().unwrap().iter().map(|v| v["index"].as_u64().unwrap()).collect();
     assert_eq!(listed, vec![1, 2, 3, 4, 5, 6, 7, 9], "every camera but each 8th");
-    assert!(
-        !out.join(format!("{}.png", cams[0].stem())).exists()
-            && !out.join(format!("{}.png", cams[8].stem())).exists()
-    );
+    // files named by content: the view's stem and a fingerprint of scene and camera
+    let fp = fingerprint::scene(&g);
+    let file = |i: usize| out.join(format!("{}.png", content_name(&cams[i], Some(&fp))));
+    assert_eq!(json["scene"], fp.as_str());
+    assert!(file(1).is_file() && !file(0).exists() && !file(8).exists());
 
     // the PNG is the library's render of that camera on black
     let (want, _) = render(&Splats::new(&g), &cams[3], &RenderOptions::default());
-    let got = image::read(&out.join(format!("{}.png", cams[3].stem()))).unwrap();
+    let got = image::read(&file(3)).unwrap();
     assert_eq!((got.width, got.height), (want.width, want.height));
     assert!(got.data.iter().zip(&want.rgb).all(|(a, b)| (a - b.clamp(0.0, 1.0)).abs() <= 0.5 / 255.0 + 1e-6));
 
@@ -47,7 +48,7 @@ fn views_export_writes_the_edit_views_and_refuses_foreign_files() {
             image: if i == 3 { &got.data } else { &want.rgb },
         })
         .collect();
-    let back = FolderEditor::new(&out).edit(&views, "").unwrap();
+    let back = FolderEditor::new(&out).for_scene(&fp).edit(&views, "").unwrap();
     assert!(back[0].as_ref().unwrap().attention.iter().all(|&a| a < 1e-5));
     assert!(back[1].is_none(), "test view 8 was not exported");
 

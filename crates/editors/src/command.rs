@@ -162,7 +162,7 @@ impl Editor for CommandEditor<'_> {
             )));
         }
         tracing::debug!("editor output: {}", run.log_dir.display());
-        read_edits(&output, views, Some(&output.join("attention"))).map_err(|e| match e {
+        read_edits(&output, views, None, Some(&output.join("attention"))).map_err(|e| match e {
             Error::NoEdits(msg) => {
                 Error::NoEdits(format!("editor command `{}` wrote nothing usable: {msg}", self.command))
             }

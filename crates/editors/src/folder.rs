@@ -1,30 +1,128 @@
 //! The folder editor: edited images made by any 2D tool, one per view.
 //!
-//! Layout of the folder `DIR`:
+//! Layout of the folder `DIR` (docs/method.md#e6-sharded-views-and-content-names):
 //!
-//! - `DIR/<stem>.png` (or `.jpg` / `.jpeg`, any case): the edited image of the view
-//!   whose camera image name has stem `<stem>` (`00012.png` → `00012`). RGBA is
-//!   composited on black (the render background), greyscale is expanded to RGB. An
-//!   image of another size is resized bilinearly to the view's size, with a warning.
-//! - `DIR/masks/<stem>.png` (optional): the target mask, grey, > 0.5 inside.
+//! - `DIR/<stem>.<key>.png` (or `.jpg` / `.jpeg`, any case): the edited image of the
+//!   view whose camera image name has stem `<stem>` (`00012.png` → `00012`), named by
+//!   content: `<key>` is [`fingerprint::view`] of the scene and the camera, as
+//!   `transsplat views export` names the renders. A plain `DIR/<stem>.png` is read too
+//!   (an image named by hand); the content name wins when both are there. An image
+//!   named for the same view of another scene or camera is refused, never used.
+//! - The images may also lie one folder down (`DIR/0/`, `DIR/1/`, …): a folder
+//!   assembled from shards (`views export --shard I/N`), each shard's edits in its own
+//!   folder or all copied together. One view with images in two places is refused.
+//! - `masks/<name>.png` beside an image (optional): the target mask, grey, > 0.5 inside.
 //!
+//! RGBA is composited on black (the render background), greyscale is expanded to RGB.
+//! An image of another size is resized bilinearly to the view's size, with a warning.
 //! The attention A_v is the mask when there is one, else the smoothed change map
 //! |Î − I| ([`change_attention`]). Views without an edited image are skipped with a
 //! warning (`None`); a folder with none at all is [`Error::NoEdits`].
 //!
-//! [`export_views`] writes the other half: `DIR/<stem>.png` per source view and
-//! `DIR/views.json` (`transsplat views export`), ready for editing elsewhere.
+//! [`export_views`] writes the other half: the renders under the same names and
+//! `views.json` (`transsplat views export`), ready for editing elsewhere; [`Shard`]
+//! splits them across jobs.
 
 use crate::features::change_attention;
 use crate::resize::resize_bilinear;
 use crate::{EditedView, Editor, Error, SourceView};
-use std::collections::HashSet;
+use serde_json::json;
+use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
-use transsplat_scene::{atomic, image, npy, Camera};
+use transsplat_scene::{atomic, fingerprint, image, npy, Camera};
 
-/// The edited image for `stem` in `dir`, if any.
-fn find_image(dir: &Path, stem: &str) -> Option<PathBuf> {
-    image::find_with_extension(&dir.join(stem))
+/// Subfolders that hold masks and attention maps, never edited images.
+const AUX_DIRS: [&str; 2] = ["masks", "attention"];
+
+/// The file name stem a view's files carry: `<stem>.<key>` with the scene's
+/// fingerprint, plain `<stem>` without one.
+pub fn content_name(cam: &Camera, scene: Option<&str>) -> String {
+    match scene {
+        Some(fp) => format!("{}.{}", cam.stem(), fingerprint::view(fp, cam)),
+        None => cam.stem(),
+    }
+}
+
+/// The folders that may hold edited images (`dir` and its subfolders, one level) and
+/// the file stems of every image in them.
+struct EditFolders {
+    folders: Vec<PathBuf>,
+    stems: HashMap<String, PathBuf>,
+}
+
+impl EditFolders {
+    fn scan(dir: &Path) -> Result<Self, Error> {
+        let mut folders = vec![dir.to_path_buf()];
+        let mut stems = HashMap::new();
+        let mut k = 0;
+        while k < folders.len() {
+            let Ok(read) = std::fs::read_dir(&folders[k]) else {
+                k += 1;
+                continue;
+            };
+            let mut subs = Vec::new();
+            for entry in read.flatten() {
+                let path = entry.path();
+                if path.is_dir() {
+                    let aux = entry.file_name().to_str().is_some_and(|n| AUX_DIRS.contains(&n));
+                    if k == 0 && !aux {
+                        subs.push(path);
+                    }
+                } else if image::has_image_extension(&path) {
+                    if let Some(stem) = path.file_stem().and_then(|s| s.to_str()) {
+                        stems.entry(stem.to_string()).or_insert(path.clone());
+                    }
+                }
+            }
+            subs.sort();
+            folders.extend(subs);
+            k += 1;
+        }
+        Ok(EditFolders { folders, stems })
+    }
+
+    /// The edited image of the view named `name`: in at most one folder.
+    fn find(&self, name: &str) -> Result<Option<PathBuf>, Error> {
+        let found: Vec<PathBuf> =
+            self.folders.iter().filter_map(|f| image::find_with_extension(&f.join(name))).collect();
+        match &found[..] {
+            [] => Ok(None),
+            [one] => Ok(Some(one.clone())),
+            [a, b, ..] => Err(Error::Invalid(format!(
+                "{}: a second edited image of the same view is {}; keep one (are two shards overlapping?)",
+                a.display(),
+                b.display()
+            ))),
+        }
+    }
+
+    /// The edited image of view `cam` (see the module doc): its content name, else its
+    /// plain stem; an image named for the same view of another scene or camera is an
+    /// error.
+    fn image_of(&self, cam: &Camera, scene: Option<&str>) -> Result<Option<PathBuf>, Error> {
+        if let Some(fp) = scene {
+            if let Some(p) = self.find(&content_name(cam, Some(fp)))? {
+                return Ok(Some(p));
+            }
+        }
+        if let Some(p) = self.find(&cam.stem())? {
+            return Ok(Some(p));
+        }
+        let Some(fp) = scene else { return Ok(None) };
+        let prefix = format!("{}.", cam.stem());
+        let stale =
+            self.stems.iter().find(|(s, _)| s.strip_prefix(&prefix).is_some_and(fingerprint::is_view_key));
+        match stale {
+            Some((_, path)) => Err(Error::Invalid(format!(
+                "{}: made for another scene or camera than view {} (its content name is {}); \
+                 remove it or export the views again",
+                path.display(),
+                cam.name,
+                content_name(cam, Some(fp))
+            ))),
+            None => Ok(None),
+        }
+    }
 }
 
 /// Reads an image as grey `H × W` (mean of RGB), resized to `w × h`, with a warning
@@ -69,23 +167,26 @@ fn read_attention(path: &Path, w: usize, h: usize, alt: (usize, usize)) -> Resul
     Ok(resize_bilinear(&clean, aw, ah, 1, w, h))
 }
 
-/// Reads the edits of `views` from `dir` (see the module doc); `attention_dir`, when
-/// given, may hold `<stem>.npy` attention maps that replace the change map.
+/// Reads the edits of `views` from `dir` (see the module doc). `scene`, the scene's
+/// [`fingerprint::scene`], selects content-named images (plain names only without it);
+/// `attention_dir`, when given, may hold `<stem>.npy` attention maps that replace the
+/// change map.
 pub(crate) fn read_edits(
     dir: &Path,
     views: &[SourceView],
+    scene: Option<&str>,
     attention_dir: Option<&Path>,
 ) -> Result<Vec<Option<EditedView>>, Error> {
     for v in views {
         v.check()?;
     }
-    let masks = dir.join("masks");
+    let folders = EditFolders::scan(dir)?;
     let mut out = Vec::with_capacity(views.len());
     let mut missing = Vec::new();
     for v in views {
         let stem = v.camera.stem();
         let (w, h) = v.size();
-        let Some(path) = find_image(dir, &stem) else {
+        let Some(path) = folders.image_of(v.camera, scene)? else {
             missing.push(stem);
             out.push(None);
             continue;
@@ -102,7 +203,8 @@ pub(crate) fn read_edits(
         } else {
             img.data
         };
-        let mask_path = masks.join(format!("{stem}.png"));
+        let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or(&stem);
+        let mask_path = path.with_file_name("masks").join(format!("{name}.png"));
         let mask: Option<Vec<f32>> = if mask_path.is_file() {
             Some(read_grey(&mask_path, w, h)?.into_iter().map(|v| if v > 0.5 { 1.0 } else { 0.0 }).collect())
         } else {
@@ -148,11 +250,20 @@ pub(crate) fn read_edits(
 #[derive(Clone, Debug)]
 pub struct FolderEditor {
     dir: PathBuf,
+    scene: Option<String>,
 }
 
 impl FolderEditor {
+    /// Reads plain names only (`<stem>.png`); see [`FolderEditor::for_scene`].
     pub fn new(dir: impl Into<PathBuf>) -> Self {
-        FolderEditor { dir: dir.into() }
+        FolderEditor { dir: dir.into(), scene: None }
+    }
+
+    /// Reads the content-named images of the scene with this [`fingerprint::scene`]
+    /// (and plain names), refusing those named for another scene.
+    pub fn for_scene(mut self, scene: impl Into<String>) -> Self {
+        self.scene = Some(scene.into());
+        self
     }
 
     pub fn dir(&self) -> &Path {
@@ -166,16 +277,59 @@ impl Editor for FolderEditor {
     }
 
     fn edit(&mut self, views: &[SourceView], _prompt: &str) -> Result<Vec<Option<EditedView>>, Error> {
-        read_edits(&self.dir, views, None)
+        read_edits(&self.dir, views, self.scene.as_deref(), None)
+    }
+}
+
+/// One share of the edit views for a job of its own: the view at position `p` of the
+/// edit-view list belongs to shard `p mod count` (round robin, so shards differ by at
+/// most one view and each spans the whole orbit).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Shard {
+    /// 0-based, below `count` (a Slurm array `--array=0-(N-1)` gives it directly).
+    pub index: usize,
+    pub count: usize,
+}
+
+impl Shard {
+    /// The most shards a view list is split into.
+    pub const MAX_COUNT: usize = 1 << 20;
+
+    /// Parses `I/N` with `0 ≤ I < N ≤` [`Shard::MAX_COUNT`].
+    pub fn parse(s: &str) -> Result<Shard, String> {
+        let (i, n) = s.split_once('/').ok_or_else(|| format!("expected I/N (e.g. 0/4), got {s:?}"))?;
+        let num =
+            |t: &str| t.trim().parse::<usize>().map_err(|e| format!("{s:?}: {t:?} is not a count: {e}"));
+        let (index, count) = (num(i)?, num(n)?);
+        if count == 0 || count > Self::MAX_COUNT || index >= count {
+            return Err(format!(
+                "{s:?}: need 0 <= I < N <= {}; shards are numbered from 0 (0/{count} .. {}/{count})",
+                Self::MAX_COUNT,
+                count.saturating_sub(1)
+            ));
+        }
+        Ok(Shard { index, count })
+    }
+
+    /// Whether the view at `position` of the edit-view list is this shard's.
+    pub fn holds(&self, position: usize) -> bool {
+        position % self.count == self.index
+    }
+}
+
+impl std::fmt::Display for Shard {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
     }
 }
 
 /// One entry of `views.json`.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ViewEntry {
-    /// The view's stem: the edited image goes in `<name>.png`.
+    /// The view's stem.
     pub name: String,
-    /// File name written for it (`<name>.png`).
+    /// File name written for it (its [`content_name`] with `.png`); the edited image
+    /// goes back under the same name.
     pub file: String,
     /// Index of the view in the camera list.
     pub index: usize,
@@ -183,59 +337,82 @@ pub struct ViewEntry {
     pub height: usize,
 }
 
-/// The `views` list written to `views.json` / `request.json`.
-pub fn view_entries(views: &[SourceView]) -> Result<Vec<ViewEntry>, Error> {
-    let mut seen = HashSet::new();
-    views
-        .iter()
-        .map(|v| {
-            v.check()?;
-            let name = v.camera.stem();
-            if !seen.insert(name.clone()) {
-                return Err(Error::Invalid(format!(
-                    "two views share the image name {name:?}; their files would overwrite each other"
-                )));
-            }
-            let (width, height) = v.size();
-            Ok(ViewEntry { file: format!("{name}.png"), name, index: v.index, width, height })
-        })
-        .collect()
+fn entry(index: usize, cam: &Camera, scene: Option<&str>) -> ViewEntry {
+    let (width, height) = (cam.width as usize, cam.height as usize);
+    ViewEntry { file: format!("{}.png", content_name(cam, scene)), name: cam.stem(), index, width, height }
 }
 
-/// Writes `<stem>.png` for every view and `views.json` (`{"views": [{"name", "file",
-/// "index", "width", "height"}]}`) into `dir` (created if needed). Every file is
-/// written atomically.
-pub fn export_views(views: &[SourceView], dir: &Path) -> Result<(), Error> {
-    for v in views {
-        v.check()?;
-    }
-    let cams: Vec<(usize, &Camera)> = views.iter().map(|v| (v.index, v.camera)).collect();
-    export_views_with(&cams, dir, |k, _, _| Ok(views[k].image.to_vec()))?;
-    Ok(())
-}
-
-/// [`export_views`] for views rendered one at a time (so a large scene's views never
-/// all sit in memory): `image_of(k, index, camera)` returns view k's `H × W × 3` image.
-/// Returns the entries written to `views.json`.
-pub fn export_views_with(
-    cameras: &[(usize, &Camera)],
-    dir: &Path,
-    mut image_of: impl FnMut(usize, usize, &Camera) -> Result<Vec<f32>, Error>,
-) -> Result<Vec<ViewEntry>, Error> {
+/// Refuses two views with one image name: their files would overwrite each other.
+fn unique_names<'a>(names: impl IntoIterator<Item = &'a str>) -> Result<(), Error> {
     let mut seen = HashSet::new();
-    let mut entries = Vec::with_capacity(cameras.len());
-    for &(index, cam) in cameras {
-        let name = cam.stem();
-        if !seen.insert(name.clone()) {
+    for name in names {
+        if !seen.insert(name) {
             return Err(Error::Invalid(format!(
                 "two views share the image name {name:?}; their files would overwrite each other"
             )));
         }
-        let (width, height) = (cam.width as usize, cam.height as usize);
-        entries.push(ViewEntry { file: format!("{name}.png"), name, index, width, height });
     }
+    Ok(())
+}
+
+/// The `views` list written to `request.json` (plain names).
+pub fn view_entries(views: &[SourceView]) -> Result<Vec<ViewEntry>, Error> {
+    for v in views {
+        v.check()?;
+    }
+    let entries: Vec<ViewEntry> = views.iter().map(|v| entry(v.index, v.camera, None)).collect();
+    unique_names(entries.iter().map(|e| e.name.as_str()))?;
+    Ok(entries)
+}
+
+/// What [`export_views`] writes besides the images.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ExportSpec<'a> {
+    /// The scene's [`fingerprint::scene`]: files get content names (plain without it).
+    pub scene: Option<&'a str>,
+    /// The shard these views are, recorded in `views.json`.
+    pub shard: Option<Shard>,
+    /// An earlier export whose content-named files are reused instead of rendered
+    /// again, when its `views.json` records the same background.
+    pub reuse: Option<&'a Path>,
+    /// The render background, recorded in `views.json`.
+    pub background: [f32; 3],
+}
+
+/// What [`export_views`] wrote.
+#[derive(Clone, Debug)]
+pub struct Exported {
+    pub entries: Vec<ViewEntry>,
+    /// Views copied from [`ExportSpec::reuse`] rather than rendered.
+    pub reused: usize,
+}
+
+/// Writes one PNG per view and `views.json` (`{"scene", "shard", "views": [{"name",
+/// "file", "index", "width", "height"}]}`) into `dir` (created if needed), rendering
+/// one view at a time (a large scene's views never all sit in memory):
+/// `image_of(k, index, camera)` returns view k's `H × W × 3` image. Every file is
+/// written atomically.
+pub fn export_views(
+    cameras: &[(usize, &Camera)],
+    dir: &Path,
+    spec: ExportSpec,
+    mut image_of: impl FnMut(usize, usize, &Camera) -> Result<Vec<f32>, Error>,
+) -> Result<Exported, Error> {
+    let entries: Vec<ViewEntry> = cameras.iter().map(|&(i, cam)| entry(i, cam, spec.scene)).collect();
+    unique_names(entries.iter().map(|e| e.name.as_str()))?;
     std::fs::create_dir_all(dir).map_err(|e| transsplat_scene::Error::io(dir, e))?;
+    let mut reused = 0;
+    let reuse = spec
+        .reuse
+        .filter(|d| spec.scene.is_some() && listing(d, "background") == Some(json!(spec.background)));
     for (k, (&(index, cam), e)) in cameras.iter().zip(&entries).enumerate() {
+        let earlier = reuse.map(|d| d.join(&e.file));
+        if let Some(earlier) = earlier.filter(|p| p.is_file()) {
+            std::fs::copy(&earlier, dir.join(&e.file))
+                .map_err(|err| transsplat_scene::Error::io(&earlier, err))?;
+            reused += 1;
+            continue;
+        }
         let img = image_of(k, index, cam)?;
         if img.len() != e.width * e.height * 3 {
             return Err(Error::Invalid(format!(
@@ -248,10 +425,27 @@ pub fn export_views_with(
         }
         image::write_png(&dir.join(&e.file), e.width, e.height, &img)?;
     }
-    let json = serde_json::json!({ "views": entries });
+    let json = json!({
+        "scene": spec.scene,
+        "shard": spec.shard.map(|s| s.to_string()),
+        "background": spec.background,
+        "views": entries,
+    });
     let text = serde_json::to_string_pretty(&json).expect("plain data serialises");
     atomic::write_bytes(&dir.join("views.json"), text.as_bytes())?;
-    Ok(entries)
+    Ok(Exported { entries, reused })
+}
+
+/// Field `key` of the `views.json` an earlier export left in `dir`, if any.
+fn listing(dir: &Path, key: &str) -> Option<serde_json::Value> {
+    let text = std::fs::read(dir.join("views.json")).ok()?;
+    let mut json: serde_json::Value = serde_json::from_slice(&text).ok()?;
+    Some(json.get_mut(key)?.take())
+}
+
+/// The shard recorded in an earlier export's `views.json` in `dir`, if any.
+pub fn exported_shard(dir: &Path) -> Option<String> {
+    listing(dir, "shard")?.as_str().map(str::to_string)
 }
 
 #[cfg(test)]
@@ -331,6 +525,12 @@ pub(crate) mod tests {
         assert!(e.contains("00007.jpg"), "{e}");
     }
 
+    /// `export_views` of in-memory images (the test's renders).
+    fn export(views: &[SourceView], dir: &Path, spec: ExportSpec) -> Result<Exported, Error> {
+        let cams: Vec<(usize, &Camera)> = views.iter().map(|v| (v.index, v.camera)).collect();
+        export_views(&cams, dir, spec, |k, _, _| Ok(views[k].image.to_vec()))
+    }
+
     #[test]
     fn export_writes_images_and_a_listing() {
         let dir = tempfile::tempdir().unwrap();
@@ -343,7 +543,7 @@ pub(crate) mod tests {
             .enumerate()
             .map(|(i, (c, m))| SourceView { index: i, camera: c, image: m })
             .collect();
-        export_views(&views, &out).unwrap();
+        export(&views, &out, ExportSpec::default()).unwrap();
         let back = image::read(&out.join("0002.png")).unwrap();
         assert_eq!((back.width, back.height), (3, 2));
         assert!((back.data[0] - 0.8).abs() < 1.0 / 255.0);
@@ -352,11 +552,92 @@ pub(crate) mod tests {
         assert_eq!(json["views"][0]["name"], "0001");
         assert_eq!(json["views"][1]["file"], "0002.png");
         assert_eq!(json["views"][1]["width"], 3);
+        assert!(json["shard"].is_null() && json["scene"].is_null());
         // exported views read back unchanged give zero change attention
         let back = FolderEditor::new(&out).edit(&views, "").unwrap();
         assert!(back[0].as_ref().unwrap().attention.iter().all(|&a| a < 1e-6));
         // duplicate names are refused
         let dup = [views[0], views[0]];
-        assert!(matches!(export_views(&dup, &out), Err(Error::Invalid(_))));
+        assert!(matches!(export(&dup, &out, ExportSpec::default()), Err(Error::Invalid(_))));
+    }
+
+    #[test]
+    fn shards_parse_and_split_round_robin() {
+        let s = Shard::parse("1/3").unwrap();
+        assert_eq!((s.index, s.count, s.to_string()), (1, 3, "1/3".to_string()));
+        let held: Vec<usize> = (0..8).filter(|&p| s.holds(p)).collect();
+        assert_eq!(held, vec![1, 4, 7]);
+        // every position in exactly one shard
+        for p in 0..20 {
+            assert_eq!((0..3).filter(|&i| Shard { index: i, count: 3 }.holds(p)).count(), 1);
+        }
+        for bad in ["3/3", "0/0", "1", "-1/3", "a/3", "1/x", "0/2000000"] {
+            let e = Shard::parse(bad).unwrap_err();
+            assert!(e.contains(bad), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn content_names_select_this_scenes_edits_from_shard_folders() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let cams = [camera("a.png", 4, 2), camera("b.png", 4, 2), camera("c.png", 4, 2)];
+        let src = vec![0.0f32; 4 * 2 * 3];
+        let views: Vec<SourceView> =
+            cams.iter().enumerate().map(|(i, c)| SourceView { index: i, camera: c, image: &src }).collect();
+        let (fp, other) = ("1".repeat(64), "2".repeat(64));
+        // two shards exported, then "edited" in place: a + c in shard 0, b in shard 1
+        let edited = d.join("edited");
+        for (k, members) in [(0usize, [0usize, 2].as_slice()), (1, &[1])] {
+            let shard = Shard { index: k, count: 2 };
+            let part: Vec<SourceView> = members.iter().map(|&i| views[i]).collect();
+            let spec = ExportSpec { scene: Some(&fp), shard: Some(shard), ..Default::default() };
+            let done = export(&part, &edited.join(k.to_string()), spec).unwrap();
+            assert_eq!(exported_shard(&edited.join(k.to_string())), Some(shard.to_string()));
+            for e in &done.entries {
+                let p = edited.join(k.to_string()).join(&e.file);
+                grey_png(&p, 4, 2, |_, _| 0.1 * (e.index + 1) as f32);
+            }
+        }
+        let name = content_name(&cams[1], Some(&fp));
+        assert!(edited.join("1").join(format!("{name}.png")).is_file(), "{name}");
+        let got = FolderEditor::new(&edited).for_scene(&fp).edit(&views, "").unwrap();
+        for (i, g) in got.iter().enumerate() {
+            let g = g.as_ref().unwrap();
+            assert!((g.image[0] - 0.1 * (i + 1) as f32).abs() < 2.0 / 255.0, "view {i} from its shard");
+        }
+        // without the fingerprint the content names are not taken for plain ones
+        assert!(matches!(FolderEditor::new(&edited).edit(&views, ""), Err(Error::NoEdits(_))));
+        // another scene's files are refused by name, never used
+        let e = FolderEditor::new(&edited).for_scene(&other).edit(&views, "").unwrap_err().to_string();
+        assert!(e.contains("another scene") && e.contains(&edited.display().to_string()), "{e}");
+        // one view edited in two shard folders is ambiguous
+        let dup = edited.join("1").join(format!("{}.png", content_name(&cams[0], Some(&fp))));
+        grey_png(&dup, 4, 2, |_, _| 0.9);
+        let e = FolderEditor::new(&edited).for_scene(&fp).edit(&views, "").unwrap_err().to_string();
+        assert!(e.contains("second edited image"), "{e}");
+        std::fs::remove_file(&dup).unwrap();
+        // a rerun reuses the earlier export's files instead of rendering them
+        let again = d.join("again");
+        let spec = ExportSpec { scene: Some(&fp), reuse: Some(&edited.join("0")), ..Default::default() };
+        let done = export(&views, &again, spec).unwrap();
+        assert_eq!(done.reused, 2, "a and c were in shard 0");
+        // ... but not from an export on another background
+        let white = ExportSpec { background: [1.0; 3], ..spec };
+        assert_eq!(export(&views, &d.join("white"), white).unwrap().reused, 0);
+        let a = image::read(&again.join(format!("{}.png", content_name(&cams[0], Some(&fp))))).unwrap();
+        assert!((a.data[0] - 0.1).abs() < 2.0 / 255.0, "copied, not rendered");
+        // a mask beside a content-named image is read under the same name
+        let masks = again.join("masks");
+        std::fs::create_dir(&masks).unwrap();
+        grey_png(&masks.join(format!("{}.png", content_name(&cams[1], Some(&fp)))), 4, 2, |x, _| {
+            x as f32 / 3.0
+        });
+        let got = FolderEditor::new(&again).for_scene(&fp).edit(&views, "").unwrap();
+        assert_eq!(
+            got[1].as_ref().unwrap().mask.as_deref(),
+            Some(&[0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0, 1.0][..])
+        );
+        assert!(got[0].as_ref().unwrap().mask.is_none());
     }
 }

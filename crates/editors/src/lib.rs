@@ -4,7 +4,8 @@
 //! images are not the editor's business: the edit engine computes them with the one
 //! feature model of the job, for source renders and edited images alike.
 //!
-//! - [`folder`]: edited images made by any 2D tool, named like the views.
+//! - [`folder`]: edited images made by any 2D tool, named like the views (by content),
+//!   possibly assembled from shards.
 //! - [`command`]: runs a user command on an exported folder (a file protocol), as a
 //!   [`child`] process: own process group, output to logs, time limit, cancellation.
 //! - [`simulated`]: ground-truth edits of the built-in scenes, corrupted per view the
@@ -22,7 +23,9 @@ pub mod simulated;
 
 pub use command::CommandEditor;
 pub use features::{appearance, change_attention, semantic_fallback};
-pub use folder::{export_views, export_views_with, FolderEditor, ViewEntry};
+pub use folder::{
+    content_name, export_views, exported_shard, ExportSpec, Exported, FolderEditor, Shard, ViewEntry,
+};
 pub use resize::resize_bilinear;
 pub use simulated::SimulatedEditor;
 

@@ -9,6 +9,7 @@
 //! - [`image`]: PNG and JPEG images as float RGB in [0, 1].
 //! - [`scene_paths`]: finding the scene and cameras in an INRIA 3DGS output folder.
 //! - [`atomic`]: write-to-temporary-then-rename for every output.
+//! - [`fingerprint`]: content fingerprints of scenes and views (content-named files).
 //! - [`archive`]: named little-endian arrays with a checksum (checkpoints).
 //! - [`resample`]: separable resampling of interleaved images by per-axis taps.
 //! - [`cpu`], [`timing`]: run-time CPU feature detection and best-of-N benchmark
@@ -22,6 +23,7 @@ pub mod camera;
 pub mod cameras;
 pub mod cpu;
 pub mod error;
+pub mod fingerprint;
 pub mod gaussians;
 pub mod image;
 pub mod npy;

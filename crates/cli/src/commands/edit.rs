@@ -157,7 +157,7 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
     let mut editor: Box<dyn Editor + '_> = match args.editor {
         EditorKind::Folder => {
             let dir = args.edits.as_ref().context("--editor folder needs --edits DIR")?;
-            Box::new(FolderEditor::new(dir))
+            Box::new(FolderEditor::new(dir).for_scene(transsplat_scene::fingerprint::scene(&g)))
         }
         EditorKind::Command => {
             let cmd = args.command.as_ref().context("--editor command needs --command CMD")?;
