@@ -152,3 +152,18 @@ fn quick_demo_writes_metrics_for_every_method_and_transsplat_leaks_less_than_nai
         assert!(out.join("transsplat").join(f).is_file(), "transsplat/{f}");
     }
 }
+
+#[test]
+fn quick_demo_honours_an_explicit_step_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    ok(&bin()
+        .args(["demo", "--quick", "--methods", "naive", "--set", "schedule.steps=30", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap());
+    assert!(
+        out.join("naive/point_cloud/iteration_30/point_cloud.ply").is_file(),
+        "the --set wins over --quick"
+    );
+}

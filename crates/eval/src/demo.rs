@@ -77,7 +77,15 @@ pub enum DemoError {
 /// Marker file of a finished demo folder.
 pub const MARKER: &str = "metrics.json";
 
-/// Runs the demo; `on_method(name, progress)` reports progress.
+/// The `--quick` schedule: at most 150 steps, a transport round at least every 50.
+/// Fronts apply it before the user's own settings, so an explicit setting wins.
+pub fn quick_schedule(config: &mut EditConfig) {
+    config.schedule.steps = config.schedule.steps.min(150);
+    config.schedule.transport_every = config.schedule.transport_every.min(50);
+}
+
+/// Runs the demo; `on_method(name, progress)` reports progress. `opts.quick` picks the
+/// small scene; the edit schedule is `opts.config` as given (see [`quick_schedule`]).
 pub fn run(
     opts: &DemoOptions,
     cancel: Option<&AtomicBool>,
@@ -134,11 +142,7 @@ pub fn run(
         image::write_png(&dir.join(format!("reference/truth_{stem}.png")), w, h, &reference.truth[k])?;
     }
 
-    let mut config = opts.config.clone();
-    if opts.quick {
-        config.schedule.steps = config.schedule.steps.min(150);
-        config.schedule.transport_every = config.schedule.transport_every.min(50);
-    }
+    let config = opts.config.clone();
     let mut scores = Vec::new();
     let mut results: Vec<(Method, EditResult)> = Vec::new();
     for &m in &opts.methods {

@@ -46,10 +46,13 @@ pub struct DemoArgs {
 
 /// Runs `transsplat demo`.
 pub fn run(args: &DemoArgs, cancel: &AtomicBool) -> Result<()> {
-    let config = match &args.config {
+    let mut config = match &args.config {
         Some(p) => EditConfig::from_toml_file(p).map_err(anyhow::Error::msg)?,
         None => EditConfig::default(),
     };
+    if args.quick {
+        transsplat_eval::demo::quick_schedule(&mut config);
+    }
     let config = config.with_overrides(&args.set).map_err(anyhow::Error::msg)?;
     let methods = match &args.methods {
         None => Method::ALL.to_vec(),
