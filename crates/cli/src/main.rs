@@ -62,6 +62,8 @@ enum BenchCommand {
     Models(commands::bench::ModelsArgs),
     /// Training: time per step (render, loss, backward, Adam) against forward + backward.
     Train(commands::train::BenchArgs),
+    /// A whole edit at a stated real size (simulated editor), timed by stage and scored.
+    Edit(commands::bench::EditArgs),
 }
 
 /// Set by SIGINT / Ctrl-C or SIGTERM; long commands stop at the next step, write nothing partial, and
@@ -74,7 +76,12 @@ fn main() {
     // writing each output atomically) keep the default: Ctrl-C ends them at once.
     let polls_cancel = matches!(
         cli.command,
-        Command::Demo(_) | Command::Edit(_) | Command::Eval(_) | Command::Render(_) | Command::Train(_)
+        Command::Demo(_)
+            | Command::Edit(_)
+            | Command::Eval(_)
+            | Command::Render(_)
+            | Command::Train(_)
+            | Command::Bench(BenchCommand::Edit(_))
     );
     if polls_cancel {
         // SIGINT, SIGTERM (what `timeout`, docker and batch schedulers send) and SIGHUP.
@@ -113,6 +120,7 @@ fn main() {
         Command::Bench(BenchCommand::Models(a)) => commands::bench::models(a),
         Command::Train(a) => commands::train::run(a, &CANCEL),
         Command::Bench(BenchCommand::Train(a)) => commands::train::bench(a),
+        Command::Bench(BenchCommand::Edit(a)) => commands::bench::edit(a, &CANCEL),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");

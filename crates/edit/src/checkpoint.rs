@@ -218,6 +218,7 @@ pub(crate) fn load_state(
             .collect(),
         editor_s: timing[0],
         elapsed_s: timing[1],
+        stages: Default::default(),
     };
     ck.last = Some(step as u64);
     Ok((tr, st))

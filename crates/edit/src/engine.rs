@@ -13,7 +13,7 @@ use crate::edits::{self, ViewData};
 use crate::error::EditError;
 use crate::job::{EditJob, EditResult, Progress, Timing};
 use crate::methods::{Context, EditMethod};
-use crate::optimise::{self, LoopState, StepLosses};
+use crate::optimise::{self, LoopState, StageTimes, StepLosses};
 use crate::semantic::{set_semantic_extras, SemanticSpace};
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
@@ -87,14 +87,16 @@ pub fn run_with(
     for step in start..cfg.schedule.steps {
         ls.step = step;
         ls.elapsed_s = before + clock.elapsed().as_secs_f64();
+        let io = Instant::now();
         checkpoint_or_stop(control, start, &edited, &mut editor_sum, &tr, &ls, method.as_ref())?;
+        ls.stages.checkpoint += io.elapsed().as_secs_f64();
         if let Some(mut r) = method.before_step(step, &tr, &ctx)? {
             r.round = ls.rounds.len();
             progress(Progress::Round(&r));
             ls.rounds.push(r);
         }
         let vd = &views[ls.order.next(views.len())];
-        let rec = optimise_step(step, &mut tr, method.as_mut(), vd, job.cameras, cfg)?;
+        let rec = optimise_step(step, &mut tr, method.as_mut(), vd, job.cameras, cfg, &mut ls.stages)?;
         progress(Progress::Step {
             step: step + 1,
             steps: cfg.schedule.steps,
@@ -178,16 +180,20 @@ fn optimise_step(
     vd: &ViewData,
     cameras: &[Camera],
     cfg: &EditConfig,
+    times: &mut StageTimes,
 ) -> Result<StepLosses, EditError> {
     tr.begin_step();
-    let (frame, mut grads, img) = optimise::image_gradients(tr, &cameras[vd.cam], &vd.target, cfg);
+    let (frame, mut grads, img) = optimise::image_gradients(tr, &cameras[vd.cam], &vd.target, cfg, times);
     let mut rec = StepLosses { step, img, ..Default::default() };
+    let mut clock = Instant::now();
     method.add_gradients(tr, vd, &mut grads, &mut rec);
+    times.method_terms += optimise::lap(&mut clock);
     optimise::check_losses(&rec, tr.step)?;
     // The mask is read only at densification steps: built only then.
     let mask = if tr.config.densify.densifies(tr.step) { method.densify_mask() } else { None };
     let report =
         tr.finish_step(&grads, &frame, mask.as_deref()).map_err(|e| EditError::Train(e.to_string()))?;
+    times.optimiser += optimise::lap(&mut clock);
     if let Some(r) = &report.reindex {
         method.reindex(r);
     }
@@ -211,6 +217,7 @@ fn finish(
         editor: ls.editor_s,
         transport,
         optimise: ls.elapsed_s - ls.editor_s - transport,
+        stages: ls.stages,
     };
     EditResult {
         gaussians,

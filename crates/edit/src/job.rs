@@ -1,7 +1,7 @@
 //! What an edit works on ([`EditJob`]), what it gives back ([`EditResult`]) and what it
 //! reports while it runs ([`Progress`]).
 
-use crate::optimise::StepLosses;
+use crate::optimise::{StageTimes, StepLosses};
 use crate::round::RoundStats;
 use crate::semantic::SemanticFn;
 use transsplat_editors::EditedView;
@@ -30,6 +30,9 @@ pub struct Timing {
     /// Transport rounds: statistics, prototypes, costs, UOT, fusion, gate.
     pub transport: f64,
     pub optimise: f64,
+    /// The optimisation steps by stage (this process's steps; a resumed run's earlier
+    /// steps are in `total` only).
+    pub stages: StageTimes,
 }
 
 /// The outcome of an edit.

@@ -8,6 +8,7 @@ use crate::round::RoundStats;
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use std::time::Instant;
 use transsplat_raster::{Frame, Grads, ImageGrads};
 use transsplat_scene::{Camera, Gaussians};
 use transsplat_train::{DensifyConfig, LearningRates, Model, TrainConfig, Trainer};
@@ -74,17 +75,55 @@ pub fn geometry_frozen(cfg: &EditConfig) -> bool {
         && cfg.schedule.densify_every == 0
 }
 
+/// Seconds per stage of the optimisation steps, summed over the steps.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct StageTimes {
+    /// Projection, depth sort and tile binning of the step's view.
+    pub binning: f64,
+    /// The forward tile pass (render minus binning).
+    pub tiles: f64,
+    /// L_img and its image gradient (L1 + D-SSIM).
+    pub image_loss: f64,
+    /// The rasterizer's backward (tile pass and projection backward).
+    pub backward: f64,
+    /// The method's own terms (L_sem, L_uot, L_leak and their gradients).
+    pub method_terms: f64,
+    /// Adam over every parameter group, plus densification at its steps.
+    pub optimiser: f64,
+    /// Checkpoint writes.
+    pub checkpoint: f64,
+}
+
+/// Seconds since `t`, restarting it.
+pub fn lap(t: &mut Instant) -> f64 {
+    let now = Instant::now();
+    let s = (now - *t).as_secs_f64();
+    *t = now;
+    s
+}
+
 /// Renders `cam` with the current model and backpropagates λ_img L_img against
-/// `target`: returns the frame, the gradients and λ_img L_img.
-pub fn image_gradients(tr: &Trainer, cam: &Camera, target: &[f32], cfg: &EditConfig) -> (Frame, Grads, f64) {
+/// `target`: returns the frame, the gradients and λ_img L_img; adds the stages' times.
+pub fn image_gradients(
+    tr: &Trainer,
+    cam: &Camera,
+    target: &[f32],
+    cfg: &EditConfig,
+    times: &mut StageTimes,
+) -> (Frame, Grads, f64) {
     let (w, h) = (cam.width as usize, cam.height as usize);
+    let mut clock = Instant::now();
     let (img, frame) = tr.render(cam);
+    times.binning += frame.binning_s;
+    times.tiles += lap(&mut clock) - frame.binning_s;
     let mut il = transsplat_train::loss::image_loss(&img.rgb, target, w, h, None, cfg.loss.dssim);
     if cfg.loss.img != 1.0 {
         il.grad.iter_mut().for_each(|g| *g *= cfg.loss.img);
     }
+    times.image_loss += lap(&mut clock);
     let mut grads = tr.zero_grads();
     tr.backward(cam, &frame, &ImageGrads { rgb: &il.grad, ..Default::default() }, &mut grads);
+    times.backward += lap(&mut clock);
     (frame, grads, (il.loss * cfg.loss.img) as f64)
 }
 
@@ -136,6 +175,8 @@ pub struct LoopState {
     /// Seconds in the editor, and in all (earlier processes of a resumed run included).
     pub editor_s: f64,
     pub elapsed_s: f64,
+    /// This process's steps by stage.
+    pub stages: StageTimes,
 }
 
 impl LoopState {
@@ -147,6 +188,7 @@ impl LoopState {
             losses: Vec::new(),
             editor_s,
             elapsed_s: 0.0,
+            stages: StageTimes::default(),
         }
     }
 }

@@ -1,5 +1,6 @@
 //! Evaluation of edits.
 //!
+//! - [`bench_edit`]: a whole edit timed by stage at a stated real size (`bench edit`).
 //! - [`clip_metrics`]: CLIP-sim and CLIP-dir over folders of renders (ClipSimilarity protocol).
 //! - [`metrics`]: PSNR (optionally inside or outside a mask), SSIM, AUROC.
 //! - [`ground_truth`]: scores an edited scene of a built-in benchmark scene against
@@ -11,6 +12,7 @@
 //! - [`demo`]: the built-in benchmark: a scene, the simulated editor, TransSplat and
 //!   every baseline and ablation, `metrics.json` and `report.html` ([`report`]).
 
+pub mod bench_edit;
 pub mod clip_metrics;
 pub mod demo;
 pub mod edit_output;

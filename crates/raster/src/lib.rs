@@ -139,6 +139,9 @@ pub struct Frame {
     /// `H × W`: 1 + position in its tile list of the last Gaussian blended at the pixel.
     pub last: Vec<u32>,
     pub background: [f32; 3],
+    /// Seconds spent projecting, sorting and binning (the rest of [`render`] is the
+    /// tile pass), for stage timings.
+    pub binning_s: f64,
 }
 
 impl Frame {
@@ -169,7 +172,9 @@ fn validate(splats: &Splats, cam: &Camera) {
 pub fn render(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Image, Frame) {
     validate(splats, cam);
     let view = View::new(cam);
+    let clock = std::time::Instant::now();
     let binned = bin::bin(splats, &view);
+    let binning_s = clock.elapsed().as_secs_f64();
     let prof = bin::Profile::start();
     let (w, h, f) = (binned.width, binned.height, binned.num_features);
     let mut img = Image {
@@ -221,7 +226,7 @@ pub fn render(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Image, Fr
         },
     );
     prof.lap("tiles");
-    (img, Frame { binned, final_t, last, background: bg })
+    (img, Frame { binned, final_t, last, background: bg, binning_s })
 }
 
 /// Gradients of a scalar loss with respect to the rendered images of one view.

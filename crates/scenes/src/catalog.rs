@@ -27,7 +27,7 @@ pub struct SceneConfig {
     /// Seed of the sampling jitter, SH noise and texture noise.
     pub seed: u64,
     /// Multiplies the number of Gaussians (1 = default density, ~40k Gaussians for
-    /// `tabletop`; 0.1 gives a ~5k scene for tests). Clamped to [0.01, 16].
+    /// `tabletop`; 0.1 gives a ~5k scene for tests). Clamped to [0.01, 32].
     pub detail: f32,
     pub width: u32,
     pub height: u32,
@@ -216,7 +216,7 @@ struct Spacing {
 
 impl Spacing {
     fn new(detail: f32) -> Self {
-        let k = 1.0 / detail.clamp(0.01, 16.0).sqrt();
+        let k = 1.0 / detail.clamp(0.01, 32.0).sqrt();
         Spacing { background: 0.045 * k, table: 0.018 * k, object: 0.0105 * k }
     }
 }

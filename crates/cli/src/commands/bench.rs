@@ -1,6 +1,11 @@
 //! `transsplat bench raster`: forward, backward and splat-back timings on the
-//! reproducible synthetic scene of `transsplat_raster::bench`.
+//! reproducible synthetic scene of `transsplat_raster::bench`; `transsplat bench
+//! edit`: a whole edit at a stated real size (`transsplat_eval::bench_edit`).
 
+use super::common::progress;
+use std::sync::atomic::AtomicBool;
+use transsplat_edit::{EditConfig, Progress};
+use transsplat_eval::bench_edit;
 use transsplat_raster::bench;
 
 /// Arguments of `transsplat bench raster`.
@@ -80,6 +85,94 @@ pub fn models(args: &ModelsArgs) -> anyhow::Result<()> {
         }
         let s = (case.run)(&device)?;
         println!("{:<28} {:>10.3}", case.name, s);
+    }
+    Ok(())
+}
+
+/// Arguments of `transsplat bench edit`.
+#[derive(clap::Args, Debug)]
+pub struct EditArgs {
+    /// Sizes to run: a (~700k Gaussians, 42 views of 256x256), b (~1M, 40 views of
+    /// 800x600), quick (~5k, 14 views of 128x96); comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "a")]
+    pub size: Vec<String>,
+    /// Optimisation steps (the default edit's 600 unless given).
+    #[arg(long)]
+    pub steps: Option<usize>,
+    /// Method (default transsplat).
+    #[arg(long)]
+    pub method: Option<String>,
+    /// Simulated editor severity.
+    #[arg(long, value_parser = super::common::finite_f32, default_value_t = 1.0)]
+    pub severity: f32,
+    /// Override any edit setting, as in `edit --set`.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+}
+
+/// Runs `transsplat bench edit`: per size, the stage table and one JSON line.
+pub fn edit(args: &EditArgs, cancel: &AtomicBool) -> anyhow::Result<()> {
+    let sizes: Vec<bench_edit::BenchSize> = args
+        .size
+        .iter()
+        .map(|s| bench_edit::size(s.trim()))
+        .collect::<Result<_, _>>()
+        .map_err(anyhow::Error::msg)?;
+    let config = EditConfig::default()
+        .assemble(args.method.as_deref(), &args.set, args.steps)
+        .map_err(anyhow::Error::msg)?;
+    let work = tempfile::tempdir()?;
+    for size in &sizes {
+        let pb = progress(config.schedule.steps as u64, "edit");
+        let r = bench_edit::run(
+            size,
+            &config,
+            "make the ball blue",
+            args.severity,
+            work.path(),
+            Some(cancel),
+            &mut |p| {
+                if let Progress::Step { step, .. } = p {
+                    pb.set_position(step as u64);
+                }
+            },
+        )?;
+        pb.finish_and_clear();
+        let t = &r.timing;
+        let st = &t.stages;
+        println!(
+            "size {}: {} Gaussians, {} edit views of {}x{}, {} steps, {} threads",
+            r.size,
+            r.gaussians,
+            r.edit_views,
+            r.width,
+            r.height,
+            r.steps,
+            rayon::current_num_threads()
+        );
+        let rows = [
+            ("edit (total)", t.total),
+            ("  editor + source renders", t.editor),
+            ("  transport rounds", t.transport),
+            ("  optimisation", t.optimise),
+            ("    binning", st.binning),
+            ("    tile pass", st.tiles),
+            ("    image loss", st.image_loss),
+            ("    backward", st.backward),
+            ("    method terms", st.method_terms),
+            ("    optimiser + densification", st.optimiser),
+            ("    checkpoints", st.checkpoint),
+            ("write PLY", r.write_s),
+        ];
+        for (name, s) in rows {
+            println!("{name:<32} {s:>9.2} s");
+        }
+        println!("{:<32} {:>9.4} s", "per step", r.per_step_s);
+        println!(
+            "target PSNR {:.2} dB, background PSNR {:.2} dB",
+            r.metrics.target_psnr, r.metrics.background_psnr
+        );
+        println!("{}", serde_json::to_string(&r)?);
     }
     Ok(())
 }

@@ -1,0 +1,179 @@
+//! `transsplat bench edit`: a whole edit timed at a stated real size, with the
+//! simulated editor (no weights) on a built-in scene, so every run is reproducible and
+//! scored against the ground truth (a speed-up must not cost quality).
+//!
+//! The sizes ([`SIZES`]) are those of the performance issue: (a) ~700k Gaussians, 42
+//! edit views at 256×256; (b) ~1M Gaussians, 40 edit views at 800×600; plus `quick`
+//! for tests. Every 8th camera is a test view, so 48 and 46 cameras.
+
+use crate::ground_truth::{GtMetrics, Reference};
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+use transsplat_edit::{semantic, EditConfig, EditError, EditJob, Progress, Timing};
+use transsplat_editors::SimulatedEditor;
+use transsplat_scenes::{build, SceneConfig};
+
+/// One benchmark size.
+#[derive(Clone, Copy, Debug)]
+pub struct BenchSize {
+    pub name: &'static str,
+    pub scene: &'static str,
+    /// Gaussian density multiplier of the built-in scene.
+    pub detail: f32,
+    pub width: u32,
+    pub height: u32,
+    /// Cameras (every 8th held out).
+    pub views: usize,
+}
+
+/// The sizes `bench edit` knows.
+pub const SIZES: [BenchSize; 3] = [
+    BenchSize { name: "a", scene: "tabletop", detail: 17.5, width: 256, height: 256, views: 48 },
+    BenchSize { name: "b", scene: "tabletop", detail: 25.0, width: 800, height: 600, views: 46 },
+    BenchSize { name: "quick", scene: "tabletop", detail: 0.12, width: 128, height: 96, views: 16 },
+];
+
+/// The size named `name`, or an error listing the names.
+pub fn size(name: &str) -> Result<BenchSize, String> {
+    SIZES.iter().copied().find(|s| s.name == name).ok_or_else(|| {
+        let names: Vec<&str> = SIZES.iter().map(|s| s.name).collect();
+        format!("unknown bench size {name:?}; sizes are: {}", names.join(", "))
+    })
+}
+
+/// What one timed edit measured.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct EditBench {
+    pub size: &'static str,
+    pub gaussians: usize,
+    pub edit_views: usize,
+    pub width: u32,
+    pub height: u32,
+    pub steps: usize,
+    /// Building the scene and its ground truth (not part of an edit).
+    pub setup_s: f64,
+    /// The edit, split by stage (editor, transport, optimisation and its stages).
+    pub timing: Timing,
+    /// Writing the edited scene as a PLY.
+    pub write_s: f64,
+    /// Optimisation seconds per step (`timing.optimise / steps`).
+    pub per_step_s: f64,
+    /// Ground-truth scores of the result on the test views.
+    pub metrics: GtMetrics,
+}
+
+/// Builds the size's scene and edits it with `prompt` at `severity` under `config`,
+/// writing the result into `work` (a scratch folder); `on_progress` sees the steps.
+pub fn run(
+    size: &BenchSize,
+    config: &EditConfig,
+    prompt: &str,
+    severity: f32,
+    work: &Path,
+    cancel: Option<&AtomicBool>,
+    on_progress: &mut dyn FnMut(Progress),
+) -> Result<EditBench, BenchError> {
+    let clock = Instant::now();
+    let cfg = SceneConfig {
+        seed: config.seed,
+        detail: size.detail,
+        width: size.width,
+        height: size.height,
+        views: size.views,
+    };
+    let scene = build(size.scene, &cfg)?;
+    let mut editor = SimulatedEditor::new(&scene, severity, config.seed);
+    editor.instruct(prompt)?;
+    let reference = Reference::new(&scene, editor.ground_truth(), editor.target_label());
+    let source = scene.gaussians_with_labels();
+    let job = EditJob {
+        gaussians: &source,
+        cameras: &scene.cameras,
+        edit_views: scene.train_views(),
+        background: scene.background,
+        prompt,
+        semantic: &semantic::builtin,
+    };
+    let setup_s = clock.elapsed().as_secs_f64();
+    tracing::info!(
+        "bench edit {}: {} Gaussians, {} edit views of {}x{}, {} steps (setup {setup_s:.1} s)",
+        size.name,
+        source.len(),
+        job.edit_views.len(),
+        size.width,
+        size.height,
+        config.schedule.steps
+    );
+    let res = transsplat_edit::run(&job, &mut editor, config, cancel, on_progress)?;
+    let clock = Instant::now();
+    let out = work.join("point_cloud.ply");
+    transsplat_scene::ply::write(&out, &res.gaussians)?;
+    let write_s = clock.elapsed().as_secs_f64();
+    std::fs::remove_file(&out).map_err(|e| transsplat_scene::Error::io(&out, e))?;
+    let steps = config.schedule.steps;
+    Ok(EditBench {
+        size: size.name,
+        gaussians: source.len(),
+        edit_views: job.edit_views.len(),
+        width: size.width,
+        height: size.height,
+        steps,
+        setup_s,
+        per_step_s: res.timing.optimise / steps.max(1) as f64,
+        timing: res.timing,
+        write_s,
+        metrics: reference.score(&scene, &res.gaussians),
+    })
+}
+
+/// Why a benchmark could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    #[error(transparent)]
+    Scene(#[from] transsplat_scenes::Error),
+    #[error(transparent)]
+    Editor(#[from] transsplat_editors::Error),
+    #[error(transparent)]
+    Edit(#[from] EditError),
+    #[error(transparent)]
+    Io(#[from] transsplat_scene::Error),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn quick_bench_times_every_stage_and_scores_the_edit() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut config = EditConfig::default();
+        config.schedule.steps = 12;
+        config.schedule.transport_every = 6;
+        let r =
+            run(&size("quick").unwrap(), &config, "make the ball blue", 0.0, dir.path(), None, &mut |_| {})
+                .unwrap();
+        assert_eq!((r.steps, r.edit_views), (12, 14));
+        let st = &r.timing.stages;
+        for (name, v) in [
+            ("binning", st.binning),
+            ("tiles", st.tiles),
+            ("image_loss", st.image_loss),
+            ("backward", st.backward),
+            ("method_terms", st.method_terms),
+            ("optimiser", st.optimiser),
+        ] {
+            assert!(v > 0.0 && v < r.timing.optimise, "{name}: {v} of {}", r.timing.optimise);
+        }
+        let staged = st.binning + st.tiles + st.image_loss + st.backward + st.method_terms + st.optimiser;
+        assert!(
+            staged <= r.timing.optimise * 1.001,
+            "stages {staged} exceed the optimisation {}",
+            r.timing.optimise
+        );
+        assert!(r.timing.transport > 0.0 && r.write_s > 0.0);
+        assert!(r.metrics.target_psnr.is_finite() && r.metrics.background_psnr.is_finite());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "the scratch PLY is removed");
+        assert!(size("huge").unwrap_err().contains("a, b, quick"));
+    }
+}
