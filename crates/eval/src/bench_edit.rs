@@ -29,8 +29,8 @@ pub struct BenchSize {
 
 /// The sizes `bench edit` knows.
 pub const SIZES: [BenchSize; 3] = [
-    BenchSize { name: "a", scene: "tabletop", detail: 17.5, width: 256, height: 256, views: 48 },
-    BenchSize { name: "b", scene: "tabletop", detail: 25.0, width: 800, height: 600, views: 46 },
+    BenchSize { name: "a", scene: "tabletop", detail: 15.2, width: 256, height: 256, views: 48 },
+    BenchSize { name: "b", scene: "tabletop", detail: 21.7, width: 800, height: 600, views: 46 },
     BenchSize { name: "quick", scene: "tabletop", detail: 0.12, width: 128, height: 96, views: 16 },
 ];
 

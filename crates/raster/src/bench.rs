@@ -75,23 +75,28 @@ pub struct BenchResult {
 
 /// Runs forward, backward and splat-back on the synthetic scene.
 pub fn run(n: usize, width: u32, height: u32, reps: usize) -> BenchResult {
-    let g = bench_scene(n, 7);
-    let cam = bench_camera(width, height);
-    let s = Splats::new(&g);
+    run_on(&bench_scene(n, 7), &bench_camera(width, height), reps)
+}
+
+/// Runs forward, backward and splat-back of `g` seen by `cam` (any scene, so other
+/// implementations can be timed on identical input).
+pub fn run_on(g: &Gaussians, cam: &Camera, reps: usize) -> BenchResult {
+    let (n, width, height) = (g.len(), cam.width, cam.height);
+    let s = Splats::new(g);
     let opts = RenderOptions { background: [0.0; 3] };
-    let (forward, (img, frame)) = best_of(0, reps, || render(&s, &cam, &opts));
-    let view = crate::project::View::new(&cam);
+    let (forward, (img, frame)) = best_of(0, reps, || render(&s, cam, &opts));
+    let view = crate::project::View::new(cam);
     let (binning, _) = best_of(0, reps, || crate::bin::bin(&s, &view));
     let px = (width * height) as usize;
     let v: Vec<f32> = (0..px * 3).map(|i| ((i * 7919) % 17) as f32 / 17.0 - 0.5).collect();
     let va: Vec<f32> = v[..px].to_vec();
     let (bwd, _) = best_of(0, reps, || {
         let mut grads = Grads::zeros(g.len(), g.sh_degree, 0);
-        backward(&s, &cam, &frame, &ImageGrads { rgb: &v, alpha: &va, ..Default::default() }, &mut grads);
+        backward(&s, cam, &frame, &ImageGrads { rgb: &v, alpha: &va, ..Default::default() }, &mut grads);
         grads
     });
     let feat: Vec<f32> = v.clone();
-    let (splat, stats) = best_of(0, reps, || gaussian_stats(&s, &cam, Some((&feat, 3))));
+    let (splat, stats) = best_of(0, reps, || gaussian_stats(&s, cam, Some((&feat, 3))));
     let mut traversed = frame.last.clone();
     traversed.sort_unstable();
     BenchResult {

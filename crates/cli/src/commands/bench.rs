@@ -2,15 +2,28 @@
 //! reproducible synthetic scene of `transsplat_raster::bench`; `transsplat bench
 //! edit`: a whole edit at a stated real size (`transsplat_eval::bench_edit`).
 
-use super::common::progress;
+use super::common::{load_cameras, load_scene, progress, SceneArgs};
+use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use transsplat_edit::{EditConfig, Progress};
 use transsplat_eval::bench_edit;
 use transsplat_raster::bench;
+use transsplat_scene::{Camera, Gaussians};
 
 /// Arguments of `transsplat bench raster`.
 #[derive(clap::Args, Debug)]
 pub struct RasterArgs {
+    /// Time this scene (a PLY or an output folder) instead of the synthetic one, seen by
+    /// one of its cameras (`--cameras`, `--camera`).
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
+    /// Cameras of `--scene`: cameras.json, transforms.json or a COLMAP folder (default:
+    /// beside the scene).
+    #[arg(long, requires = "scene")]
+    pub cameras: Option<PathBuf>,
+    /// The camera of `--scene` to render, by image name or stem (default: the first).
+    #[arg(long, requires = "scene")]
+    pub camera: Option<String>,
     /// Gaussian counts to run (comma-separated).
     #[arg(long, value_delimiter = ',', default_value = "100000,1000000")]
     pub gaussians: Vec<usize>,
@@ -22,9 +35,32 @@ pub struct RasterArgs {
     pub reps: usize,
 }
 
+/// The scene and camera of `bench raster --scene`.
+fn given_scene(args: &RasterArgs, path: &Path) -> anyhow::Result<(Gaussians, Camera)> {
+    let scene = SceneArgs { scene: path.to_path_buf(), drop_invalid: false };
+    let (g, _) = load_scene(&scene)?;
+    let (cams, cam_path) = load_cameras(args.cameras.as_deref(), path)?;
+    let cam = match &args.camera {
+        None => cams.first(),
+        Some(name) => cams.iter().find(|c| &c.name == name || &c.stem() == name),
+    };
+    let cam = cam.cloned().ok_or_else(|| {
+        let names: Vec<String> = cams.iter().take(5).map(|c| c.stem()).collect();
+        anyhow::anyhow!(
+            "{}: no camera {:?} (there are {}, e.g. {})",
+            cam_path.display(),
+            args.camera.as_deref().unwrap_or(""),
+            cams.len(),
+            names.join(", ")
+        )
+    })?;
+    Ok((g, cam))
+}
+
 /// Runs `transsplat bench raster` and prints a table and one JSON line per configuration.
 pub fn raster(args: &RasterArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.size > 0, "--size must be positive");
+    let given = args.scene.as_deref().map(|p| given_scene(args, p)).transpose()?;
     println!(
         "{:>10} {:>9} {:>10} {:>10} {:>10} {:>10} {:>12} {:>10} {:>9}",
         "gaussians",
@@ -37,8 +73,13 @@ pub fn raster(args: &RasterArgs) -> anyhow::Result<()> {
         "saturated",
         "traversed"
     );
-    for &n in &args.gaussians {
-        let r = bench::run(n, args.size, args.size, args.reps);
+    let runs: Vec<usize> = if given.is_some() { vec![0] } else { args.gaussians.clone() };
+    for n in runs {
+        let r = match &given {
+            Some((g, cam)) => bench::run_on(g, cam, args.reps),
+            None => bench::run(n, args.size, args.size, args.reps),
+        };
+        let n = r.gaussians;
         println!(
             "{:>10} {:>9} {:>10.4} {:>10.4} {:>10.4} {:>10.4} {:>12.1} {:>9.1}% {:>9}",
             n,

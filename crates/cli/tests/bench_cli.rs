@@ -1,0 +1,50 @@
+//! `transsplat bench raster --scene` and `bench edit` through the binary (quick sizes:
+//! what is checked is that they run on the given input and report every stage).
+
+mod common;
+use common::*;
+
+/// The JSON line a bench prints last.
+fn json_line(o: &std::process::Output) -> serde_json::Value {
+    let out = String::from_utf8_lossy(&o.stdout);
+    let line = out.lines().rev().find(|l| l.starts_with('{')).unwrap_or_else(|| panic!("{}", text(o)));
+    serde_json::from_str(line).unwrap()
+}
+
+#[test]
+fn bench_raster_times_a_given_scene_and_camera() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = quick_scene(dir.path());
+    let o = bin()
+        .args(["bench", "raster", "--reps", "1", "--camera", "view_003", "--scene"])
+        .arg(&ds)
+        .output()
+        .unwrap();
+    ok(&o);
+    let j = json_line(&o);
+    let g = transsplat_scene::ply::read(&ds.join("point_cloud/iteration_0/point_cloud.ply")).unwrap();
+    assert_eq!(j["gaussians"].as_u64(), Some(g.len() as u64), "the given scene, not the synthetic one");
+    assert_eq!((j["width"].as_u64(), j["height"].as_u64()), (Some(128), Some(96)), "the camera's size");
+    for k in ["forward_s", "backward_s", "splat_back_s"] {
+        assert!(j[k].as_f64().is_some_and(|v| v > 0.0), "{k}");
+    }
+    let o = bin().args(["bench", "raster", "--camera", "nope", "--scene"]).arg(&ds).output().unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(text(&o).contains("cameras.json: no camera \"nope\""), "{}", text(&o));
+}
+
+#[test]
+fn bench_edit_reports_every_stage() {
+    let o = bin().args(["bench", "edit", "--size", "quick", "--steps", "10"]).output().unwrap();
+    ok(&o);
+    let j = json_line(&o);
+    assert_eq!(j["steps"].as_u64(), Some(10));
+    let stages = j["timing"]["stages"].as_object().unwrap();
+    for k in ["binning", "tiles", "image_loss", "backward", "method_terms", "optimiser", "checkpoint"] {
+        assert!(stages[k].as_f64().is_some(), "{k}");
+    }
+    assert!(j["metrics"]["target_psnr"].as_f64().is_some_and(f64::is_finite));
+    let o = bin().args(["bench", "edit", "--size", "huge"]).output().unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(text(&o).contains("sizes are: a, b, quick"), "{}", text(&o));
+}
