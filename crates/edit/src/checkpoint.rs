@@ -51,12 +51,7 @@ pub(crate) fn run_id(
     editor: &str,
 ) -> RunId {
     let mut h = Hasher::default();
-    h.f32s(g.means.as_flattened())
-        .f32s(g.log_scales.as_flattened())
-        .f32s(g.rotations.as_flattened())
-        .f32s(&g.opacity_logits)
-        .u64(g.sh_degree as u64)
-        .f32s(&g.sh)
+    transsplat_scene::fingerprint::add_scene(&mut h, g)
         .str(&g.extra.names.join("\n"))
         .f32s(&g.extra.values)
         .str(&format!("{cameras:?}\n{edit_views:?}\n{background:?}"))

@@ -51,7 +51,7 @@ struct EditFolders {
 }
 
 impl EditFolders {
-    fn scan(dir: &Path) -> Result<Self, Error> {
+    fn scan(dir: &Path) -> Self {
         let mut folders = vec![dir.to_path_buf()];
         let mut stems = HashMap::new();
         let mut k = 0;
@@ -78,7 +78,7 @@ impl EditFolders {
             folders.extend(subs);
             k += 1;
         }
-        Ok(EditFolders { folders, stems })
+        EditFolders { folders, stems }
     }
 
     /// The edited image of the view named `name`: in at most one folder.
@@ -180,7 +180,7 @@ pub(crate) fn read_edits(
     for v in views {
         v.check()?;
     }
-    let folders = EditFolders::scan(dir)?;
+    let folders = EditFolders::scan(dir);
     let mut out = Vec::with_capacity(views.len());
     let mut missing = Vec::new();
     for v in views {
@@ -466,6 +466,11 @@ pub(crate) mod tests {
         }
     }
 
+    /// Views of `cams` in order, all showing `src`.
+    fn views_of<'a>(cams: &'a [Camera], src: &'a [f32]) -> Vec<SourceView<'a>> {
+        cams.iter().enumerate().map(|(i, c)| SourceView { index: i, camera: c, image: src }).collect()
+    }
+
     fn grey_png(path: &Path, w: usize, h: usize, f: impl Fn(usize, usize) -> f32) {
         let rgb: Vec<f32> = (0..w * h).flat_map(|i| [f(i % w, i / w); 3]).collect();
         image::write_png(path, w, h, &rgb).unwrap();
@@ -477,8 +482,7 @@ pub(crate) mod tests {
         let d = dir.path();
         let cams = [camera("a.png", 8, 6), camera("sub/b.jpg", 8, 6), camera("c", 8, 6)];
         let src = vec![0.0f32; 8 * 6 * 3];
-        let views: Vec<SourceView> =
-            cams.iter().enumerate().map(|(i, c)| SourceView { index: i, camera: c, image: &src }).collect();
+        let views = views_of(&cams, &src);
         // a: same size, a bright square at (2..4, 2..4); b: half size; c: missing
         grey_png(
             &d.join("a.png"),
@@ -583,9 +587,8 @@ pub(crate) mod tests {
         let d = dir.path();
         let cams = [camera("a.png", 4, 2), camera("b.png", 4, 2), camera("c.png", 4, 2)];
         let src = vec![0.0f32; 4 * 2 * 3];
-        let views: Vec<SourceView> =
-            cams.iter().enumerate().map(|(i, c)| SourceView { index: i, camera: c, image: &src }).collect();
-        let (fp, other) = ("1".repeat(64), "2".repeat(64));
+        let views = views_of(&cams, &src);
+        let (fp, other) = ("1".repeat(16), "2".repeat(16));
         // two shards exported, then "edited" in place: a + c in shard 0, b in shard 1
         let edited = d.join("edited");
         for (k, members) in [(0usize, [0usize, 2].as_slice()), (1, &[1])] {
