@@ -9,7 +9,7 @@ use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::time::Instant;
-use transsplat_raster::{backward, render, Frame, Grads, ImageGrads, Splats};
+use transsplat_raster::{Frame, Grads, ImageGrads};
 use transsplat_scene::{Camera, Gaussians};
 use transsplat_train::{DensifyConfig, LearningRates, Model, TrainConfig, Trainer};
 
@@ -113,11 +113,7 @@ pub fn image_gradients(
 ) -> (Frame, Grads, f64) {
     let (w, h) = (cam.width as usize, cam.height as usize);
     let mut clock = Instant::now();
-    // Colour only: the semantic latents act through their own per-Gaussian terms, never
-    // through a render, so their channels would be rendered and backpropagated (as
-    // zeros) for nothing. The image and every colour and geometry gradient are the same.
-    let s = Splats { features: &[], num_features: 0, ..tr.splats() };
-    let (img, frame) = render(&s, cam, &tr.render_options());
+    let (img, frame) = tr.render(cam);
     times.binning += frame.binning_s;
     times.tiles += lap(&mut clock) - frame.binning_s;
     let mut il = transsplat_train::loss::image_loss(&img.rgb, target, w, h, None, cfg.loss.dssim);
@@ -126,7 +122,7 @@ pub fn image_gradients(
     }
     times.image_loss += lap(&mut clock);
     let mut grads = tr.zero_grads();
-    backward(&s, cam, &frame, &ImageGrads { rgb: &il.grad, ..Default::default() }, &mut grads);
+    tr.backward(cam, &frame, &ImageGrads { rgb: &il.grad, ..Default::default() }, &mut grads);
     times.backward += lap(&mut clock);
     (frame, grads, (il.loss * cfg.loss.img) as f64)
 }

@@ -69,10 +69,12 @@ impl Model {
         Ok(())
     }
 
-    /// The rasterizer's view of the model, rendering SH up to `active_sh_degree` and
-    /// the feature channels.
+    /// The rasterizer's view of the model, rendering SH up to `active_sh_degree`:
+    /// colour only. The features act through per-Gaussian terms (the edit's L_sem,
+    /// L_uot), never through a render, so rendering their channels (and backpropagating
+    /// zeros through them) every step would be work for nothing.
     pub fn splats(&self, active_sh_degree: u32) -> Splats<'_> {
-        let mut s = Splats::new(&self.gaussians).with_features(&self.features, self.num_features);
+        let mut s = Splats::new(&self.gaussians);
         s.active_sh_degree = active_sh_degree.min(self.gaussians.sh_degree);
         s
     }
