@@ -7,28 +7,6 @@ mod common;
 use common::*;
 use std::path::{Path, PathBuf};
 
-/// "Edits" every exported view in `dir` in place, the way an outside 2D tool would:
-/// the right half turned blue. Returns the file names it edited.
-fn tint(dir: &Path) -> Vec<String> {
-    let mut names = Vec::new();
-    for e in std::fs::read_dir(dir).unwrap() {
-        let p = e.unwrap().path();
-        if p.extension().is_some_and(|x| x == "png") {
-            let mut img = transsplat_scene::image::read(&p).unwrap();
-            let w = img.width;
-            for (i, px) in img.data.chunks_exact_mut(3).enumerate() {
-                if i % w > w / 2 {
-                    px[2] = 1.0;
-                }
-            }
-            transsplat_scene::image::write_png(&p, img.width, img.height, &img.data).unwrap();
-            names.push(p.file_name().unwrap().to_string_lossy().into_owned());
-        }
-    }
-    names.sort();
-    names
-}
-
 fn export(ds: &Path, out: &Path, shard: Option<&str>) -> std::process::Output {
     let mut c = bin();
     c.args(["views", "export", "--scene"]).arg(ds).arg("--out").arg(out);

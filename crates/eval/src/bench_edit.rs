@@ -6,11 +6,12 @@
 //! edit views at 256×256; (b) ~1M Gaussians, 40 edit views at 800×600; plus `quick`
 //! for tests. Every 8th camera is a test view, so 48 and 46 cameras.
 
+use crate::demo::{scene_job, DemoError};
 use crate::ground_truth::{GtMetrics, Reference};
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
-use transsplat_edit::{semantic, EditConfig, EditError, EditJob, Progress, Timing};
+use transsplat_edit::{EditConfig, Progress, Timing};
 use transsplat_editors::SimulatedEditor;
 use transsplat_scenes::{build, SceneConfig};
 
@@ -73,7 +74,7 @@ pub fn run(
     work: &Path,
     cancel: Option<&AtomicBool>,
     on_progress: &mut dyn FnMut(Progress),
-) -> Result<EditBench, BenchError> {
+) -> Result<EditBench, DemoError> {
     let clock = Instant::now();
     let cfg = SceneConfig {
         seed: config.seed,
@@ -87,14 +88,7 @@ pub fn run(
     editor.instruct(prompt)?;
     let reference = Reference::new(&scene, editor.ground_truth(), editor.target_label());
     let source = scene.gaussians_with_labels();
-    let job = EditJob {
-        gaussians: &source,
-        cameras: &scene.cameras,
-        edit_views: scene.train_views(),
-        background: scene.background,
-        prompt,
-        semantic: &semantic::builtin,
-    };
+    let job = scene_job(&scene, &source, prompt);
     let setup_s = clock.elapsed().as_secs_f64();
     tracing::info!(
         "bench edit {}: {} Gaussians, {} edit views of {}x{}, {} steps (setup {setup_s:.1} s)",
@@ -125,19 +119,6 @@ pub fn run(
         write_s,
         metrics: reference.score(&scene, &res.gaussians),
     })
-}
-
-/// Why a benchmark could not run.
-#[derive(Debug, thiserror::Error)]
-pub enum BenchError {
-    #[error(transparent)]
-    Scene(#[from] transsplat_scenes::Error),
-    #[error(transparent)]
-    Editor(#[from] transsplat_editors::Error),
-    #[error(transparent)]
-    Edit(#[from] EditError),
-    #[error(transparent)]
-    Io(#[from] transsplat_scene::Error),
 }
 
 #[cfg(test)]

@@ -12,8 +12,8 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use transsplat_edit::{semantic, EditConfig, EditError, EditJob, EditResult, Method, Progress};
 use transsplat_editors::simulated::SimulatedEditor;
-use transsplat_scene::{atomic::StagedDir, image};
-use transsplat_scenes::{build, labels_from_extra, SceneConfig};
+use transsplat_scene::{atomic::StagedDir, image, Gaussians};
+use transsplat_scenes::{build, labels_from_extra, Scene, SceneConfig};
 
 /// Settings of a demo run.
 #[derive(Clone, Debug)]
@@ -76,6 +76,19 @@ pub enum DemoError {
 
 /// Marker file of a finished demo folder.
 pub const MARKER: &str = "metrics.json";
+
+/// The edit of a built-in scene's training views (its `source` Gaussians, built or
+/// trained) with the built-in semantic features: the job of the demo and the benches.
+pub fn scene_job<'a>(scene: &'a Scene, source: &'a Gaussians, prompt: &'a str) -> EditJob<'a> {
+    EditJob {
+        gaussians: source,
+        cameras: &scene.cameras,
+        edit_views: scene.train_views(),
+        background: scene.background,
+        prompt,
+        semantic: &semantic::builtin,
+    }
+}
 
 /// The `--quick` schedule: at most 150 steps, a transport round at least every 50.
 /// Fronts apply it before the user's own settings, so an explicit setting wins.
@@ -147,14 +160,7 @@ pub fn run(
     let mut results: Vec<(Method, EditResult)> = Vec::new();
     for &m in &opts.methods {
         let cfg = config.for_method(m);
-        let job = EditJob {
-            gaussians: &source,
-            cameras: &scene.cameras,
-            edit_views: scene.train_views(),
-            background: bg,
-            prompt: &opts.prompt,
-            semantic: &semantic::builtin,
-        };
+        let job = scene_job(&scene, &source, &opts.prompt);
         let mut editor = sim.clone();
         let res = transsplat_edit::run(&job, &mut editor, &cfg, cancel, &mut |p| on_progress(m.name(), p))?;
         let metrics = reference.score(&scene, &res.gaussians);

@@ -30,3 +30,25 @@ pub fn quick_scene_in(dir: &Path, name: &str) -> PathBuf {
 pub fn quick_scene(dir: &Path) -> PathBuf {
     quick_scene_in(dir, "ds")
 }
+
+/// "Edits" every exported view in `dir` in place, the way an outside 2D tool would:
+/// the right half turned blue. Returns the file names it edited.
+pub fn tint(dir: &Path) -> Vec<String> {
+    let mut names = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_some_and(|x| x == "png") {
+            let mut img = transsplat_scene::image::read(&p).unwrap();
+            let w = img.width;
+            for (i, px) in img.data.chunks_exact_mut(3).enumerate() {
+                if i % w > w / 2 {
+                    px[2] = 1.0;
+                }
+            }
+            transsplat_scene::image::write_png(&p, img.width, img.height, &img.data).unwrap();
+            names.push(p.file_name().unwrap().to_string_lossy().into_owned());
+        }
+    }
+    names.sort();
+    names
+}
