@@ -36,6 +36,10 @@ enum Command {
     Eval(commands::eval::EvalArgs),
     /// Render every camera of a scene to PNG (and raw .npy).
     Render(commands::render::RenderArgs),
+    /// Convert a scene between INRIA PLY, PlayCanvas compressed PLY and SPZ (and cameras to cameras.json).
+    Convert(commands::convert::ConvertArgs),
+    /// Write an interactive 3D viewer page (WebGL2, offline) for a scene, or a before/after pair.
+    View(commands::view::ViewArgs),
     /// Print a summary of a scene: count, SH degree, bounding box, opacity and scale.
     Info(commands::info::InfoArgs),
     /// Solve one entropic unbalanced transport problem from .npy files.
@@ -112,6 +116,8 @@ fn main() {
         Command::Eval(a) => commands::eval::run(a, &CANCEL),
         Command::Render(a) => commands::render::run(a, &CANCEL),
         Command::Info(a) => commands::info::run(a),
+        Command::Convert(a) => commands::convert::run(a),
+        Command::View(a) => commands::view::run(a),
         Command::Uot(a) => commands::uot::run(a),
         Command::Scene(a) => commands::scene::run(a),
         Command::Views(c) => commands::views::run(c),

@@ -219,8 +219,10 @@ fn finish(
         optimise: ls.elapsed_s - ls.editor_s - transport,
         stages: ls.stages,
     };
+    let support = method.support();
     EditResult {
         gaussians,
+        support,
         gate: method.gate(),
         rounds: ls.rounds,
         losses: ls.losses,

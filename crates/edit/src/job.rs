@@ -43,6 +43,8 @@ pub struct EditResult {
     /// Per-Gaussian gate γ (transport methods), the lifted mask (masklift), or
     /// `None` (naive).
     pub gate: Option<Vec<f32>>,
+    /// Per-Gaussian transported support (transport methods), else `None`.
+    pub support: Option<Vec<f32>>,
     pub rounds: Vec<RoundStats>,
     pub losses: Vec<StepLosses>,
     pub timing: Timing,

@@ -126,6 +126,21 @@ impl TransportState {
         TransportState { gamma: vec![1.0; n], zbar: None, cached: Vec::new() }
     }
 
+    /// The transported support of each Gaussian over the last round's views,
+    /// `Σ_v w_i^v / Σ_v a_i^v` in [0, 1] (0 where no view saw it): the share of its
+    /// source mass that the view plans moved to the edit's prototypes.
+    pub fn support(&self) -> Vec<f32> {
+        let n = self.gamma.len();
+        let (mut w, mut a) = (vec![0.0f64; n], vec![0.0f64; n]);
+        for v in &self.cached {
+            for (k, &i) in v.idx.iter().enumerate().filter(|(_, &i)| (i as usize) < n) {
+                w[i as usize] += v.w[k] as f64;
+                a[i as usize] += v.a[k] as f64;
+            }
+        }
+        w.iter().zip(&a).map(|(&w, &a)| if a > 0.0 { (w / a).clamp(0.0, 1.0) as f32 } else { 0.0 }).collect()
+    }
+
     /// Fuses this round's view plans into z̄ and γ (Theorem 1, EMA, gate) for the
     /// latents `s` (`N × d`) and returns the round's statistics (`round` left 0).
     pub fn update(&mut self, plans: Vec<ViewTransport>, s: &[f32], d: usize, cfg: &EditConfig) -> RoundStats {

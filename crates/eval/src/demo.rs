@@ -196,6 +196,8 @@ pub fn run(
             prompt: &opts.prompt,
             editor: "simulated",
             config: &cfg,
+            target: Some(&is_target),
+            formats: &[],
         };
         edit_output::write(&dir.join(name), &output)?;
         tracing::info!(

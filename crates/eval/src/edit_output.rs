@@ -8,7 +8,9 @@ use std::path::Path;
 use transsplat_edit::EditConfig;
 use transsplat_edit::EditResult;
 use transsplat_raster::{render, RenderOptions, Splats};
+use transsplat_scene::formats::{self, SceneFormat};
 use transsplat_scene::{atomic, cameras, image, ply, Camera, Gaussians};
+use transsplat_viewer::{Layer, LayerKind, Role, Viewer};
 
 /// File that marks a finished edit folder.
 pub const MARKER: &str = "transport.json";
@@ -24,6 +26,10 @@ pub struct EditOutput<'a> {
     pub prompt: &'a str,
     pub editor: &'a str,
     pub config: &'a EditConfig,
+    /// Ground truth: which source Gaussians belong to the edit's target, where known.
+    pub target: Option<&'a [bool]>,
+    /// Formats written beside the PLY (`point_cloud.compressed.ply`, `.spz`).
+    pub formats: &'a [SceneFormat],
 }
 
 /// Writes the edit's outputs into `dir` (a staged folder).
@@ -33,6 +39,9 @@ pub fn write(dir: &Path, o: &EditOutput) -> Result<(), transsplat_scene::Error> 
     let pc = dir.join(format!("point_cloud/iteration_{steps}"));
     std::fs::create_dir_all(&pc).map_err(|e| transsplat_scene::Error::io(&pc, e))?;
     ply::write(&pc.join("point_cloud.ply"), &r.gaussians)?;
+    for &f in o.formats.iter().filter(|&&f| f != SceneFormat::Ply) {
+        formats::write(&pc.join(format!("point_cloud{}", f.extension())), &r.gaussians, f)?;
+    }
     cameras::inria::write(&dir.join("cameras.json"), o.cameras)?;
     let rd = dir.join("renders");
     std::fs::create_dir_all(&rd).map_err(|e| transsplat_scene::Error::io(&rd, e))?;
@@ -97,6 +106,8 @@ pub fn write(dir: &Path, o: &EditOutput) -> Result<(), transsplat_scene::Error> 
         r.timing.transport,
         r.timing.optimise
     ));
+    p.heading("The edit in 3D");
+    p.raw(&viewer_section(o)?);
     p.heading("Test views: before, after, gate");
     p.image_grid(&grid);
     p.heading("The editor's 2D edits and attention (every 4th edit view)");
@@ -130,4 +141,51 @@ pub fn write(dir: &Path, o: &EditOutput) -> Result<(), transsplat_scene::Error> 
     atomic::write_bytes(&dir.join("report.html"), p.finish().as_bytes())?;
     atomic::write_bytes(&dir.join(MARKER), serde_json::to_string_pretty(&stats).expect("json").as_bytes())?;
     Ok(())
+}
+
+/// The report's 3D viewer: before and after, the cameras by role, and the gate, the
+/// transported support and the ground-truth target as colour modes.
+fn viewer_section(o: &EditOutput) -> Result<String, transsplat_scene::Error> {
+    let r = o.result;
+    let mut v = Viewer::new(
+        &format!("\"{}\"", o.prompt),
+        o.background,
+        vec![("before".into(), o.source), ("after".into(), &r.gaussians)],
+    );
+    let n = r.gaussians.len();
+    for (name, map) in [("gate γ", &r.gate), ("transported support", &r.support)] {
+        if let Some(m) = map.as_ref().filter(|m| m.len() == n) {
+            v.layers.push(Layer { name: name.into(), scene: 1, kind: LayerKind::Scalar, values: m.clone() });
+        }
+    }
+    // The ground-truth target of whichever scene it was taken on.
+    if let Some(t) = o.target {
+        let scene = if t.len() == n { 1 } else { 0 };
+        if t.len() == v.scenes[scene].1.len() {
+            let values = t.iter().map(|&x| x as u8 as f32).collect();
+            v.layers.push(Layer {
+                name: "target (ground truth)".into(),
+                scene,
+                kind: LayerKind::Label,
+                values,
+            });
+        }
+    }
+    v.cameras = o
+        .cameras
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let role = if o.test_views.contains(&i) {
+                Role::Test
+            } else if o.edit_views.contains(&i) {
+                Role::Edit
+            } else {
+                Role::Train
+            };
+            (c.clone(), role)
+        })
+        .collect();
+    v.start_camera = o.test_views.first().copied().unwrap_or(0);
+    transsplat_viewer::section(&v).map_err(|e| transsplat_scene::Error::format("report.html", e.to_string()))
 }

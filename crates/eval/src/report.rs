@@ -11,9 +11,7 @@ pub struct Page {
 }
 
 /// HTML-escapes text.
-pub fn esc(s: &str) -> String {
-    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
-}
+pub use transsplat_viewer::escape as esc;
 
 const COLOURS: [&str; 8] =
     ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"];
@@ -27,6 +25,11 @@ impl Page {
 
     pub fn heading(&mut self, text: &str) {
         let _ = writeln!(self.body, "<h2>{}</h2>", esc(text));
+    }
+
+    /// Appends HTML as is (a section built by another crate, e.g. the 3D viewer).
+    pub fn raw(&mut self, html: &str) {
+        self.body.push_str(html);
     }
 
     pub fn paragraph(&mut self, text: &str) {

@@ -281,6 +281,8 @@ pub fn edit<'py>(
                 prompt: &prompt,
                 editor: EDITOR_NAME,
                 config: &cfg,
+                target: None,
+                formats: &[],
             };
             py.allow_threads(|| {
                 edit_output::write(staged.path(), &o)?;

@@ -136,6 +136,45 @@ impl Gaussians {
     }
 }
 
+impl Gaussians {
+    /// The Gaussians at `order`, in that order (a permutation or a subset; indices may
+    /// repeat). Panics on an index out of range.
+    pub fn select(&self, order: &[u32]) -> Gaussians {
+        fn pick<T: Copy>(v: &[T], order: &[u32], stride: usize) -> Vec<T> {
+            let mut out = Vec::with_capacity(order.len() * stride);
+            for &i in order {
+                let i = i as usize * stride;
+                out.extend_from_slice(&v[i..i + stride]);
+            }
+            out
+        }
+        let k = self.sh_coeffs() * 3;
+        let e = self.extra.width();
+        Gaussians {
+            means: pick(&self.means, order, 1),
+            log_scales: pick(&self.log_scales, order, 1),
+            rotations: pick(&self.rotations, order, 1),
+            opacity_logits: pick(&self.opacity_logits, order, 1),
+            sh_degree: self.sh_degree,
+            sh: pick(&self.sh, order, k),
+            extra: Extra {
+                names: self.extra.names.clone(),
+                values: if e > 0 { pick(&self.extra.values, order, e) } else { Vec::new() },
+            },
+        }
+    }
+
+    /// Drops the SH coefficients above `degree` (no-op when the scene's degree is lower).
+    pub fn truncate_sh(&mut self, degree: u32) {
+        if degree >= self.sh_degree {
+            return;
+        }
+        let (k_old, k_new) = (self.sh_coeffs() * 3, crate::sh_coeffs(degree) * 3);
+        self.sh = self.sh.chunks_exact(k_old).flat_map(|c| c[..k_new].iter().copied()).collect();
+        self.sh_degree = degree;
+    }
+}
+
 /// Logistic sigmoid.
 pub fn sigmoid(x: f32) -> f32 {
     1.0 / (1.0 + (-x).exp())

@@ -24,6 +24,7 @@ pub mod cameras;
 pub mod cpu;
 pub mod error;
 pub mod fingerprint;
+pub mod formats;
 pub mod gaussians;
 pub mod image;
 pub mod npy;
@@ -31,6 +32,7 @@ pub mod ply;
 pub mod resample;
 pub mod rng;
 pub mod scene_paths;
+pub mod spz;
 pub mod timing;
 
 pub use camera::Camera;

@@ -17,6 +17,8 @@
 //! after the header can hold, whatever the header's counts say, and never panics.
 
 use crate::{atomic, Error, Gaussians, Result};
+
+pub mod compressed;
 use std::io::Write;
 use std::path::Path;
 
@@ -49,8 +51,12 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<Gaussians> {
 pub fn parse_with(bytes: &[u8], path: &Path, options: &ReadOptions) -> Result<(Gaussians, usize)> {
     let err = |m: String| Error::format(path, m);
     let header = parse_header(bytes).map_err(err)?;
-    let plan = Plan::new(&header).map_err(err)?;
-    let mut g = read_body(bytes, &header, &plan).map_err(err)?;
+    let (mut g, plan) = if compressed::is_compressed(&header) {
+        (compressed::decode(bytes, &header).map_err(err)?, None)
+    } else {
+        let plan = Plan::new(&header).map_err(err)?;
+        (read_body(bytes, &header, &plan).map_err(err)?, Some(plan))
+    };
     if g.validate().is_err() {
         // Cannot happen: every row pushes the same number of values.
         return Err(err("internal error: inconsistent Gaussian arrays".into()));
@@ -65,7 +71,10 @@ pub fn parse_with(bytes: &[u8], path: &Path, options: &ReadOptions) -> Result<(G
     } else if let Some((i, what)) = g.first_non_finite() {
         return Err(err(format!(
             "Gaussian {i} (vertex {i}) has an invalid {what}: {} (use --drop-invalid to skip such Gaussians)",
-            describe_bad(&g, &plan, i)
+            plan.as_ref().map_or_else(
+                || "(decoded from the compressed layout)".to_string(),
+                |p| describe_bad(&g, p, i)
+            )
         )));
     }
     Ok((g, dropped))
@@ -400,14 +409,7 @@ impl Plan {
                         Err(format!("vertex property '{name}' is a list, expected a number"))
                     }
                 },
-                None => {
-                    let hint = if el.props.iter().any(|p| p.name.starts_with("packed_")) {
-                        " (this looks like a compressed SuperSplat PLY; decompress it first)"
-                    } else {
-                        ""
-                    };
-                    Err(format!("missing required vertex property '{name}'{hint}"))
-                }
+                None => Err(format!("missing required vertex property '{name}'")),
             }
         };
         let mean = [find("x")?, find("y")?, find("z")?];

@@ -4,13 +4,14 @@ use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use transsplat_scene::atomic::StagedDir;
-use transsplat_scene::{cameras, ply, scene_paths, Camera, Gaussians};
+use transsplat_scene::{cameras, formats, ply, scene_paths, Camera, Gaussians};
 use transsplat_train::{Checkpointer, Control};
 
 /// Options shared by every command that reads a scene.
 #[derive(clap::Args, Debug, Clone)]
 pub struct SceneArgs {
-    /// Scene: an INRIA 3DGS PLY, or an INRIA output folder (newest iteration is used).
+    /// Scene: a 3DGS PLY (INRIA or PlayCanvas compressed), an .spz file, or an INRIA
+    /// output folder (newest iteration is used).
     #[arg(long)]
     pub scene: PathBuf,
     /// Drop Gaussians with NaN or infinite parameters instead of refusing the file.
@@ -21,7 +22,7 @@ pub struct SceneArgs {
 /// Reads and checks the scene; returns it with the PLY path it came from.
 pub fn load_scene(args: &SceneArgs) -> Result<(Gaussians, PathBuf)> {
     let path = scene_paths::resolve_scene(&args.scene)?;
-    let (g, dropped) = ply::read_with(&path, &ply::ReadOptions { drop_invalid: args.drop_invalid })?;
+    let (g, dropped) = formats::read_with(&path, &ply::ReadOptions { drop_invalid: args.drop_invalid })?;
     if dropped > 0 {
         tracing::warn!("{}: dropped {dropped} Gaussians with NaN or infinite parameters", path.display());
     }

@@ -9,6 +9,7 @@ use transsplat_edit::{semantic, EditConfig, EditError, EditJob, Progress};
 use transsplat_editors::{CommandEditor, Editor, FolderEditor, SimulatedEditor};
 use transsplat_eval::edit_output::{self, EditOutput, MARKER};
 use transsplat_scene::atomic::StagedDir;
+use transsplat_scene::formats::SceneFormat;
 use transsplat_scenes::split_views;
 
 /// DINOv2 features are reduced to this many channels (a fixed random projection) before
@@ -86,6 +87,10 @@ pub struct EditArgs {
     /// Output folder (replaced only if it holds an earlier edit's output).
     #[arg(long)]
     pub out: PathBuf,
+    /// Also write the edited scene in these formats beside point_cloud.ply
+    /// (compressed-ply, spz; comma-separated), for web viewers.
+    #[arg(long, value_delimiter = ',', value_parser = SceneFormat::parse)]
+    pub format: Vec<SceneFormat>,
     #[command(flatten)]
     pub checkpoints: CheckpointArgs,
 }
@@ -154,6 +159,8 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
     };
     let mut control = args.checkpoints.control(&args.out, 100, STATE_FILE, cancel)?;
     let staged = StagedDir::begin(&args.out, MARKER)?;
+    // Ground truth for the viewer's target colour mode (built-in scenes only).
+    let mut target: Option<Vec<bool>> = None;
     let mut editor: Box<dyn Editor + '_> = match args.editor {
         EditorKind::Folder => {
             let dir = args.edits.as_ref().context("--editor folder needs --edits DIR")?;
@@ -172,7 +179,9 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
             if scene.gaussians.len() != g.len() {
                 bail!("{}: the scene does not match its built-in source (labels.json)", scene_path.display());
             }
-            Box::new(SimulatedEditor::new(&scene, args.severity, config.seed))
+            let sim = SimulatedEditor::new(&scene, args.severity, config.seed);
+            target = Some(scene.labels.iter().map(|&l| l == sim.target_label()).collect());
+            Box::new(sim)
         }
         EditorKind::Ip2p => {
             use transsplat_models::ip2p::{download_hint, Ip2pEditor, Settings};
@@ -239,6 +248,8 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
             prompt: &args.prompt,
             editor: editor_name(args.editor),
             config: &config,
+            target: target.as_deref(),
+            formats: &args.format,
         },
     )?;
     let out = staged.commit()?;

@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod common;
+pub mod convert;
 pub mod demo;
 pub mod edit;
 pub mod eval;
@@ -10,4 +11,5 @@ pub mod render;
 pub mod scene;
 pub mod train;
 pub mod uot;
+pub mod view;
 pub mod views;

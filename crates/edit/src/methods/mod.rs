@@ -102,6 +102,12 @@ pub trait EditMethod {
         Ok(())
     }
 
+    /// The per-Gaussian share of source mass the last transport round moved, if the
+    /// method transports ([`crate::round::TransportState::support`]).
+    fn support(&self) -> Option<Vec<f32>> {
+        None
+    }
+
     /// The per-Gaussian map reported as the gate (γ, or masklift's lifted mask), if any.
     fn gate(self: Box<Self>) -> Option<Vec<f32>> {
         None

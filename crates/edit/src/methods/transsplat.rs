@@ -202,6 +202,10 @@ impl EditMethod for TransSplat {
         Ok(())
     }
 
+    fn support(&self) -> Option<Vec<f32>> {
+        Some(self.transport.support())
+    }
+
     fn gate(self: Box<Self>) -> Option<Vec<f32>> {
         Some(self.transport.gamma)
     }

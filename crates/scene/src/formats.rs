@@ -1,0 +1,98 @@
+//! The scene file formats and the one place that picks between them: the INRIA PLY
+//! ([`crate::ply`]), the PlayCanvas compressed PLY ([`crate::ply::compressed`]) and
+//! Niantic's SPZ ([`crate::spz`]). Reading recognises the format from the file's first
+//! bytes; writing takes it from the name (`.spz`, `.compressed.ply`, `.ply`) or a flag.
+
+use crate::{atomic, ply, spz, Error, Gaussians, Result};
+use std::path::Path;
+
+/// A scene file format.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SceneFormat {
+    /// The INRIA 3DGS PLY: float32, every parameter, extra properties kept.
+    Ply,
+    /// PlayCanvas / SuperSplat compressed PLY: about 16 bytes a Gaussian plus 1 byte per
+    /// higher SH coefficient, 256-Gaussian chunks.
+    CompressedPly,
+    /// Niantic SPZ version 3 (gzip).
+    Spz,
+}
+
+impl SceneFormat {
+    /// Every format, for messages.
+    pub const ALL: [SceneFormat; 3] = [SceneFormat::Ply, SceneFormat::CompressedPly, SceneFormat::Spz];
+
+    /// The format's flag name.
+    pub fn name(self) -> &'static str {
+        match self {
+            SceneFormat::Ply => "ply",
+            SceneFormat::CompressedPly => "compressed-ply",
+            SceneFormat::Spz => "spz",
+        }
+    }
+
+    /// The file name ending written for the format.
+    pub fn extension(self) -> &'static str {
+        match self {
+            SceneFormat::Ply => ".ply",
+            SceneFormat::CompressedPly => ".compressed.ply",
+            SceneFormat::Spz => ".spz",
+        }
+    }
+
+    /// The format of a flag value (`ply`, `compressed-ply`, `spz`).
+    pub fn parse(s: &str) -> std::result::Result<Self, String> {
+        Self::ALL.into_iter().find(|f| f.name() == s).ok_or_else(|| {
+            format!("unknown scene format {s:?}; expected one of: {}", Self::ALL.map(Self::name).join(", "))
+        })
+    }
+
+    /// The format a file name asks for, from its ending.
+    pub fn of_path(path: &Path) -> Option<Self> {
+        let name = path.file_name()?.to_str()?.to_ascii_lowercase();
+        [SceneFormat::CompressedPly, SceneFormat::Spz, SceneFormat::Ply]
+            .into_iter()
+            .find(|f| name.ends_with(f.extension()))
+    }
+}
+
+/// Reads a scene in any format (recognised by content); returns it with the number of
+/// Gaussians dropped for NaN or infinite values (only with `drop_invalid`).
+pub fn read_with(path: &Path, options: &ply::ReadOptions) -> Result<(Gaussians, usize)> {
+    let bytes = atomic::read(path)?;
+    if spz::looks_like(&bytes) {
+        let mut g = spz::parse(&bytes, path)?;
+        let mut dropped = 0;
+        if options.drop_invalid {
+            let keep: Vec<bool> = (0..g.len()).map(|i| g.non_finite_at(i).is_none()).collect();
+            dropped = keep.iter().filter(|k| !**k).count();
+            g.retain(&keep);
+        }
+        return Ok((g, dropped));
+    }
+    ply::parse_with(&bytes, path, options)
+}
+
+/// Reads a scene in any format.
+pub fn read(path: &Path) -> Result<Gaussians> {
+    read_with(path, &ply::ReadOptions::default()).map(|(g, _)| g)
+}
+
+/// Writes a scene atomically in `format` (refusing NaN or infinite parameters). The
+/// compressed formats reorder the Gaussians (Morton order) and drop extra properties.
+pub fn write(path: &Path, g: &Gaussians, format: SceneFormat) -> Result<()> {
+    match format {
+        SceneFormat::Ply => ply::write(path, g),
+        SceneFormat::Spz => spz::write(path, g),
+        SceneFormat::CompressedPly => {
+            g.validate().map_err(|m| Error::format(path, format!("cannot write scene: {m}")))?;
+            if let Some((i, what)) = g.first_non_finite() {
+                return Err(Error::format(
+                    path,
+                    format!("cannot write scene: Gaussian {i} has an invalid {what}"),
+                ));
+            }
+            atomic::write_bytes(path, &ply::compressed::encode(g).0)
+        }
+    }
+}
