@@ -12,7 +12,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use transsplat_raster::bench;
-use transsplat_scene::{cameras, npy, ply, Camera, Gaussians};
+use transsplat_scene::{cameras, npy, ply, spz, Camera, Gaussians};
 
 // ---------------------------------------------------------------------------------
 // The table
@@ -600,7 +600,75 @@ fn cases() -> Vec<Case> {
                 "line 2: expected the 2D points of image 1 (line 1)",
                 "is a line missing?",
             ]),
+        // ---- Formats and the viewer (convert, view)
+        Case::new("convert: unknown output format", "convert {d}/in/scene.ply {d}/out.xyz")
+            .with_scene()
+            .expect(&["out.xyz", "cannot tell the output format"]),
+        Case::new("convert: output is the input", "convert {d}/in/scene.ply {d}/in/scene.ply --format spz")
+            .with_scene()
+            .expect(&["scene.ply"]),
+        Case::new("convert: scene with zero Gaussians", "convert {d}/in/scene.ply {d}/out.spz")
+            .file("in/scene.ply", ply::to_bytes(&Gaussians::default()))
+            .expect(&["scene.ply", "no Gaussians"]),
+        Case::new("convert: NaN opacity", "convert {d}/in/scene.ply {d}/out.compressed.ply")
+            .file("in/scene.ply", nan_scene(&[3]))
+            .expect(&["scene.ply", "Gaussian 3", "opacity"]),
+        Case::new("convert: truncated .spz", "convert {d}/in/scene.spz {d}/out.ply")
+            .file("in/scene.spz", truncated(spz::to_bytes(&scene()), 40))
+            .expect(&["scene.spz", "SPZ"]),
+        Case::new("convert: .spz declaring 2^31 Gaussians", "convert {d}/in/scene.spz {d}/out.ply")
+            .file("in/scene.spz", spz_lying_count())
+            .expect(&["scene.spz", "more than the limit"]),
+        Case::new("convert: compressed PLY with too few chunks", "convert {d}/in/scene.ply {d}/out.ply")
+            .file("in/scene.ply", compressed_too_few_chunks())
+            .expect(&["scene.ply", "chunks for"]),
+        Case::new("convert: --cameras-out inside the input folder", "convert {d}/in/scene.ply {d}/out.spz")
+            .args("--cameras {d}/in/cameras.json --cameras-out {d}/in/cameras.json")
+            .with_scene()
+            .expect(&["cameras.json"]),
+        Case::new("view: scene with zero Gaussians", "view {d}/in/scene.ply --out {d}/page.html")
+            .file("in/scene.ply", ply::to_bytes(&Gaussians::default()))
+            .expect(&["scene.ply", "no Gaussians"]),
+        Case::new("view: NaN in the compared scene", "view {d}/in/scene.ply --out {d}/page.html --compare")
+            .arg("{d}/in/after.ply")
+            .with_scene()
+            .file("in/after.ply", nan_scene(&[5]))
+            .expect(&["after.ply", "Gaussian 5"]),
+        Case::new("view: output is the input", "view {d}/in/scene.ply --out {d}/in/scene.ply")
+            .with_scene()
+            .expect(&["scene.ply"]),
+        Case::new("view: unknown --layer", "view {d}/in/scene.ply --out {d}/page.html --layer gate")
+            .with_scene()
+            .expect(&["--layer gate", "no scene has"]),
+        Case::new("view: --max-mb 0", "view {d}/in/scene.ply --out {d}/page.html --max-mb 0")
+            .with_scene()
+            .expect(&["--max-mb 0"]),
     ]
+}
+
+/// A gzip SPZ whose header claims 2^31 Gaussians.
+fn spz_lying_count() -> Vec<u8> {
+    use std::io::Write;
+    let mut raw = Vec::new();
+    raw.extend_from_slice(&0x5053_474e_u32.to_le_bytes());
+    raw.extend_from_slice(&3u32.to_le_bytes());
+    raw.extend_from_slice(&(1u32 << 31).to_le_bytes());
+    raw.extend_from_slice(&[0, 12, 0, 0]);
+    let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+    enc.write_all(&raw).unwrap();
+    enc.finish().unwrap()
+}
+
+/// A compressed PLY of 300 Gaussians whose header claims one chunk (two are needed).
+fn compressed_too_few_chunks() -> Vec<u8> {
+    let g = bench::bench_scene(300, 1);
+    let bytes = ply::compressed::encode(&g).0;
+    let end = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+    let header =
+        String::from_utf8(bytes[..end].to_vec()).unwrap().replace("element chunk 2", "element chunk 1");
+    let mut out = header.into_bytes();
+    out.extend_from_slice(&bytes[end..]);
+    out
 }
 
 impl Case {
