@@ -19,6 +19,9 @@ transsplatViewer.lib = (function () {
   const NEAR = 0.01;
   const TEX_SHIFT = 11;
   const TEX_W = 1 << TEX_SHIFT; // data textures are TEX_W texels wide, one texel per Gaussian
+  // Quads per draw call: 4 vertices each with Uint16 indices, whose largest value 65535
+  // is the primitive-restart index (always on in WebGL2) and must not be used.
+  const BATCH = 16383;
   const WEBGL2_MESSAGE =
     'This viewer needs WebGL2, which this browser does not provide (or it is turned off). ' +
     'Open the page in a current Chrome, Edge, Firefox or Safari with hardware acceleration enabled.';
@@ -272,7 +275,7 @@ transsplatViewer.lib = (function () {
     return c;
   }
 
-  /** Σ = R S Sᵀ Rᵀ from a (w,x,y,z) quaternion and linear scales into out[o..o+6]
+  /** Sigma = R S S^T R^T from a (w,x,y,z) quaternion and linear scales into out[o..o+6]
    * as (xx, xy, xz, yy, yz, zz). */
   function writeCov(w, x, y, z, sx, sy, sz, out, o) {
     let n = Math.sqrt(w * w + x * x + y * y + z * z);
@@ -319,7 +322,7 @@ transsplatViewer.lib = (function () {
   }
 
   /** Decodes a PLY (PlayCanvas compressed, or plain INRIA 3DGS) into flat arrays:
-   * pos (3n), cov (6n), col (4n: base r,g,b with SH_C0·f_dc + 0.5 folded in, opacity),
+   * pos (3n), cov (6n), col (4n: base r,g,b with SH_C0 * f_dc + 0.5 folded in, opacity),
    * sh (9n or null). */
   function decodeScene(bytes, what) {
     const ply = parsePly(bytes, what);
@@ -419,10 +422,10 @@ transsplatViewer.lib = (function () {
   /* ------------------------------------------------------------------ */
 
   /** Self-contained sorter (no outer references: its source is copied into the worker).
-   * sort(row) orders the Gaussians with view depth z = row·(x, y, z, 1) > NEAR back to
-   * front: exact LSD radix sort (2 × 16 bits) of the float32 depth bits, stable by index,
+   * sort(row) orders the Gaussians with view depth z = row . (x, y, z, 1) > NEAR back to
+   * front: exact LSD radix sort (2 x 16 bits) of the float32 depth bits, stable by index,
    * so the reverse of the order is the reference's front-to-back (depth, index) order. */
-  function tsSortCore() {
+  function tsSortCore(texW) {
     let pos = null;
     let n = 0;
     let keyBuf = null, keys = null, depth = null, idx = null, keys2 = null, idx2 = null;
@@ -463,7 +466,8 @@ transsplatViewer.lib = (function () {
           const d = hist[k & 65535]++;
           keys2[d] = k; idx2[d] = idx[j];
         }
-        const order = new Uint32Array(m);
+        // Padded to whole rows of the order texture (TEX_W wide, a power of two).
+        const order = new Uint32Array(Math.ceil(m / texW) * texW);
         const last = m - 1;
         for (let j = 0; j < m; j++) {
           const d = hist[65536 + (keys2[j] >>> 16)]++;
@@ -480,7 +484,7 @@ transsplatViewer.lib = (function () {
     self.onmessage = function (e) {
       const msg = e.data;
       if (msg.type === 'init') {
-        core = tsSortCore();
+        core = tsSortCore(msg.texW);
         core.init(msg.positions);
       } else if (msg.type === 'sort') {
         const r = core.sort(msg.row, msg.near);
@@ -511,7 +515,7 @@ transsplatViewer.lib = (function () {
         self.fallback(positions);
       };
       const copy = positions.slice();
-      w.postMessage({ type: 'init', positions: copy }, [copy.buffer]);
+      w.postMessage({ type: 'init', positions: copy, texW: TEX_W }, [copy.buffer]);
       this.worker = w;
     } catch (err) {
       this.fallback(positions);
@@ -522,7 +526,7 @@ transsplatViewer.lib = (function () {
     if (this.worker) { try { this.worker.terminate(); } catch (e) { /* ignore */ } }
     this.worker = null;
     if (!this.core) {
-      this.core = tsSortCore();
+      this.core = tsSortCore(TEX_W);
       this.core.init(positions);
     }
     if (this.busy && this.pending) { // re-run the request that the worker lost
@@ -574,6 +578,7 @@ uniform sampler2D u_shR;  // degree-1 SH (f1, f2, f3) per channel
 uniform sampler2D u_shG;
 uniform sampler2D u_shB;
 uniform sampler2D u_layer;
+uniform highp usampler2D u_order; // back-to-front Gaussian indices
 uniform mat3 u_W;         // world-to-camera rotation
 uniform vec3 u_t;
 uniform vec3 u_centre;
@@ -584,8 +589,7 @@ uniform int u_mode;       // 0 RGB, 1 scalar layer, 2 label layer
 uniform bool u_hasSH;
 uniform vec3 u_palette[16];
 uniform vec4 u_heat[5];
-in vec2 a_corner;
-in uint a_index;
+uniform int u_base;         // first sorted slot of this batch
 flat out vec2 v_mean;
 flat out vec3 v_conic;
 flat out vec4 v_color;
@@ -604,7 +608,12 @@ vec3 heat(float v) {
 
 void main() {
   gl_Position = vec4(0.0, 0.0, 2.0, 1.0); // outside the clip volume: culled
-  ivec2 tc = ivec2(int(a_index & ${TEX_W - 1}u), int(a_index >> ${TEX_SHIFT}u));
+  // Indexed quads, four vertices per splat in batches (no instancing: it is about ten
+  // times slower on some implementations, SwiftShader among them).
+  int slot = u_base + (gl_VertexID >> 2);
+  vec2 corner = vec2((gl_VertexID & 1) == 0 ? -1.0 : 1.0, (gl_VertexID & 2) == 0 ? -1.0 : 1.0);
+  uint index = texelFetch(u_order, ivec2(slot & ${TEX_W - 1}, slot >> ${TEX_SHIFT}), 0).r;
+  ivec2 tc = ivec2(int(index & ${TEX_W - 1}u), int(index >> ${TEX_SHIFT}u));
   vec4 A = texelFetch(u_gA, tc, 0);
   vec3 t = u_W * A.xyz + u_t;
   if (!(t.z > ${NEAR.toFixed(4)})) return;
@@ -641,7 +650,7 @@ void main() {
   e1 = el > 0.0 ? e1 / el : vec2(1.0, 0.0);
   vec2 e2 = vec2(-e1.y, e1.x);
   float k = sqrt(2.0 * thr) * 1.001;
-  vec2 px = mean + a_corner.x * e1 * (k * sqrt(l1) + 0.02) + a_corner.y * e2 * (k * sqrt(l2) + 0.02);
+  vec2 px = mean + corner.x * e1 * (k * sqrt(l1) + 0.02) + corner.y * e2 * (k * sqrt(l2) + 0.02);
   gl_Position = vec4(px.x / u_size.x * 2.0 - 1.0, 1.0 - px.y / u_size.y * 2.0, 0.0, 1.0);
   v_mean = mean;
   v_conic = vec3(c11, -c01, c00) / det;
@@ -744,7 +753,7 @@ void main() {
     return t;
   }
 
-  /** A zero-padded texel array of `rows` × TEX_W texels of `outW` floats; fill(out, i, k)
+  /** A zero-padded texel array of `rows` x TEX_W texels of `outW` floats; fill(out, i, k)
    * writes Gaussian i at out[k..k+outW). */
   function pack(n, rows, outW, fill) {
     const out = new Float32Array(TEX_W * rows * outW);
@@ -770,9 +779,9 @@ void main() {
     const S = {
       meta: null,
       gl: null,
-      scenes: [],       // {name, count, dropped, geom, colTex, shTex, hasSH}
-      geoms: [],        // {n, pos, texA, texB, texC, sorter, orderBuf, vao, count, sortedRow, ...}
-      layers: [],       // {name, kind, scene, tex}
+      scenes: [],       // {name, count, dropped, geom, colTex, shTex, rows}
+      geoms: [],        // {n, pos, texA, texB, texC, orderTex, sorter, count, sortedRow, ...}
+      layers: [],       // {name, kind, scene, tex, max}
       cameras: [],
       shared: false,
       scene: 0,         // shown scene when not split
@@ -851,7 +860,8 @@ void main() {
       const o = el('option', null, ui.size, t);
       o.value = v;
     }
-    const camsLabel = el('label', 'ts-cams-label', camGroup);
+    ui.camsLabel = el('label', 'ts-cams-label', camGroup);
+    const camsLabel = ui.camsLabel;
     ui.showCams = el('input', 'ts-show-cams', camsLabel);
     ui.showCams.type = 'checkbox';
     ui.showCams.checked = true;
@@ -870,7 +880,7 @@ void main() {
     ui.info = el('div', 'ts-info', null);
     ui.counts = el('div', 'ts-counts', ui.info);
     ui.hint = el('div', 'ts-hint', ui.info,
-      'left drag: orbit · right or shift drag: pan · wheel: zoom · W/A/S/D/Q/E: move · click a camera to jump to it');
+      'left drag: orbit \u00b7 right or shift drag: pan \u00b7 wheel: zoom \u00b7 W/A/S/D/Q/E: move \u00b7 click a camera to jump to it');
     ui.notes = el('ul', 'ts-notes', ui.info);
     ui.message = el('div', 'ts-message', null);
     ui.message.setAttribute('role', 'alert');
@@ -954,7 +964,7 @@ void main() {
         if (!(c.fx > 0 && c.fy > 0)) bad(what + ': focal lengths must be positive');
         const R = c.rotation;
         if (!Array.isArray(R) || R.length !== 3 || !R.every(function (r) { return Array.isArray(r) && r.length === 3 && r.every(isNum); })) {
-          bad(what + ': "rotation" must be a 3×3 list of numbers');
+          bad(what + ': "rotation" must be a 3x3 list of numbers');
         }
         if (!Array.isArray(c.translation) || c.translation.length !== 3 || !c.translation.every(isNum)) {
           bad(what + ': "translation" must be three numbers');
@@ -982,7 +992,7 @@ void main() {
 
     /* ---------------- synchronous start: META, UI, WebGL ---------------- */
     let gl = null;
-    let progSplat = null, progComp = null, quadBuf = null, compVao = null;
+    let progSplat = null, progComp = null, emptyVao = null, quadVao = null;
     let acc = null; // {tex, fbo, w, h}
     try {
       S.meta = readMeta();
@@ -999,12 +1009,20 @@ void main() {
       if (!gl) throw new Error(WEBGL2_MESSAGE);
       S.gl = gl;
       S.accFormat = gl.getExtension('EXT_color_buffer_float') ? 'RGBA16F' : 'RGBA8';
-      progSplat = program(gl, SPLAT_VS, SPLAT_FS, { a_corner: 0, a_index: 1 });
+      progSplat = program(gl, SPLAT_VS, SPLAT_FS);
       progComp = program(gl, COMPOSITE_VS, COMPOSITE_FS);
-      quadBuf = gl.createBuffer();
-      gl.bindBuffer(gl.ARRAY_BUFFER, quadBuf);
-      gl.bufferData(gl.ARRAY_BUFFER, new Float32Array([-1, -1, 1, -1, -1, 1, 1, 1]), gl.STATIC_DRAW);
-      compVao = gl.createVertexArray();
+      emptyVao = gl.createVertexArray(); // the composite pass draws from gl_VertexID alone
+      // Splats: batches of BATCH quads from one static Uint16 index buffer; the vertex
+      // shader derives the sorted slot and the corner from gl_VertexID and u_base.
+      quadVao = gl.createVertexArray();
+      gl.bindVertexArray(quadVao);
+      const ib = new Uint16Array(BATCH * 6);
+      for (let j = 0; j < BATCH; j++) {
+        ib.set([4 * j, 4 * j + 1, 4 * j + 2, 4 * j + 2, 4 * j + 1, 4 * j + 3], 6 * j);
+      }
+      gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, gl.createBuffer());
+      gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, ib, gl.STATIC_DRAW);
+      gl.bindVertexArray(null);
       canvas.addEventListener('webglcontextlost', function (e) {
         e.preventDefault();
         fail(new Error('The WebGL context was lost (GPU reset or out of memory); reload the page.'));
@@ -1023,7 +1041,7 @@ void main() {
     /* ---------------- asynchronous start: data ---------------- */
     async function start() {
       const meta = S.meta;
-      showStatus('Loading…');
+      showStatus('Loading\u2026');
       await nextTask();
       const decoded = [];
       for (let i = 0; i < meta.scenes.length; i++) {
@@ -1039,7 +1057,7 @@ void main() {
       }
       S.shared = meta.shared_geometry && decoded.length === 2 && decoded[0].n === decoded[1].n;
       if (meta.shared_geometry && decoded.length === 2 && !S.shared) {
-        meta.notes.push('shared_geometry ignored: the two scenes have different Gaussian counts');
+        el('li', null, ui.notes, 'shared_geometry ignored: the two scenes have different Gaussian counts');
       }
       const maxRows = gl.getParameter(gl.MAX_TEXTURE_SIZE);
       for (let i = 0; i < decoded.length; i++) {
@@ -1123,26 +1141,21 @@ void main() {
       geom.texC = dataTexture(gl, gl.R32F, gl.RED, gl.FLOAT, rows, pack(d.n, rows, 1, function (o, g, k) {
         o[k] = d.cov[g * 6 + 5];
       }));
-      geom.orderBuf = gl.createBuffer();
-      gl.bindBuffer(gl.ARRAY_BUFFER, geom.orderBuf);
-      gl.bufferData(gl.ARRAY_BUFFER, 4, gl.DYNAMIC_DRAW);
-      geom.vao = gl.createVertexArray();
-      gl.bindVertexArray(geom.vao);
-      gl.bindBuffer(gl.ARRAY_BUFFER, quadBuf);
-      gl.enableVertexAttribArray(0);
-      gl.vertexAttribPointer(0, 2, gl.FLOAT, false, 0, 0);
-      gl.bindBuffer(gl.ARRAY_BUFFER, geom.orderBuf);
-      gl.enableVertexAttribArray(1);
-      gl.vertexAttribIPointer(1, 1, gl.UNSIGNED_INT, 0, 0);
-      gl.vertexAttribDivisor(1, 1);
-      gl.bindVertexArray(null);
+      geom.orderTex = gl.createTexture();
+      gl.bindTexture(gl.TEXTURE_2D, geom.orderTex);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+      gl.texStorage2D(gl.TEXTURE_2D, 1, gl.R32UI, TEX_W, rows);
       geom.count = 0;
       geom.sortedRow = null;
       geom.sortWaiters = [];
       geom.sorter = new Sorter(d.pos, function (msg, row) {
         if (failed) return;
-        gl.bindBuffer(gl.ARRAY_BUFFER, geom.orderBuf);
-        gl.bufferData(gl.ARRAY_BUFFER, msg.order.length ? msg.order : new Uint32Array(1), gl.DYNAMIC_DRAW);
+        if (msg.count > 0) {
+          gl.bindTexture(gl.TEXTURE_2D, geom.orderTex);
+          gl.pixelStorei(gl.UNPACK_ALIGNMENT, 4);
+          gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, TEX_W, msg.order.length / TEX_W, gl.RED_INTEGER, gl.UNSIGNED_INT, msg.order);
+        }
         geom.count = msg.count;
         geom.sortedRow = row;
         S.sortMs = msg.ms;
@@ -1174,12 +1187,15 @@ void main() {
       }
       if (nScenes >= 2) ui.after.textContent = meta.scenes[1].name;
       ui.camera.textContent = '';
-      const free = el('option', null, ui.camera, '— free view —');
+      const free = el('option', null, ui.camera, '\u2014 free view \u2014');
       free.value = '-1';
       S.cameras.forEach(function (c, i) {
         const o = el('option', null, ui.camera, c.name + (c.role ? ' (' + c.role + ')' : ''));
         o.value = String(i);
       });
+      // Without cameras only the size mode is left to choose.
+      ui.camera.hidden = S.cameras.length === 0;
+      ui.camsLabel.hidden = S.cameras.length === 0;
       ui.colour.textContent = '';
       const rgb = el('option', null, ui.colour, 'RGB');
       rgb.value = 'RGB';
@@ -1204,7 +1220,7 @@ void main() {
       }
       if (!list.length) parts.push('no scene');
       if (S.cameras.length) parts.push(S.cameras.length + ' cameras');
-      ui.counts.textContent = parts.join(' · ');
+      ui.counts.textContent = parts.join(' \u00b7 ');
     }
 
     function syncUI() {
@@ -1764,7 +1780,7 @@ void main() {
         gl.uniform1f(u.u_height, H);
         gl.uniform3fv(u.u_palette, [].concat.apply([], PALETTE));
         gl.uniform4fv(u.u_heat, [].concat.apply([], HEAT));
-        const units = ['u_gA', 'u_gB', 'u_gC', 'u_col', 'u_shR', 'u_shG', 'u_shB', 'u_layer'];
+        const units = ['u_gA', 'u_gB', 'u_gC', 'u_col', 'u_shR', 'u_shG', 'u_shB', 'u_layer', 'u_order'];
         units.forEach(function (name, k) { gl.uniform1i(u[name], k); });
         gl.enable(gl.BLEND);
         gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
@@ -1794,13 +1810,16 @@ void main() {
           gl.uniform1i(u.u_hasSH, sc.shTex && !useLayer ? 1 : 0);
           const tex = [g.texA, g.texB, g.texC, sc.colTex,
             sc.shTex ? sc.shTex[0] : sc.colTex, sc.shTex ? sc.shTex[1] : sc.colTex, sc.shTex ? sc.shTex[2] : sc.colTex,
-            useLayer ? layer.tex : sc.colTex];
+            useLayer ? layer.tex : sc.colTex, g.orderTex];
           tex.forEach(function (t, k) {
             gl.activeTexture(gl.TEXTURE0 + k);
             gl.bindTexture(gl.TEXTURE_2D, t);
           });
-          gl.bindVertexArray(g.vao);
-          gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, g.count);
+          gl.bindVertexArray(quadVao);
+          for (let base = 0; base < g.count; base += BATCH) {
+            gl.uniform1i(u.u_base, base);
+            gl.drawElements(gl.TRIANGLES, 6 * Math.min(BATCH, g.count - base), gl.UNSIGNED_SHORT, 0);
+          }
           drawn += g.count;
         }
         gl.bindVertexArray(null);
@@ -1816,7 +1835,7 @@ void main() {
       gl.bindTexture(gl.TEXTURE_2D, acc.tex);
       gl.uniform1i(progComp.u.u_acc, 0);
       gl.uniform3fv(progComp.u.u_bg, S.bgColour);
-      gl.bindVertexArray(compVao);
+      gl.bindVertexArray(emptyVao);
       gl.drawArrays(gl.TRIANGLES, 0, 3);
       gl.bindVertexArray(null);
       S.drawn = drawn;
@@ -1858,8 +1877,10 @@ void main() {
         ctx.lineTo(B[0], B[1]);
       };
       ctx.lineWidth = 1.25;
+      const eye = centreOf(v);
       S.cameras.forEach(function (c, i) {
-        if (i === S.camIndex) return;
+        // Skip the camera we look through (or stand next to): it would fill the view.
+        if (i === S.camIndex || vLen(vSub(c.centre, eye)) < 1.5 * size) return;
         const Cw = c.centre;
         const corner = function (u, w) {
           const d = [(u - c.cx) / c.fx * size, (w - c.cy) / c.fy * size, size];
@@ -1897,7 +1918,7 @@ void main() {
       t.push(now);
       while (t.length && t[0] < now - 1000) t.shift();
       if (t.length >= 2) S.fps = (t.length - 1) * 1000 / (t[t.length - 1] - t[0]);
-      ui.fpsEl.textContent = (t.length >= 2 ? S.fps.toFixed(0) : '–') + ' fps · ' + fmtInt(S.drawn) + ' drawn · sort ' +
+      ui.fpsEl.textContent = (t.length >= 2 ? S.fps.toFixed(0) : '\u2013') + ' fps \u00b7 ' + fmtInt(S.drawn) + ' drawn \u00b7 sort ' +
         S.sortMs.toFixed(0) + ' ms';
     }
 
