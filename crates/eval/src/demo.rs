@@ -158,6 +158,8 @@ pub fn run(
     let config = opts.config.clone();
     let mut scores = Vec::new();
     let mut results: Vec<(Method, EditResult)> = Vec::new();
+    // The top report's 3D viewer: the first method's edit.
+    let mut viewer: Option<(String, String)> = None;
     for &m in &opts.methods {
         let cfg = config.for_method(m);
         let job = scene_job(&scene, &source, &opts.prompt);
@@ -200,6 +202,9 @@ pub fn run(
             formats: &[],
         };
         edit_output::write(&dir.join(name), &output)?;
+        if viewer.is_none() {
+            viewer = Some((name.to_string(), edit_output::viewer_section(&output)?));
+        }
         tracing::info!(
             "{name}: target PSNR {:.2}, background PSNR {:.2}, PSNR {:.2}, SSIM {:.4}, gate AUROC {}, {:.1} s (transport {:.1} s)",
             metrics.target_psnr,
@@ -237,7 +242,7 @@ pub fn run(
         "trained_steps": opts.trained, "trained": trained_psnr,
         "methods": methods,
     });
-    write_report(&dir, &opts.prompt, &description, &scene.name, &stems, &scores, &results, &config)?;
+    write_report(&dir, &opts.prompt, &description, &scene.name, &stems, &scores, &results, &config, viewer)?;
     transsplat_scene::atomic::write_bytes(
         &dir.join(MARKER),
         serde_json::to_string_pretty(&metrics).expect("json").as_bytes(),
@@ -256,6 +261,7 @@ fn write_report(
     scores: &[MethodScore],
     results: &[(Method, EditResult)],
     config: &EditConfig,
+    viewer: Option<(String, String)>,
 ) -> Result<(), DemoError> {
     let mut p = Page::new(&format!("transsplat demo: \"{prompt}\" on {scene}"));
     p.paragraph(&format!("Simulated editor: {description}. Test views: every 8th camera."));
@@ -289,6 +295,10 @@ fn write_report(
         ],
         &rows,
     );
+    if let Some((method, html)) = viewer {
+        p.heading(&format!("The {method} edit in 3D (each method's own report has its viewer)"));
+        p.raw(&html);
+    }
     p.heading("Renders of the test views");
     let mut grid = Vec::new();
     for stem in stems {

@@ -145,7 +145,7 @@ pub fn write(dir: &Path, o: &EditOutput) -> Result<(), transsplat_scene::Error> 
 
 /// The report's 3D viewer: before and after, the cameras by role, and the gate, the
 /// transported support and the ground-truth target as colour modes.
-fn viewer_section(o: &EditOutput) -> Result<String, transsplat_scene::Error> {
+pub fn viewer_section(o: &EditOutput) -> Result<String, transsplat_scene::Error> {
     let r = o.result;
     let mut v = Viewer::new(
         &format!("\"{}\"", o.prompt),
