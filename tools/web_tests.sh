@@ -11,12 +11,17 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if ! command -v chromium >/dev/null 2>&1; then
+    sudo=""
     if [ "$(id -u)" -ne 0 ]; then
-        echo "tools/web_tests.sh: Chromium is missing; install Debian's 'chromium' package" >&2
-        exit 1
+        if sudo -n true 2>/dev/null; then
+            sudo="sudo -n"
+        else
+            echo "tools/web_tests.sh: Chromium is missing; install Debian's 'chromium' package" >&2
+            exit 1
+        fi
     fi
-    apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+    $sudo apt-get update -qq
+    $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
 fi
 (cd tools/web && npm ci --no-audit --no-fund --silent)
 bin=target/release/transsplat
