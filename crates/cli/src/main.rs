@@ -68,6 +68,8 @@ enum BenchCommand {
     Train(commands::train::BenchArgs),
     /// A whole edit at a stated real size (simulated editor), timed by stage and scored.
     Edit(commands::bench::EditArgs),
+    /// The ground-truth quality suite: scenes (built and trained) x edits x severities, every method.
+    Quality(commands::bench::QualityArgs),
 }
 
 /// Set by SIGINT / Ctrl-C or SIGTERM; long commands stop at the next step, write nothing partial, and
@@ -86,6 +88,7 @@ fn main() {
             | Command::Render(_)
             | Command::Train(_)
             | Command::Bench(BenchCommand::Edit(_))
+            | Command::Bench(BenchCommand::Quality(_))
     );
     if polls_cancel {
         // SIGINT, SIGTERM (what `timeout`, docker and batch schedulers send) and SIGHUP.
@@ -127,6 +130,7 @@ fn main() {
         Command::Train(a) => commands::train::run(a, &CANCEL),
         Command::Bench(BenchCommand::Train(a)) => commands::train::bench(a),
         Command::Bench(BenchCommand::Edit(a)) => commands::bench::edit(a, &CANCEL),
+        Command::Bench(BenchCommand::Quality(a)) => commands::bench::quality(a, &CANCEL),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");

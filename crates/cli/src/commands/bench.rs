@@ -217,3 +217,69 @@ pub fn edit(args: &EditArgs, cancel: &AtomicBool) -> anyhow::Result<()> {
     }
     Ok(())
 }
+
+/// Arguments of `transsplat bench quality`.
+#[derive(clap::Args, Debug)]
+pub struct QualityArgs {
+    /// Output folder (replaced if it holds an earlier suite's output).
+    #[arg(long, default_value = "quality")]
+    pub out: PathBuf,
+    /// Small scenes and the quick schedule (as `demo --quick`).
+    #[arg(long)]
+    pub quick: bool,
+    /// Run only these cases (comma-separated names; an unknown name lists them all).
+    #[arg(long, value_delimiter = ',')]
+    pub cases: Vec<String>,
+    /// Training steps of the trained variants (0: built scenes only).
+    #[arg(long, default_value_t = 2000)]
+    pub trained: u64,
+    /// Methods to run (comma-separated; default all).
+    #[arg(long, value_delimiter = ',')]
+    pub methods: Option<Vec<String>>,
+    /// Override any edit setting, as in `edit --set`.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+/// Runs `transsplat bench quality`: the ground-truth suite, its table on stdout.
+pub fn quality(args: &QualityArgs, cancel: &AtomicBool) -> anyhow::Result<()> {
+    use transsplat_eval::quality;
+    let cases = quality::select(quality::cases(args.trained), &args.cases).map_err(anyhow::Error::msg)?;
+    let mut config = EditConfig::default();
+    if args.quick {
+        transsplat_eval::demo::quick_schedule(&mut config);
+    }
+    let config = config.with_overrides(&args.set).map_err(anyhow::Error::msg)?;
+    let opts = quality::SuiteOptions {
+        out: args.out.clone(),
+        cases,
+        quick: args.quick,
+        methods: super::demo::parse_methods(args.methods.as_deref())?,
+        config,
+        seed: args.seed,
+    };
+    let total = opts.cases.len();
+    let mut current = String::new();
+    let mut done = 0usize;
+    let (out, results) = quality::run(&opts, Some(cancel), &mut |case, method, p| {
+        if case != current {
+            current = case.to_string();
+            done += 1;
+            tracing::info!("case {done}/{total}: {case}");
+        }
+        if let Progress::Step { step, steps, .. } = p {
+            tracing::debug!("{case} {method}: step {step}/{steps}");
+        }
+    })
+    .map_err(|e| match e {
+        transsplat_eval::demo::DemoError::Edit(transsplat_edit::EditError::Interrupted(_)) => {
+            anyhow::anyhow!("interrupted; nothing was written to {}", args.out.display())
+        }
+        e => e.into(),
+    })?;
+    print!("{}", quality::table(&results, &quality::averages(&results)));
+    println!("wrote {}/quality.json, quality.md and report.html", out.display());
+    Ok(())
+}

@@ -44,6 +44,22 @@ pub struct DemoArgs {
     pub trained: u64,
 }
 
+/// The methods named on the command line (all of them when none are).
+pub fn parse_methods(names: Option<&[String]>) -> Result<Vec<Method>> {
+    match names {
+        None => Ok(Method::ALL.to_vec()),
+        Some(v) => v
+            .iter()
+            .map(|s| {
+                Method::parse(s.trim()).ok_or_else(|| {
+                    let all: Vec<&str> = Method::ALL.iter().map(|m| m.name()).collect();
+                    anyhow::anyhow!("unknown method {s:?}; methods are: {}", all.join(", "))
+                })
+            })
+            .collect(),
+    }
+}
+
 /// Runs `transsplat demo`.
 pub fn run(args: &DemoArgs, cancel: &AtomicBool) -> Result<()> {
     let mut config = match &args.config {
@@ -54,18 +70,7 @@ pub fn run(args: &DemoArgs, cancel: &AtomicBool) -> Result<()> {
         transsplat_eval::demo::quick_schedule(&mut config);
     }
     let config = config.with_overrides(&args.set).map_err(anyhow::Error::msg)?;
-    let methods = match &args.methods {
-        None => Method::ALL.to_vec(),
-        Some(v) => v
-            .iter()
-            .map(|s| {
-                Method::parse(s.trim()).ok_or_else(|| {
-                    let all: Vec<&str> = Method::ALL.iter().map(|m| m.name()).collect();
-                    anyhow::anyhow!("unknown method {s:?}; methods are: {}", all.join(", "))
-                })
-            })
-            .collect::<Result<_>>()?,
-    };
+    let methods = parse_methods(args.methods.as_deref())?;
     let opts = DemoOptions {
         out: args.out.clone(),
         scene: args.scene.clone(),

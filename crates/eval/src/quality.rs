@@ -1,0 +1,364 @@
+//! The ground-truth quality suite (`transsplat bench quality`): many demo cases, one
+//! table. A case is a built-in scene (as built, or as trained from its own renders),
+//! an instruction and a severity of the simulated editor; each runs every method
+//! through [`crate::demo::run`] into its own folder (with its own `report.html`). The
+//! suite writes `quality.json` (per case and averaged over the cases that ran),
+//! `quality.md` (the same as a table), and `report.html` with plots of background and
+//! target PSNR against severity per method. A case that fails (editor error, NaN,
+//! anything) is reported as failed with its reason; the others still run.
+
+use crate::demo::{self, DemoError, DemoOptions, MethodScore};
+use crate::report::{esc, Page};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use transsplat_edit::{EditConfig, Method, Progress};
+use transsplat_scene::atomic::StagedDir;
+
+/// Marker file of a finished suite folder.
+pub const MARKER: &str = "quality.json";
+
+/// One case of the suite.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Case {
+    /// `scene-variant-edit-sN`, e.g. `tabletop-built-recolour-s1`.
+    pub name: String,
+    pub scene: String,
+    /// Training steps from the scene's own renders (0: the built Gaussians).
+    pub trained: u64,
+    /// What kind of edit this is (`recolour`, `far-recolour`, `material`, `occluded`).
+    pub edit: String,
+    pub prompt: String,
+    pub severity: f32,
+}
+
+/// The suite's edits: (scene, kind, instruction).
+const EDITS: &[(&str, &str, &str)] = &[
+    ("tabletop", "recolour", "make the ball blue"),
+    ("tabletop", "far-recolour", "make the cone black"),
+    ("tabletop", "material", "turn the crate into marble"),
+    ("occluded", "occluded", "make the stem blue"),
+];
+
+/// The cases: every edit at severities 0 to 3 on the built scenes, and at severity 1
+/// on the scenes trained from their renders (`trained_steps`).
+pub fn cases(trained_steps: u64) -> Vec<Case> {
+    let mut out = Vec::new();
+    for &(scene, edit, prompt) in EDITS {
+        for s in 0..=3 {
+            out.push(case(scene, 0, edit, prompt, s as f32));
+        }
+        if trained_steps > 0 {
+            out.push(case(scene, trained_steps, edit, prompt, 1.0));
+        }
+    }
+    out
+}
+
+fn case(scene: &str, trained: u64, edit: &str, prompt: &str, severity: f32) -> Case {
+    let variant = if trained > 0 { "trained" } else { "built" };
+    Case {
+        name: format!("{scene}-{variant}-{edit}-s{severity}"),
+        scene: scene.into(),
+        trained,
+        edit: edit.into(),
+        prompt: prompt.into(),
+        severity,
+    }
+}
+
+/// The cases named in `wanted` (in the suite's order); an unknown name is an error
+/// listing every name.
+pub fn select(all: Vec<Case>, wanted: &[String]) -> Result<Vec<Case>, String> {
+    for w in wanted {
+        if !all.iter().any(|c| &c.name == w) {
+            let names: Vec<&str> = all.iter().map(|c| c.name.as_str()).collect();
+            return Err(format!("unknown case {w:?}; the cases are: {}", names.join(", ")));
+        }
+    }
+    Ok(all.into_iter().filter(|c| wanted.is_empty() || wanted.contains(&c.name)).collect())
+}
+
+/// Settings of a suite run.
+#[derive(Clone, Debug)]
+pub struct SuiteOptions {
+    pub out: PathBuf,
+    pub cases: Vec<Case>,
+    /// Small scenes and the quick schedule (as `demo --quick`).
+    pub quick: bool,
+    pub methods: Vec<Method>,
+    pub config: EditConfig,
+    pub seed: u64,
+}
+
+/// One case's outcome.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct CaseResult {
+    #[serde(flatten)]
+    pub case: Case,
+    /// Per method, when the case ran.
+    pub scores: Vec<MethodScore>,
+    /// Why the case failed, when it did.
+    pub failed: Option<String>,
+}
+
+/// Runs the suite; `on_progress(case, method, progress)` reports progress.
+pub fn run(
+    opts: &SuiteOptions,
+    cancel: Option<&AtomicBool>,
+    on_progress: &mut dyn FnMut(&str, &str, Progress),
+) -> Result<(PathBuf, Vec<CaseResult>), DemoError> {
+    let staged = StagedDir::begin(&opts.out, MARKER)?;
+    let dir = staged.path().to_path_buf();
+    let mut results = Vec::new();
+    for c in &opts.cases {
+        if cancel.is_some_and(|f| f.load(std::sync::atomic::Ordering::SeqCst)) {
+            return Err(DemoError::Edit(transsplat_edit::EditError::Interrupted(0)));
+        }
+        let demo_opts = DemoOptions {
+            out: dir.join(&c.name),
+            scene: c.scene.clone(),
+            prompt: c.prompt.clone(),
+            severity: c.severity,
+            quick: opts.quick,
+            methods: opts.methods.clone(),
+            config: opts.config.clone(),
+            seed: opts.seed,
+            trained: c.trained,
+        };
+        let outcome = demo::run(&demo_opts, cancel, &mut |m, p| on_progress(&c.name, m, p));
+        let r = match outcome {
+            Ok((_, scores)) => CaseResult { case: c.clone(), scores, failed: None },
+            Err(DemoError::Edit(e @ transsplat_edit::EditError::Interrupted(_))) => {
+                return Err(DemoError::Edit(e));
+            }
+            Err(e) => {
+                tracing::warn!("case {} failed: {e}", c.name);
+                CaseResult { case: c.clone(), scores: Vec::new(), failed: Some(e.to_string()) }
+            }
+        };
+        results.push(r);
+    }
+    let summary = averages(&results);
+    let json = serde_json::json!({"cases": results, "averages": summary});
+    transsplat_scene::atomic::write_bytes(&dir.join("quality.md"), table(&results, &summary).as_bytes())?;
+    write_report(&dir, &results, &summary)?;
+    transsplat_scene::atomic::write_bytes(
+        &dir.join(MARKER),
+        serde_json::to_string_pretty(&json).expect("json").as_bytes(),
+    )?;
+    Ok((staged.commit()?, results))
+}
+
+/// Per-method means over the cases that ran (every method in every such case).
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct Average {
+    pub cases: usize,
+    pub target_psnr: f64,
+    pub background_psnr: f64,
+    /// Over the cases with a gate.
+    pub gate_auroc: Option<f64>,
+    /// Cases where this method has the lowest target or background PSNR of all.
+    pub worst_cases: usize,
+}
+
+/// The per-method averages of the cases that ran.
+pub fn averages(results: &[CaseResult]) -> BTreeMap<String, Average> {
+    let mut out: BTreeMap<String, Average> = BTreeMap::new();
+    let mut aurocs: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    for r in results.iter().filter(|r| r.failed.is_none()) {
+        let worst = |f: fn(&MethodScore) -> f64| {
+            r.scores.iter().min_by(|a, b| f(a).total_cmp(&f(b))).map(|s| s.name.clone())
+        };
+        let worst_t = worst(|s| s.metrics.target_psnr);
+        let worst_b = worst(|s| s.metrics.background_psnr);
+        for s in &r.scores {
+            let a = out.entry(s.name.clone()).or_default();
+            a.cases += 1;
+            a.target_psnr += s.metrics.target_psnr;
+            a.background_psnr += s.metrics.background_psnr;
+            if worst_t.as_deref() == Some(&s.name) || worst_b.as_deref() == Some(&s.name) {
+                a.worst_cases += 1;
+            }
+            if let Some(g) = s.gate_auroc {
+                aurocs.entry(s.name.clone()).or_default().push(g);
+            }
+        }
+    }
+    for (name, a) in out.iter_mut() {
+        let n = a.cases.max(1) as f64;
+        a.target_psnr /= n;
+        a.background_psnr /= n;
+        a.gate_auroc = aurocs.get(name).map(|v| v.iter().sum::<f64>() / v.len() as f64);
+    }
+    out
+}
+
+/// The suite as Markdown: one row per case and method, then the averages.
+pub fn table(results: &[CaseResult], avg: &BTreeMap<String, Average>) -> String {
+    let mut s = String::from(
+        "| case | method | target PSNR | background PSNR | gate AUROC |\n|---|---|---|---|---|\n",
+    );
+    for r in results {
+        if let Some(why) = &r.failed {
+            s += &format!(
+                "| {} | **failed** | {} | | |\n",
+                r.case.name,
+                why.replace('|', "\\|").replace('\n', " ")
+            );
+            continue;
+        }
+        for m in &r.scores {
+            s += &format!(
+                "| {} | {} | {:.2} | {:.2} | {} |\n",
+                r.case.name,
+                m.name,
+                m.metrics.target_psnr,
+                m.metrics.background_psnr,
+                m.gate_auroc.map_or("-".into(), |a| format!("{a:.4}"))
+            );
+        }
+    }
+    s += "\n| method | cases | mean target PSNR | mean background PSNR | mean gate AUROC | worst on a case |\n|---|---|---|---|---|---|\n";
+    for (name, a) in avg {
+        s += &format!(
+            "| {name} | {} | {:.2} | {:.2} | {} | {} |\n",
+            a.cases,
+            a.target_psnr,
+            a.background_psnr,
+            a.gate_auroc.map_or("-".into(), |g| format!("{g:.4}")),
+            a.worst_cases
+        );
+    }
+    s
+}
+
+fn write_report(
+    dir: &Path,
+    results: &[CaseResult],
+    avg: &BTreeMap<String, Average>,
+) -> Result<(), DemoError> {
+    let mut p = Page::new("transsplat quality suite");
+    p.paragraph(&format!(
+        "{} cases ({} failed). Each case's folder has its own report.html with every method's edit and 3D viewer.",
+        results.len(),
+        results.iter().filter(|r| r.failed.is_some()).count()
+    ));
+    p.heading("Averages over the cases that ran");
+    let rows: Vec<Vec<String>> = avg
+        .iter()
+        .map(|(n, a)| {
+            vec![
+                n.clone(),
+                a.cases.to_string(),
+                format!("{:.2}", a.target_psnr),
+                format!("{:.2}", a.background_psnr),
+                a.gate_auroc.map_or("-".into(), |g| format!("{g:.4}")),
+                a.worst_cases.to_string(),
+            ]
+        })
+        .collect();
+    p.table(&["method", "cases", "target PSNR", "background PSNR", "gate AUROC", "worst on a case"], &rows);
+    // Per edit (built scenes): PSNR against severity, one line per method.
+    let mut edits: Vec<(String, String)> = Vec::new();
+    for r in results {
+        let key = (r.case.scene.clone(), r.case.edit.clone());
+        if r.case.trained == 0 && !edits.contains(&key) {
+            edits.push(key);
+        }
+    }
+    for (scene, edit) in &edits {
+        let of_edit: Vec<&CaseResult> = results
+            .iter()
+            .filter(|r| {
+                &r.case.scene == scene && &r.case.edit == edit && r.case.trained == 0 && r.failed.is_none()
+            })
+            .collect();
+        let series = |f: fn(&MethodScore) -> f64| -> Vec<(String, Vec<(f64, f64)>)> {
+            let mut by: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
+            for r in &of_edit {
+                for s in &r.scores {
+                    by.entry(s.name.clone()).or_default().push((r.case.severity as f64, f(s)));
+                }
+            }
+            by.into_iter().collect()
+        };
+        p.plot(
+            &format!("{scene}, {edit}: background PSNR against severity"),
+            &series(|s| s.metrics.background_psnr),
+        );
+        p.plot(&format!("{scene}, {edit}: target PSNR against severity"), &series(|s| s.metrics.target_psnr));
+    }
+    p.heading("Cases");
+    let rows: Vec<Vec<String>> = results
+        .iter()
+        .map(|r| {
+            let best = |f: fn(&MethodScore) -> f64| {
+                r.scores.iter().max_by(|a, b| f(a).total_cmp(&f(b))).map_or("-".into(), |s| s.name.clone())
+            };
+            vec![
+                r.case.name.clone(),
+                esc(&r.case.prompt),
+                r.failed.clone().map_or_else(|| "ran".into(), |w| format!("failed: {w}")),
+                best(|s| s.metrics.background_psnr),
+                best(|s| s.metrics.target_psnr),
+            ]
+        })
+        .collect();
+    p.table(&["case", "instruction", "outcome", "best background", "best target"], &rows);
+    p.preformatted(&table(results, avg));
+    transsplat_scene::atomic::write_bytes(&dir.join("report.html"), p.finish().as_bytes())?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ground_truth::GtMetrics;
+
+    fn score(name: &str, t: f64, b: f64) -> MethodScore {
+        MethodScore {
+            name: name.into(),
+            metrics: GtMetrics { target_psnr: t, background_psnr: b, psnr: 0.0, ssim: 0.0 },
+            gate_auroc: None,
+            seconds: 0.0,
+            transport_seconds: 0.0,
+        }
+    }
+
+    #[test]
+    fn unknown_case_names_are_an_error_listing_the_cases() {
+        let e = select(cases(0), &["nope".into()]).unwrap_err();
+        assert!(e.contains("unknown case \"nope\"") && e.contains("tabletop-built-recolour-s1"), "{e}");
+        let one = select(cases(0), &["occluded-built-occluded-s2".into()]).unwrap();
+        assert_eq!(one.len(), 1);
+        assert_eq!(select(cases(0), &[]).unwrap().len(), 16);
+        assert_eq!(cases(500).len(), 20);
+    }
+
+    #[test]
+    fn averages_skip_failed_cases_and_count_worst_places() {
+        let c = cases(0);
+        let results = vec![
+            CaseResult {
+                case: c[0].clone(),
+                scores: vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)],
+                failed: None,
+            },
+            CaseResult {
+                case: c[1].clone(),
+                scores: vec![score("a", 10.0, 20.0), score("b", 12.0, 30.0)],
+                failed: None,
+            },
+            CaseResult { case: c[2].clone(), scores: Vec::new(), failed: Some("editor error".into()) },
+        ];
+        let avg = averages(&results);
+        assert_eq!(avg["a"].cases, 2);
+        assert_eq!(avg["a"].target_psnr, 20.0);
+        assert_eq!(avg["b"].background_psnr, 40.0);
+        // a: worst background in case 0, worst both in case 1; b: worst target in case 0.
+        assert_eq!((avg["a"].worst_cases, avg["b"].worst_cases), (2, 1));
+        let t = table(&results, &avg);
+        assert!(t.contains("| tabletop-built-recolour-s2 | **failed** | editor error |"), "{t}");
+    }
+}
