@@ -3,7 +3,7 @@
 //! Niantic's SPZ ([`crate::spz`]). Reading recognises the format from the file's first
 //! bytes; writing takes it from the name (`.spz`, `.compressed.ply`, `.ply`) or a flag.
 
-use crate::{atomic, ply, spz, Error, Gaussians, Result};
+use crate::{atomic, ply, spz, Gaussians, Result};
 use std::path::Path;
 
 /// A scene file format.
@@ -61,14 +61,8 @@ impl SceneFormat {
 pub fn read_with(path: &Path, options: &ply::ReadOptions) -> Result<(Gaussians, usize)> {
     let bytes = atomic::read(path)?;
     if spz::looks_like(&bytes) {
-        let mut g = spz::parse(&bytes, path)?;
-        let mut dropped = 0;
-        if options.drop_invalid {
-            let keep: Vec<bool> = (0..g.len()).map(|i| g.non_finite_at(i).is_none()).collect();
-            dropped = keep.iter().filter(|k| !**k).count();
-            g.retain(&keep);
-        }
-        return Ok((g, dropped));
+        // Every SPZ value is decoded from bytes into a finite number: nothing to drop.
+        return Ok((spz::parse(&bytes, path)?, 0));
     }
     ply::parse_with(&bytes, path, options)
 }
@@ -84,15 +78,6 @@ pub fn write(path: &Path, g: &Gaussians, format: SceneFormat) -> Result<()> {
     match format {
         SceneFormat::Ply => ply::write(path, g),
         SceneFormat::Spz => spz::write(path, g),
-        SceneFormat::CompressedPly => {
-            g.validate().map_err(|m| Error::format(path, format!("cannot write scene: {m}")))?;
-            if let Some((i, what)) = g.first_non_finite() {
-                return Err(Error::format(
-                    path,
-                    format!("cannot write scene: Gaussian {i} has an invalid {what}"),
-                ));
-            }
-            atomic::write_bytes(path, &ply::compressed::encode(g).0)
-        }
+        SceneFormat::CompressedPly => ply::compressed::write(path, g),
     }
 }

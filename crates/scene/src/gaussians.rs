@@ -41,6 +41,13 @@ impl Extra {
     pub fn width(&self) -> usize {
         self.names.len()
     }
+
+    /// The values of property `name`, one per Gaussian, if there is such a property.
+    pub fn column(&self, name: &str) -> Option<Vec<f32>> {
+        let w = self.width();
+        let k = self.names.iter().position(|n| n == name)?;
+        Some(self.values.chunks_exact(w).map(|row| row[k]).collect())
+    }
 }
 
 impl Gaussians {
@@ -173,6 +180,44 @@ impl Gaussians {
         self.sh = self.sh.chunks_exact(k_old).flat_map(|c| c[..k_new].iter().copied()).collect();
         self.sh_degree = degree;
     }
+}
+
+impl Gaussians {
+    /// Refuses (naming `path`) a scene that no format may store: inconsistent arrays,
+    /// or a NaN or infinite parameter.
+    pub fn check_writable(&self, path: &std::path::Path) -> crate::Result<()> {
+        self.validate().map_err(|m| crate::Error::format(path, format!("cannot write scene: {m}")))?;
+        match self.first_non_finite() {
+            Some((i, what)) => Err(crate::Error::format(
+                path,
+                format!("cannot write scene: Gaussian {i} has an invalid {what}"),
+            )),
+            None => Ok(()),
+        }
+    }
+}
+
+/// The opacity logit of an 8-bit opacity (the compressed formats), kept finite: 0 and
+/// 255 map a quarter step inside (0, 1), which encodes back to the same byte.
+pub fn opacity_logit_of_byte(b: u8) -> f32 {
+    let o = (b as f32 / 255.0).clamp(0.25 / 255.0, 1.0 - 0.25 / 255.0);
+    (o / (1.0 - o)).ln()
+}
+
+/// A seeded random scene of SH degree `degree` for the format tests: centres in
+/// [−1, 1)³, log-scales in [−6, −2), random rotations, logits in [−4, 4), SH in [−1, 1).
+#[cfg(test)]
+pub(crate) fn random_scene(n: usize, degree: u32, seed: u64) -> Gaussians {
+    let mut r = crate::rng::SplitMix64::new(seed);
+    let mut g = Gaussians { sh_degree: degree, ..Default::default() };
+    for _ in 0..n {
+        g.means.push([r.signed(), r.signed(), r.signed()]);
+        g.log_scales.push([r.range(-6.0, -2.0), r.range(-6.0, -2.0), r.range(-6.0, -2.0)]);
+        g.rotations.push([r.signed(), r.signed(), r.signed(), r.signed()]);
+        g.opacity_logits.push(r.range(-4.0, 4.0));
+        g.sh.extend((0..sh_coeffs(degree) * 3).map(|_| r.signed()));
+    }
+    g
 }
 
 /// Logistic sigmoid.

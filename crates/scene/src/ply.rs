@@ -97,10 +97,7 @@ pub fn to_bytes(g: &Gaussians) -> Vec<u8> {
 /// Writes a scene atomically as a binary little-endian float32 INRIA PLY.
 /// Refuses (before creating anything) a scene with NaN or infinite parameters.
 pub fn write(path: &Path, g: &Gaussians) -> Result<()> {
-    g.validate().map_err(|m| Error::format(path, format!("cannot write scene: {m}")))?;
-    if let Some((i, what)) = g.first_non_finite() {
-        return Err(Error::format(path, format!("cannot write scene: Gaussian {i} has an invalid {what}")));
-    }
+    g.check_writable(path)?;
     atomic::write_with(path, |w| write_to(w, g))
 }
 

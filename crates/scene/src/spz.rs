@@ -17,7 +17,7 @@
 //! on the way in and out ([`flip_rdf_rub`]). Files read back exactly as written, and
 //! PlayCanvas splat-transform 2.x reads and writes the same convention.
 
-use crate::{atomic, sigmoid, Error, Gaussians, Result};
+use crate::{atomic, opacity_logit_of_byte, sigmoid, Error, Gaussians, Result};
 use std::io::{Read, Write};
 use std::path::Path;
 
@@ -165,10 +165,7 @@ pub fn to_bytes(g: &Gaussians) -> Vec<u8> {
 /// Writes a scene atomically as `.spz` (refusing NaN or infinite parameters and
 /// scenes SPZ cannot hold: no Gaussians, or more than 2³² − 1).
 pub fn write(path: &Path, g: &Gaussians) -> Result<()> {
-    g.validate().map_err(|m| Error::format(path, format!("cannot write scene: {m}")))?;
-    if let Some((i, what)) = g.first_non_finite() {
-        return Err(Error::format(path, format!("cannot write scene: Gaussian {i} has an invalid {what}")));
-    }
+    g.check_writable(path)?;
     if g.is_empty() || g.len() > u32::MAX as usize {
         return Err(Error::format(path, format!("cannot write {} Gaussians as SPZ", g.len())));
     }
@@ -330,13 +327,7 @@ impl Header {
                 })
             })
             .collect();
-        g.opacity_logits = b[1]
-            .iter()
-            .map(|&a| {
-                let o = (a as f32 / 255.0).clamp(0.25 / 255.0, 1.0 - 0.25 / 255.0);
-                (o / (1.0 - o)).ln()
-            })
-            .collect();
+        g.opacity_logits = b[1].iter().map(|&a| opacity_logit_of_byte(a)).collect();
         g.log_scales =
             b[3].chunks_exact(3).map(|s| std::array::from_fn(|a| s[a] as f32 / 16.0 - 10.0)).collect();
         g.rotations = if self.version == 2 {
@@ -370,22 +361,10 @@ impl Header {
 mod tests {
     use super::*;
 
+    /// The shared random scene, spread to ±10 so positions use the fixed-point range.
     fn scene(n: usize, degree: u32) -> Gaussians {
-        let mut s = 99u64;
-        let mut r = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 11) as f32 / (1u64 << 53) as f32
-        };
-        let mut g = Gaussians { sh_degree: degree, ..Default::default() };
-        for _ in 0..n {
-            g.means.push([r() * 20.0 - 10.0, r() * 4.0, r() - 3.0]);
-            g.log_scales.push([r() * 6.0 - 8.0, r() * 6.0 - 8.0, r() * 6.0 - 8.0]);
-            g.rotations.push([r() - 0.5, r() - 0.5, r() - 0.5, r() - 0.5]);
-            g.opacity_logits.push(r() * 8.0 - 4.0);
-            g.sh.extend((0..crate::sh_coeffs(degree) * 3).map(|_| r() * 1.6 - 0.8));
-        }
+        let mut g = crate::gaussians::random_scene(n, degree, 99);
+        g.means.iter_mut().flatten().for_each(|v| *v *= 10.0);
         g
     }
 

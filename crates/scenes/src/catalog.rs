@@ -183,13 +183,10 @@ pub fn with_labels(g: &Gaussians, labels: &[u32]) -> Gaussians {
 
 /// Reads the per-Gaussian labels back from the `label` extra property, if present.
 pub fn labels_from_extra(g: &Gaussians) -> Option<Vec<u32>> {
-    let w = g.extra.width();
-    let k = g.extra.names.iter().position(|n| n == LABEL_PROPERTY)?;
-    (0..g.len())
-        .map(|i| {
-            let v = g.extra.values[i * w + k];
-            (v.is_finite() && v >= 0.0 && v.fract() == 0.0 && v < 65536.0).then_some(v as u32)
-        })
+    g.extra
+        .column(LABEL_PROPERTY)?
+        .into_iter()
+        .map(|v| (v.is_finite() && v >= 0.0 && v.fract() == 0.0 && v < 65536.0).then_some(v as u32))
         .collect()
 }
 

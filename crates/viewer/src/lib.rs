@@ -315,8 +315,8 @@ fn keep_and_order(g: &Gaussians, keep: usize) -> Vec<u32> {
         chosen.truncate(keep);
         chosen.sort_unstable();
     }
-    let sub = g.select(&chosen);
-    compressed::morton_order(&sub).into_iter().map(|k| chosen[k as usize]).collect()
+    compressed::morton_sort(&g.means, &mut chosen);
+    chosen
 }
 
 /// Standard base64 (RFC 4648, with padding), appended to `out`.

@@ -76,7 +76,7 @@ pub fn run(a: &ViewArgs) -> Result<()> {
     for name in &a.layer {
         let mut found = false;
         for (s, (_, sg)) in v.scenes.iter().enumerate() {
-            if let Some(values) = extra_column(sg, name) {
+            if let Some(values) = sg.extra.column(name) {
                 let whole = values.iter().all(|x| x.fract() == 0.0 && *x >= 0.0);
                 let kind = if whole && values.iter().any(|&x| x > 1.0) {
                     LayerKind::Label
@@ -100,13 +100,6 @@ pub fn run(a: &ViewArgs) -> Result<()> {
     atomic::write_bytes(&a.out, html.as_bytes())?;
     tracing::info!("wrote {} ({:.1} MB)", a.out.display(), html.len() as f64 / 1e6);
     Ok(())
-}
-
-/// Values of extra property `name` (finite), one per Gaussian.
-fn extra_column(g: &Gaussians, name: &str) -> Option<Vec<f32>> {
-    let w = g.extra.width();
-    let k = g.extra.names.iter().position(|n| n == name)?;
-    Some((0..g.len()).map(|i| g.extra.values[i * w + k]).collect())
 }
 
 /// A 1280×720 camera looking along +z at the centre of the scene's central 98 %,

@@ -19,7 +19,7 @@
 //! order so callers can permute per-Gaussian data alongside.
 
 use super::{parse_header, Element, Format, Header, Kind, Scalar};
-use crate::Gaussians;
+use crate::{atomic, opacity_logit_of_byte, Gaussians};
 
 /// Gaussians per chunk.
 pub const CHUNK: usize = 256;
@@ -67,7 +67,9 @@ pub fn morton_order(g: &Gaussians) -> Vec<u32> {
     idx
 }
 
-fn morton_sort(means: &[[f32; 3]], idx: &mut [u32]) {
+/// Puts the Gaussians `idx` (indices into `means`) in [`morton_order`], over their
+/// own bounding box.
+pub fn morton_sort(means: &[[f32; 3]], idx: &mut [u32]) {
     if idx.is_empty() {
         return;
     }
@@ -212,13 +214,6 @@ fn sh_value(b: u8) -> f32 {
         _ => (b as f32 + 0.5) / 256.0,
     };
     (n - 0.5) * 8.0
-}
-
-/// Opacity logit of an 8-bit opacity, kept finite (0 and 255 map a quarter step
-/// inside (0, 1), which re-encodes to the same byte).
-fn opacity_logit(b: u8) -> f32 {
-    let o = (b as f32 / 255.0).clamp(0.25 / 255.0, 1.0 - 0.25 / 255.0);
-    (o / (1.0 - o)).ln()
 }
 
 /// Encodes a scene in Morton order; returns the file bytes and the order used
@@ -438,7 +433,7 @@ pub(super) fn decode(bytes: &[u8], h: &Header) -> Result<Gaussians, String> {
         g.means.push(unpack_111011(pos, b3(0), b3(3)));
         g.rotations.push(unpack_rotation(rot));
         g.log_scales.push(unpack_111011(scale, b3(6), b3(9)));
-        g.opacity_logits.push(opacity_logit(col as u8));
+        g.opacity_logits.push(opacity_logit_of_byte(col as u8));
         let start = g.sh.len();
         for c in 0..3 {
             let v = dequantise(col >> (24 - 8 * c), bounds[12 + c], bounds[15 + c], 8);
@@ -458,6 +453,13 @@ pub(super) fn decode(bytes: &[u8], h: &Header) -> Result<Gaussians, String> {
     Ok(g)
 }
 
+/// Writes a scene atomically as a compressed PLY in Morton order (refusing NaN or
+/// infinite parameters).
+pub fn write(path: &std::path::Path, g: &Gaussians) -> crate::Result<()> {
+    g.check_writable(path)?;
+    atomic::write_bytes(path, &encode(g).0)
+}
+
 /// Parses compressed PLY bytes (for tests and tools that hold bytes).
 pub fn parse(bytes: &[u8]) -> Result<Gaussians, String> {
     let h = parse_header(bytes)?;
@@ -470,6 +472,7 @@ pub fn parse(bytes: &[u8]) -> Result<Gaussians, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::gaussians::random_scene;
     use crate::sigmoid;
 
     #[test]
@@ -497,40 +500,22 @@ mod tests {
         assert_eq!(spread_bits(0b11), 0b1001);
     }
 
-    fn random_scene(n: usize, degree: u32) -> Gaussians {
-        let mut s = 12345u64;
-        let mut r = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 11) as f32 / (1u64 << 53) as f32
-        };
-        let mut g = Gaussians { sh_degree: degree, ..Default::default() };
-        let k = crate::sh_coeffs(degree) * 3;
-        for _ in 0..n {
-            g.means.push([r() * 4.0 - 2.0, r() * 2.0, r() - 0.5]);
-            g.log_scales.push([r() * 4.0 - 6.0, r() * 4.0 - 6.0, r() * 4.0 - 6.0]);
-            g.rotations.push([r() - 0.5, r() - 0.5, r() - 0.5, r() - 0.5]);
-            g.opacity_logits.push(r() * 8.0 - 4.0);
-            g.sh.extend((0..k).map(|_| r() * 2.0 - 1.0));
-        }
-        g
-    }
-
     #[test]
     fn round_trip_is_within_the_quantisation_and_stable() {
         for degree in 0..=3 {
-            let g = random_scene(1000, degree);
+            let g = random_scene(1000, degree, 12345);
             let (bytes, order) = encode(&g);
             let d = parse(&bytes).unwrap();
             assert_eq!((d.len(), d.sh_degree), (1000, degree));
             let k = crate::sh_coeffs(degree) * 3;
             for (j, &i) in order.iter().enumerate() {
                 let i = i as usize;
-                for a in 0..3 {
-                    // A chunk spans at most the scene (4 × 2 × 1): 11 bits of 4 m.
-                    assert!((d.means[j][a] - g.means[i][a]).abs() < 4.0 / 2047.0 * 0.51 + 1e-6);
-                    assert!((d.log_scales[j][a] - g.log_scales[i][a]).abs() < 4.0 / 1023.0 * 0.51 + 1e-6);
+                for (a, bits) in [11, 10, 11].into_iter().enumerate() {
+                    // Half a step of the chunk's range, which is at most the scene's
+                    // (2 for centres, 4 for log-scales) over 2^bits − 1 steps.
+                    let step = |range: f32| range / ((1u32 << bits) - 1) as f32 * 0.51 + 1e-6;
+                    assert!((d.means[j][a] - g.means[i][a]).abs() < step(2.0));
+                    assert!((d.log_scales[j][a] - g.log_scales[i][a]).abs() < step(4.0));
                 }
                 assert!(
                     (sigmoid(d.opacity_logits[j]) - sigmoid(g.opacity_logits[i])).abs() < 0.5 / 255.0 + 1e-6
@@ -541,7 +526,7 @@ mod tests {
                     assert!(dc < 2.0 * SH_C0 / 255.0 * 0.51 + 1e-5, "dc {dc}");
                 }
                 for c in 3..k {
-                    // Higher SH: 8 bits of [-4, 4], the bucket centre.
+                    // Higher SH: 8 bits of [−4, 4], the bucket centre.
                     assert!((d.sh[j * k + c] - g.sh[i * k + c]).abs() <= 8.0 / 256.0 * 0.5 + 1e-5);
                 }
             }
@@ -562,7 +547,7 @@ mod tests {
 
     #[test]
     fn truncated_and_inconsistent_files_are_errors() {
-        let (bytes, _) = encode(&random_scene(300, 1));
+        let (bytes, _) = encode(&random_scene(300, 1, 1));
         let e = parse(&bytes[..bytes.len() - 1]).unwrap_err();
         assert!(e.contains("truncated"), "{e}");
         let text = String::from_utf8_lossy(&bytes[..200]).to_string();
