@@ -741,13 +741,19 @@ void main() {
     return { prog: p, u: u };
   }
 
-  function dataTexture(gl, internal, format, type, rows, data) {
+  /** A new bound 2D texture with nearest filtering and clamped edges. */
+  function nearestTexture(gl) {
     const t = gl.createTexture();
     gl.bindTexture(gl.TEXTURE_2D, t);
     gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
     gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
     gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
     gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+    return t;
+  }
+
+  function dataTexture(gl, internal, format, type, rows, data) {
+    const t = nearestTexture(gl);
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
     gl.texImage2D(gl.TEXTURE_2D, 0, internal, TEX_W, rows, 0, format, type, data);
     return t;
@@ -1726,12 +1732,7 @@ void main() {
         gl.deleteTexture(acc.tex);
         gl.deleteFramebuffer(acc.fbo);
       }
-      const tex = gl.createTexture();
-      gl.bindTexture(gl.TEXTURE_2D, tex);
-      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
-      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
-      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
-      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+      const tex = nearestTexture(gl);
       if (S.accFormat === 'RGBA16F') {
         gl.texStorage2D(gl.TEXTURE_2D, 1, gl.RGBA16F, w, h);
       } else {
