@@ -44,7 +44,7 @@ enum Command {
     Info(commands::info::InfoArgs),
     /// Solve one entropic unbalanced transport problem from .npy files.
     Uot(commands::uot::UotArgs),
-    /// Write a built-in benchmark scene (tabletop, occluded) as a dataset with labels and masks.
+    /// Write a built-in benchmark scene (tabletop, occluded, garden) as a dataset with labels and masks.
     Scene(commands::scene::BuiltinSceneArgs),
     /// Train a 3DGS scene from a COLMAP, transforms.json or INRIA-layout dataset.
     Train(commands::train::TrainArgs),

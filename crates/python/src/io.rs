@@ -198,7 +198,7 @@ pub fn cameras_from_arrays(
     cameras::validated(out, std::path::Path::new("cameras")).map_err(scene_error)
 }
 
-/// Writes a built-in benchmark scene (`tabletop`, `occluded`) as a dataset folder, as
+/// Writes a built-in benchmark scene (`tabletop`, `occluded`, `garden`) as a dataset folder, as
 /// `transsplat scene NAME --out DIR [--quick]` does; returns the folder.
 #[pyfunction]
 #[pyo3(signature = (name, out, quick=false, seed=0))]

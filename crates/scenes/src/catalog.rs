@@ -5,9 +5,18 @@
 //! - `occluded`: a ball half hidden behind a crate, and a thin stem (a 2.4 cm thick
 //!   pole with a small knob). Suggested target: the ball (partly occluded); the stem is
 //!   the thin-structure target.
+//! - `garden`: an apple, a tomato of a close orange-red (the distractor), a lamp post
+//!   (a 3.6 cm thick pole with a lamp head) and a white fence of thin rails, on a wide
+//!   lawn with a gravel path, in front of a far hedge-and-sky backdrop, seen from a
+//!   wider and farther orbit (3.4 m, 150°) with a wider lens. Different statistics
+//!   from the tabletop scenes: the background covers most of every view and is far,
+//!   the thin structures are one to two pixels wide, and the target has a look-alike.
+//!   Suggested target: the apple.
 //!
-//! World frame: z up, the table top at z = 0, the floor at z = −0.75, the backdrop at
-//! y = +1.3; metres. Label 0 is the background (floor, wall, table), objects are 1...
+//! World frame: z up, metres, label 0 is the background, objects are 1.... Tabletop
+//! scenes: the table top at z = 0, the floor at z = −0.75, the backdrop at y = +1.3
+//! (label 0: floor, wall, table). Garden: the lawn at z = 0, the backdrop walls at
+//! y = +3.5 and x = ±4.5 (label 0: lawn, path, hedge and sky).
 
 use crate::build::Builder;
 use crate::rig::{is_test, Rig};
@@ -16,7 +25,7 @@ use crate::Error;
 use transsplat_scene::{Camera, Extra, Gaussians};
 
 /// Names accepted by [`build`].
-pub const SCENE_NAMES: &[&str] = &["tabletop", "occluded"];
+pub const SCENE_NAMES: &[&str] = &["tabletop", "occluded", "garden"];
 
 /// Name of the per-Gaussian label property in the written PLY.
 pub const LABEL_PROPERTY: &str = "label";
@@ -197,6 +206,7 @@ pub fn build(name: &str, config: &SceneConfig) -> Result<Scene, Error> {
     match name.trim().to_ascii_lowercase().as_str() {
         "tabletop" => Ok(tabletop(config)),
         "occluded" => Ok(occluded(config)),
+        "garden" => Ok(garden(config)),
         _ => Err(Error::UnknownScene {
             name: name.to_string(),
             available: SCENE_NAMES.iter().map(|s| s.to_string()).collect(),
@@ -453,5 +463,121 @@ fn occluded(config: &SceneConfig) -> Scene {
         objects,
         config,
         default_rig(),
+    )
+}
+
+/// Half extent of the garden's lawn in x, its y range, and the backdrop height.
+const GARDEN_HALF_X: f32 = 4.5;
+const GARDEN_Y: [f32; 2] = [-4.5, 3.5];
+const GARDEN_WALL_H: f32 = 3.5;
+
+/// The garden's background (label 0): the lawn with a gravel path, and a U of hedge
+/// and sky walls. Its Gaussians are sparser than the tabletop background's (1.45× and
+/// 2.2× the spacing) so that the much larger area keeps a comparable count.
+fn garden_background(b: &mut Builder, sp: &Spacing, seed: u64) {
+    let lawn = move |p: [f32; 3]| {
+        let path = (p[1] + 1.45 + 0.15 * (p[0] * 1.3).sin()).abs() < 0.28;
+        if path {
+            shade([0.62, 0.57, 0.47], 0.8 + 0.4 * fbm(seed ^ 5, [p[0] * 9.0, p[1] * 9.0, 0.0], 3))
+        } else {
+            let base = mix_rgb([0.24, 0.42, 0.14], [0.38, 0.53, 0.2], fbm(seed ^ 6, [p[0], p[1], 0.0], 3));
+            shade(base, 0.8 + 0.4 * fbm(seed ^ 7, [p[0] * 7.0, p[1] * 7.0, 0.0], 2))
+        }
+    };
+    let backdrop = move |p: [f32; 3]| {
+        // a hedge up to about 1.6 m with a ragged top, sky above it
+        let top = 1.6 + 0.25 * fbm(seed ^ 8, [p[0] * 1.5, p[1] * 1.5, 0.0], 3);
+        if p[2] < top {
+            shade([0.13, 0.3, 0.11], 0.7 + 0.6 * fbm(seed ^ 9, [p[0] * 5.0, p[1] * 5.0, p[2] * 5.0], 3))
+        } else {
+            let t = ((p[2] - top) / (GARDEN_WALL_H - top)).clamp(0.0, 1.0);
+            let sky = mix_rgb([0.68, 0.79, 0.92], [0.42, 0.58, 0.86], t);
+            let cloud = fbm(seed ^ 10, [p[0] * 0.8, p[1] * 0.8, p[2] * 2.0], 3);
+            mix_rgb(sky, [0.93, 0.94, 0.95], (cloud - 0.55).max(0.0) * 2.0)
+        }
+    };
+    let (ground, wall) = (1.45 * sp.background, 2.2 * sp.background);
+    let (hx, [y0, y1], h) = (GARDEN_HALF_X, GARDEN_Y, GARDEN_WALL_H);
+    let old_opacity = b.opacity;
+    b.view_dependence = 0.015;
+    b.rect([-hx, y0, 0.0], [2.0 * hx, 0.0, 0.0], [0.0, y1 - y0, 0.0], ground, &lawn, 0);
+    b.rect([-hx, y1, 0.0], [0.0, 0.0, h], [2.0 * hx, 0.0, 0.0], wall, &backdrop, 0);
+    b.rect([hx, y0, 0.0], [0.0, 0.0, h], [0.0, y1 - y0, 0.0], wall, &backdrop, 0);
+    b.rect([-hx, y0, 0.0], [0.0, y1 - y0, 0.0], [0.0, 0.0, h], wall, &backdrop, 0);
+    b.view_dependence = 0.03;
+    b.opacity = old_opacity;
+}
+
+fn garden_rig() -> Rig {
+    Rig {
+        target: [0.0, 0.05, 0.3],
+        distance: 3.4,
+        elevations_deg: vec![12.0, 24.0, 36.0],
+        azimuth_span_deg: 150.0,
+        fov_x_deg: 55.0,
+    }
+}
+
+/// `garden`: apple, tomato (the look-alike), lamp post, fence.
+fn garden(config: &SceneConfig) -> Scene {
+    let seed = config.seed.wrapping_add(0x6A4D);
+    let sp = Spacing::new(config.detail);
+    let mut b = Builder::new(seed);
+    garden_background(&mut b, &sp, seed);
+
+    let apple_c = [-0.32, -0.08, 0.13];
+    let apple_rgb = [0.8, 0.12, 0.1];
+    let apple = move |p: [f32; 3]| {
+        // faint vertical streaks around the axis, fine speckle
+        let phi = (p[1] - apple_c[1]).atan2(p[0] - apple_c[0]);
+        shade(apple_rgb, (0.95 + 0.05 * (phi * 9.0).sin()) * lum_noise(seed ^ 31, p, 28.0, 0.1))
+    };
+    b.sphere(apple_c, 0.13, sp.object, &apple, 1);
+
+    let tomato_c = [0.24, -0.3, 0.095];
+    let tomato_rgb = [0.92, 0.3, 0.1];
+    let tomato = move |p: [f32; 3]| shade(tomato_rgb, lum_noise(seed ^ 32, p, 22.0, 0.08));
+    b.sphere(tomato_c, 0.095, sp.object, &tomato, 2);
+
+    // lamp post: a 18 mm radius iron pole on a foot, a glass head; finer sampling
+    let lamp_base = [0.8, 0.35, 0.0];
+    let (iron, glass) = ([0.16, 0.17, 0.16], [0.95, 0.88, 0.55]);
+    let lamp = move |p: [f32; 3]| {
+        let c = if p[2] > 1.19 { glass } else { iron };
+        shade(c, lum_noise(seed ^ 33, [p[0], p[1], p[2] * 3.0], 20.0, 0.1))
+    };
+    let fine = (sp.object * 0.6).min(0.012);
+    let profile = [(0.05, 0.0), (0.05, 0.06), (0.018, 0.09), (0.018, 1.2), (0.0, 1.2)];
+    b.revolution(lamp_base, &profile, fine, &lamp, 3);
+    b.sphere([lamp_base[0], lamp_base[1], 1.26], 0.07, fine, &lamp, 3);
+
+    // fence: two 25 mm rails on three posts, behind the fruit
+    let fence_rgb = [0.9, 0.89, 0.84];
+    let fence =
+        move |p: [f32; 3]| shade(fence_rgb, lum_noise(seed ^ 34, [p[0] * 3.0, p[1], p[2]], 15.0, 0.08));
+    let rail = sp.object.min(0.02);
+    let fence_y = 0.8;
+    for z in [0.22, 0.45] {
+        b.cuboid([0.0, fence_y, z], [0.9, 0.0125, 0.0125], rail, &fence, 4, false);
+    }
+    for x in [-0.85, 0.0, 0.85] {
+        b.cuboid([x, fence_y, 0.28], [0.02, 0.02, 0.28], rail, &fence, 4, true);
+    }
+
+    let objects = vec![
+        object("apple", 1, "red", apple_rgb, "sphere", apple_c),
+        object("tomato", 2, "orange-red", tomato_rgb, "sphere", tomato_c),
+        object("lamp", 3, "black iron with a yellow glass head", iron, "thin pole", lamp_base),
+        object("fence", 4, "white", fence_rgb, "thin rails on posts", [0.0, fence_y, 0.28]),
+    ];
+    finish(
+        "garden",
+        "a red apple, an orange-red tomato, a thin lamp post and a white rail fence on a wide lawn with a \
+         gravel path, in front of a far hedge and sky",
+        "apple",
+        b,
+        objects,
+        config,
+        garden_rig(),
     )
 }

@@ -1,12 +1,13 @@
 //! Built-in benchmark scenes for transsplat: procedural, deterministic 3DGS scenes
 //! built directly as Gaussians, with a label per Gaussian and ground truth.
 //!
-//! - [`catalog`]: the scenes ([`SCENE_NAMES`]: `tabletop`, `occluded`), [`build`],
+//! - [`catalog`]: the scenes ([`SCENE_NAMES`]: `tabletop`, `occluded`, `garden`), [`build`],
 //!   [`Scene`], [`SceneObject`], [`SceneConfig`] (seed, detail, resolution, views).
-//! - [`rig`]: cameras on rings in front of the backdrop looking at the table;
+//! - [`rig`]: cameras on rings in front of the backdrop looking at the scene centre;
 //!   [`is_test`] marks every 8th camera (llffhold = 8).
 //! - [`edit`]: ground-truth edits by label, [`recolor`] and [`retexture`] with a
-//!   [`Material`]; they return new Gaussians.
+//!   [`Material`], and the global [`restyle`] with a [`Style`]; they return new
+//!   Gaussians.
 //! - [`masks`]: per-view label masks and soft masks rendered with the rasterizer.
 //! - [`dataset`]: [`write_dataset`], the folder `transsplat scene NAME --out DIR` writes.
 //! - [`texture`]: the procedural noise and patterns.
@@ -27,7 +28,7 @@ pub use catalog::{
     build, labels_from_extra, with_labels, Scene, SceneConfig, SceneObject, LABEL_PROPERTY, SCENE_NAMES,
 };
 pub use dataset::{write_dataset, DatasetSummary, WriteOptions};
-pub use edit::{recolor, retexture, Material};
+pub use edit::{recolor, restyle, retexture, Material, Style};
 pub use masks::{one_hot, render_labels, LabelRender};
 pub use rig::{is_test, split_views, Rig};
 
@@ -59,6 +60,11 @@ impl Scene {
     pub fn retexture(&self, label: u32, material: Material) -> Result<transsplat_scene::Gaussians, Error> {
         self.check_label(label)?;
         retexture(&self.gaussians, &self.labels, label, material)
+    }
+
+    /// [`restyle`] of this scene's Gaussians (every Gaussian, the background included).
+    pub fn restyle(&self, style: Style) -> Result<transsplat_scene::Gaussians, Error> {
+        restyle(&self.gaussians, style)
     }
 
     fn check_label(&self, label: u32) -> Result<(), Error> {

@@ -35,6 +35,31 @@ impl LabelRender {
         self.labels.iter().map(|&l| l == label).collect()
     }
 
+    /// Binary mask of a set of labels: pixels whose label is one of `labels`.
+    pub fn mask_of(&self, labels: &[u32]) -> Vec<bool> {
+        self.labels.iter().map(|l| labels.contains(l)).collect()
+    }
+
+    /// Blend weight of a set of labels per pixel: w = min(1, Σ_{l ∈ labels} w_l), each
+    /// label counted once (0 where none of them contributes).
+    pub fn weight_of(&self, labels: &[u32]) -> Vec<f32> {
+        let mut out = vec![0.0f32; self.width * self.height];
+        let mut seen: Vec<u32> = Vec::with_capacity(labels.len());
+        for &l in labels {
+            if seen.contains(&l) || l as usize >= self.num_labels {
+                continue;
+            }
+            seen.push(l);
+            for (o, w) in out.iter_mut().zip(self.weights.chunks_exact(self.num_labels)) {
+                *o += w[l as usize];
+            }
+        }
+        for o in out.iter_mut() {
+            *o = o.min(1.0);
+        }
+        out
+    }
+
     /// Number of pixels labelled `label`.
     pub fn area(&self, label: u32) -> usize {
         self.labels.iter().filter(|&&l| l == label).count()
@@ -128,5 +153,31 @@ impl Scene {
     /// Ground-truth label mask of every view.
     pub fn masks(&self) -> Vec<Vec<u32>> {
         (0..self.cameras.len()).filter_map(|i| self.render_view(i)).map(|r| r.labels).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::LabelRender;
+
+    #[test]
+    fn weight_and_mask_of_a_label_set_by_hand() {
+        // two pixels, three labels: weights (0.1, 0.5, 0.3) and (0.0, 0.7, 0.6)
+        let r = LabelRender {
+            width: 2,
+            height: 1,
+            rgb: vec![0.0; 6],
+            alpha: vec![0.9, 1.0],
+            weights: vec![0.1, 0.5, 0.3, 0.0, 0.7, 0.6],
+            num_labels: 3,
+            labels: vec![1, 1],
+        };
+        let w = r.weight_of(&[1, 2]);
+        assert!((w[0] - 0.8).abs() < 1e-6 && w[1] == 1.0, "{w:?}"); // 0.7 + 0.6 clamped
+        assert_eq!(r.weight_of(&[2, 2, 7]), vec![0.3, 0.6], "repeats and unknown labels count nothing");
+        assert_eq!(r.weight_of(&[]), vec![0.0, 0.0]);
+        assert_eq!(r.weight_of(&[1]), r.weight(1));
+        assert_eq!(r.mask_of(&[0, 1]), vec![true, true]);
+        assert_eq!(r.mask_of(&[2]), vec![false, false]);
     }
 }

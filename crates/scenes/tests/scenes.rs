@@ -27,9 +27,14 @@ fn same_seed_gives_byte_identical_ply_and_another_seed_does_not() {
 
 #[test]
 fn sizes_and_label_counts() {
-    for (name, objects) in [("tabletop", 4), ("occluded", 3)] {
+    for (name, objects) in [("tabletop", 4), ("occluded", 3), ("garden", 4)] {
         let s = build(name, &SceneConfig::default()).unwrap();
         let n = s.gaussians.len();
+        eprintln!(
+            "{name}: {n} Gaussians, {:?} per label; quick {:?}",
+            s.label_counts(),
+            quick(name).label_counts()
+        );
         assert!((30_000..=80_000).contains(&n), "{name}: {n} Gaussians");
         assert_eq!(s.objects.len(), objects);
         assert_eq!(s.labels.len(), n);
@@ -59,7 +64,10 @@ fn sizes_and_label_counts() {
 #[test]
 fn unknown_scene_and_bad_config_are_errors() {
     let e = build("kitchen", &SceneConfig::quick()).unwrap_err().to_string();
-    assert!(e.contains("kitchen") && e.contains("tabletop") && e.contains("occluded"), "{e}");
+    assert!(
+        e.contains("kitchen") && e.contains("tabletop") && e.contains("occluded") && e.contains("garden"),
+        "{e}"
+    );
     for cfg in [
         SceneConfig { detail: 0.0, ..SceneConfig::quick() },
         SceneConfig { detail: f32::NAN, ..SceneConfig::quick() },
@@ -119,6 +127,84 @@ fn ball_in_occluded_is_partly_hidden() {
         }
     }
     assert!(hidden * 2 >= s.cameras.len(), "ball occluded in only {hidden} views");
+}
+
+/// Mean diffuse colour of each label's Gaussians.
+fn mean_colours(s: &Scene) -> Vec<[f32; 3]> {
+    let mut sum = vec![[0.0f64; 3]; s.num_labels()];
+    let mut n = vec![0usize; s.num_labels()];
+    for (i, &l) in s.labels.iter().enumerate() {
+        let c = transsplat_scenes::edit::dc_colour(&s.gaussians, i);
+        for k in 0..3 {
+            sum[l as usize][k] += c[k] as f64;
+        }
+        n[l as usize] += 1;
+    }
+    sum.iter().zip(&n).map(|(c, &n)| c.map(|v| (v / n.max(1) as f64) as f32)).collect()
+}
+
+#[test]
+fn garden_has_a_look_alike_a_large_background_and_thin_structures() {
+    let g = quick("garden");
+    let t = quick("tabletop");
+    assert_eq!(g.target, "apple");
+    // the tomato is the object closest in colour to the apple, and close
+    let means = mean_colours(&g);
+    let apple = g.label_of("apple").unwrap();
+    let dist = |l: u32| {
+        (0..3).map(|k| (means[l as usize][k] - means[apple as usize][k]).powi(2)).sum::<f32>().sqrt()
+    };
+    let nearest =
+        g.objects.iter().filter(|o| o.label != apple).min_by(|a, b| dist(a.label).total_cmp(&dist(b.label)));
+    assert_eq!(nearest.unwrap().name, "tomato");
+    assert!(dist(g.label_of("tomato").unwrap()) < 0.25, "{means:?}");
+    // the background takes a larger share of the pixels than on the tabletop
+    let share = |s: &Scene, l: u32| {
+        let (mut hit, mut all) = (0usize, 0usize);
+        for v in 0..s.cameras.len() {
+            let r = s.render_view(v).unwrap();
+            hit += r.area(l);
+            all += r.labels.len();
+        }
+        hit as f64 / all as f64
+    };
+    // (tabletop: 0.905 background, 0.026 ball; garden: 0.934 background, 0.011 apple)
+    let (bg_g, bg_t) = (share(&g, 0), share(&t, 0));
+    assert!(bg_g > 0.92 && bg_g > bg_t + 0.02, "background share: garden {bg_g}, tabletop {bg_t}");
+    let (ta_g, ta_t) = (share(&g, apple), share(&t, t.label_of("ball").unwrap()));
+    assert!(ta_g < 0.6 * ta_t, "target share: garden {ta_g}, tabletop {ta_t}");
+    // the lamp and the fence are thin: the median length of their runs of pixels along
+    // a row (lamp: a vertical pole) or a column (fence: horizontal rails) is at most 4
+    // pixels, while the apple's is more than 6
+    let median_run = |l: u32, by_row: bool| {
+        let mut runs = Vec::new();
+        for v in 0..g.cameras.len() {
+            let r = g.render_view(v).unwrap();
+            let (lines, len) = if by_row { (r.height, r.width) } else { (r.width, r.height) };
+            for a in 0..lines {
+                let at = |b: usize| if by_row { a * r.width + b } else { b * r.width + a };
+                let mut run = 0;
+                for b in 0..=len {
+                    if b < len && r.labels[at(b)] == l {
+                        run += 1;
+                    } else if run > 0 {
+                        runs.push(run);
+                        run = 0;
+                    }
+                }
+            }
+        }
+        runs.sort_unstable();
+        runs.get(runs.len() / 2).copied().unwrap_or(0)
+    };
+    let lamp = median_run(g.label_of("lamp").unwrap(), true);
+    let fence = median_run(g.label_of("fence").unwrap(), false);
+    eprintln!("lamp {lamp} px, fence {fence} px, apple {} px", median_run(apple, true));
+    assert!((1..=4).contains(&lamp) && (1..=4).contains(&fence), "lamp {lamp} px, fence {fence} px");
+    assert!(median_run(apple, true) > 6, "apple {} px", median_run(apple, true));
+    // the cameras orbit wider and farther than the tabletop's
+    let reach = |s: &Scene| s.cameras.iter().map(|c| c.centre()[0].abs()).fold(0f32, f32::max);
+    assert!(reach(&g) > 1.5 * reach(&t), "{} vs {}", reach(&g), reach(&t));
 }
 
 #[test]

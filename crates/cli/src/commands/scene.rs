@@ -9,7 +9,7 @@ use transsplat_scenes::{build, write_dataset, SceneConfig, WriteOptions};
 /// Arguments of `transsplat scene`.
 #[derive(clap::Args, Debug)]
 pub struct BuiltinSceneArgs {
-    /// Scene name: tabletop or occluded.
+    /// Scene name: tabletop, occluded or garden.
     pub name: String,
     /// Output folder: missing, empty or an earlier scene dataset (replaced), unless --force;
     /// it appears only when the whole dataset is written.

@@ -83,7 +83,7 @@ def load_ply(path: PathLike) -> Dict[str, Any]:
 
 
 def builtin_scene(name: str, out: PathLike, quick: bool = False, seed: int = 0) -> str:
-    """Writes a built-in benchmark scene (``"tabletop"``, ``"occluded"``) as a dataset
+    """Writes a built-in benchmark scene (``"tabletop"``, ``"occluded"``, ``"garden"``) as a dataset
     folder, as ``transsplat scene NAME --out DIR [--quick]`` does: the scene in the
     INRIA layout with ``cameras.json``, its renders, label masks, ``labels.json`` and a
     COLMAP text model. Returns ``out``. The folder must not exist or be empty, or hold
