@@ -121,7 +121,7 @@ fn quick_demo_writes_metrics_for_every_method_and_transsplat_leaks_less_than_nai
     ok(&bin().args(["demo", "--quick", "--out"]).arg(&out).output().unwrap());
     let m: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
-    for name in ["transsplat", "naive", "masklift", "no_leaksup", "no_prototype", "geometric"] {
+    for name in ["transsplat", "paper", "naive", "masklift", "no_leaksup", "no_prototype", "geometric"] {
         let e = &m["methods"][name];
         for k in ["target_psnr", "background_psnr", "psnr", "ssim", "seconds"] {
             assert!(e[k].as_f64().is_some_and(f64::is_finite), "{name}.{k}");

@@ -12,8 +12,12 @@ use std::path::Path;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Method {
-    /// The full TransSplat method.
+    /// The full TransSplat method (this tool's default formulation: evidence-mass
+    /// balancing, visibility agreement, the colour gate).
     Transsplat,
+    /// TransSplat as the paper writes it: Σ b = 1, the residual ω-weighted over the
+    /// supported views, L_leak as the only suppression (docs/method.md#m6-residual-and-gate).
+    Paper,
     /// Image loss only, every Gaussian free (Instruct-GS2GS / IN2N style).
     Naive,
     /// GaussianEditor style: the 2D mask lifted by splat-back and a threshold;
@@ -29,8 +33,9 @@ pub enum Method {
 
 impl Method {
     /// All methods, in report order.
-    pub const ALL: [Method; 6] = [
+    pub const ALL: [Method; 7] = [
         Method::Transsplat,
+        Method::Paper,
         Method::Naive,
         Method::Masklift,
         Method::NoLeaksup,
@@ -42,6 +47,7 @@ impl Method {
     pub fn name(self) -> &'static str {
         match self {
             Method::Transsplat => "transsplat",
+            Method::Paper => "paper",
             Method::Naive => "naive",
             Method::Masklift => "masklift",
             Method::NoLeaksup => "no_leaksup",
@@ -57,7 +63,15 @@ impl Method {
     /// The settings this method implies (an ablation zeroes some weights).
     pub fn implied(self, cfg: &mut EditConfig) {
         match self {
-            Method::NoLeaksup => cfg.loss.leak = 0.0,
+            Method::NoLeaksup => {
+                cfg.loss.leak = 0.0;
+                cfg.loss.colour_gate = 0.0;
+            }
+            Method::Paper => {
+                cfg.transport.evidence_mass = false;
+                cfg.fusion.agreement = crate::gate::Agreement::Transport;
+                cfg.loss.colour_gate = 0.0;
+            }
             Method::Geometric => {
                 cfg.transport.lambda_sem = 0.0;
                 cfg.transport.lambda_app = 0.0;
@@ -79,11 +93,13 @@ pub struct FusionConfig {
     pub min_support: f32,
     /// τ_r: gate temperature on the relative residual.
     pub tau_r: f32,
+    /// How per-view residuals are combined across views ([`crate::gate::Agreement`]).
+    pub agreement: crate::gate::Agreement,
 }
 
 impl Default for FusionConfig {
     fn default() -> Self {
-        FusionConfig { rho: 0.1, ema: 0.5, min_support: 1e-3, tau_r: 0.25 }
+        FusionConfig { rho: 0.1, ema: 0.5, min_support: 1e-3, tau_r: 0.25, agreement: Default::default() }
     }
 }
 
@@ -101,11 +117,14 @@ pub struct LossConfig {
     pub uot: f32,
     /// λ_leak.
     pub leak: f32,
+    /// The image loss's colour gradients are kept only where γ ≥ this (the gated
+    /// region; `transsplat::gate_colour_gradients`); 0 = off (the paper).
+    pub colour_gate: f32,
 }
 
 impl Default for LossConfig {
     fn default() -> Self {
-        LossConfig { img: 1.0, dssim: 0.0, sem: 1.0, uot: 0.1, leak: 0.1 }
+        LossConfig { img: 1.0, dssim: 0.0, sem: 1.0, uot: 0.1, leak: 0.1, colour_gate: 0.5 }
     }
 }
 
@@ -258,9 +277,8 @@ impl EditConfig {
     ) -> Result<Self, String> {
         let mut c = match method {
             Some(m) => self.for_method(Method::parse(m).ok_or_else(|| {
-                format!(
-                    "unknown method {m:?}; expected transsplat, naive, masklift, no_leaksup, no_prototype or geometric"
-                )
+                let names: Vec<&str> = Method::ALL.iter().map(|m| m.name()).collect();
+                format!("unknown method {m:?}; expected one of {}", names.join(", "))
             })?),
             None => self.clone(),
         };
@@ -283,7 +301,7 @@ impl EditConfig {
     /// Checks ranges; the message names the offending key.
     pub fn validate(&self) -> Result<(), String> {
         let t = &self.transport;
-        let checks: [(&str, bool); 12] = [
+        let checks: [(&str, bool); 13] = [
             ("semantic_dim", self.semantic_dim > 0 && self.semantic_dim <= 256),
             ("prototypes.count", self.prototypes.count > 0),
             ("prototypes.threshold", (0.0..=1.0).contains(&self.prototypes.threshold)),
@@ -294,6 +312,7 @@ impl EditConfig {
             ("fusion.rho", self.fusion.rho >= 0.0),
             ("fusion.ema", (0.0..1.0).contains(&self.fusion.ema)),
             ("fusion.tau_r", self.fusion.tau_r > 0.0),
+            ("loss.colour_gate", (0.0..=1.0).contains(&self.loss.colour_gate)),
             ("schedule.steps", self.schedule.steps > 0),
             ("schedule.transport_every", self.schedule.transport_every > 0),
         ];

@@ -2,18 +2,67 @@
 //!
 //! Relative residual per view r_i^v = [1 − w_i^v / a_i^v]_+ ∈ [0, 1] (the paper's
 //! absolute residual scales with 1/|visible set|, which would tie τ_r to the scene).
-//! Across views: over the supported views V(i) the residual is ω-weighted; every
-//! visible view without support counts as r = 1, in proportion to the source mass the
-//! Gaussian has there (a view where it is barely visible weighs little):
-//! r_i = f_i Σ_{v∈V(i)} ω_i^v r_i^v + (1 − f_i),  f_i = Σ_{v∈V(i)} a_i^v / Σ_{v∈Vis(i)} a_i^v,
-//! so a Gaussian seen but never supported is suppressed. γ_i = exp(−r_i / τ_r).
-//! Gaussians visible in no view get r = 1.
+//! Two ways to aggregate it across views ([`Agreement`]):
+//!
+//! - [`Agreement::Visibility`] (default): every view that sees the Gaussian has a say
+//!   in proportion to the source mass it has there,
+//!   r_i = [1 − Σ_{v∈Vis(i)} ŵ_i^v / Σ_{v∈Vis(i)} a_i^v]_+, with ŵ the view's
+//!   evidence shares ([`ViewTransport::evidence_shares`]: w rescaled so that the view
+//!   hands out its evidence mass B_v),
+//!   so support in one view cannot outvote the views that see the Gaussian well and
+//!   leave it unsupported (a 2D editor's spill or blob lands on different Gaussians in
+//!   different views; the target is supported wherever it is seen).
+//! - [`Agreement::Transport`] (the paper's App. A.4: "the same normalized weights as
+//!   the canonical fusion"): over the supported views V(i) the residual is ω-weighted,
+//!   ω ∝ w, and every visible view without support counts as r = 1 in proportion to
+//!   its source mass: r_i = f_i Σ_{v∈V(i)} ω_i^v r_i^v + (1 − f_i),
+//!   f_i = Σ_{v∈V(i)} a_i^v / Σ_{v∈Vis(i)} a_i^v. Weighting by w lets the one view that
+//!   supports a Gaussian most decide for it.
+//!
+//! γ_i = exp(−r_i / τ_r). Gaussians visible in no view get r = 1.
 
 use crate::fusion::is_supported;
 use crate::view::ViewTransport;
+use serde::{Deserialize, Serialize};
+
+/// How per-view residuals are combined across views (see the module doc).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Agreement {
+    /// Weighted by the source mass in each view that sees the Gaussian.
+    #[default]
+    Visibility,
+    /// Weighted by the transported mass over the supported views (the paper).
+    Transport,
+}
 
 /// Per-Gaussian aggregated relative residual r_i ∈ [0, 1].
-pub fn residuals(n: usize, views: &[ViewTransport], min_support: f32) -> Vec<f32> {
+pub fn residuals(n: usize, views: &[ViewTransport], min_support: f32, agreement: Agreement) -> Vec<f32> {
+    match agreement {
+        Agreement::Visibility => visibility_residuals(n, views),
+        Agreement::Transport => transport_residuals(n, views, min_support),
+    }
+}
+
+/// r_i = [1 − Σ_v ŵ_i^v / Σ_v a_i^v]_+ over the views that see i; 1 if none does.
+pub fn visibility_residuals(n: usize, views: &[ViewTransport]) -> Vec<f32> {
+    let (mut w, mut a) = (vec![0.0f64; n], vec![0.0f64; n]);
+    for v in views {
+        for ((&i, &sk), &ak) in v.idx.iter().zip(&v.relative_support()).zip(&v.a) {
+            if (i as usize) < n {
+                w[i as usize] += (sk * ak) as f64;
+                a[i as usize] += ak as f64;
+            }
+        }
+    }
+    w.iter()
+        .zip(&a)
+        .map(|(&w, &a)| if a > 0.0 { (1.0 - w / a).clamp(0.0, 1.0) as f32 } else { 1.0 })
+        .collect()
+}
+
+/// The paper's ω-weighted aggregation over supported views (module doc).
+fn transport_residuals(n: usize, views: &[ViewTransport], min_support: f32) -> Vec<f32> {
     let mut sum_w = vec![0.0f32; n];
     let mut sum_wr = vec![0.0f32; n];
     let mut seen = vec![0.0f32; n];
@@ -52,8 +101,10 @@ pub fn gate(residual: &[f32], tau_r: f32) -> Vec<f32> {
 mod tests {
     use super::*;
 
+    /// A view whose plan hands out exactly its target mass (Σ w = B_v).
     fn view(idx: Vec<u32>, a: Vec<f32>, w: Vec<f32>) -> ViewTransport {
-        ViewTransport { idx, a, w, ..Default::default() }
+        let target_mass = w.iter().sum();
+        ViewTransport { idx, a, w, target_mass, ..Default::default() }
     }
 
     #[test]
@@ -65,13 +116,31 @@ mod tests {
         // Gaussian 2: never visible → 1. Gaussian 3: visible, never supported → 1.
         let v1 = view(vec![0, 1, 3, 4], vec![0.2, 0.1, 0.3, 0.3], vec![0.2, 0.3, 0.0, 0.4]);
         let v2 = view(vec![0, 1, 4], vec![0.2, 0.1, 0.1], vec![0.1, 0.0, 0.0]);
-        let r = residuals(5, &[v1, v2], 1e-3);
+        let r = residuals(5, &[v1.clone(), v2.clone()], 1e-3, Agreement::Transport);
         // Gaussian 4: supported (r = 0) where its mass is 0.3, unsupported where 0.1 → r = 0.25.
         let want = [1.0 / 6.0, 0.5, 1.0, 1.0, 0.25];
         for (a, b) in r.iter().zip(want) {
             assert!((a - b).abs() < 1e-6, "{r:?}");
         }
-        let g = gate(&r, 0.5);
+        // By visibility, with the relative support σ of each view:
+        // view A: a (0.5, 0.3, 0.2), w (1.0, 0.3, 0.05), B 0.5 → ρ (2, 1, 0.25); the
+        //   best-ranked source alone holds B, so t = 2 and σ = (1, 0.5, 0.125);
+        // view B: Gaussians 0 and 2 with a (0.4, 0.6), w (0, 0.6), B 0.6 → t = 1, σ = (0, 1).
+        // r = 1 − Σ σa / Σ a: G0 1 − 0.5/0.9; G1 1 − 0.15/0.3; G2 1 − 0.625/0.8; G3 unseen 1.
+        let mut va = view(vec![0, 1, 2], vec![0.5, 0.3, 0.2], vec![1.0, 0.3, 0.05]);
+        va.target_mass = 0.5;
+        let vb = view(vec![0, 2], vec![0.4, 0.6], vec![0.0, 0.6]);
+        let r = residuals(4, &[va, vb], 1e-3, Agreement::Visibility);
+        let want = [1.0 - 0.5 / 0.9, 0.5, 1.0 - 0.625 / 0.8, 1.0];
+        for (a, b) in r.iter().zip(want) {
+            assert!((a - b).abs() < 1e-6, "{r:?}");
+        }
+        // A plan that moved less than its target mass: σ depends only on the ranking.
+        let mut v3 = view(vec![0, 1], vec![0.4, 0.6], vec![0.1, 0.0]);
+        v3.target_mass = 0.2;
+        let r = residuals(2, &[v3], 1e-3, Agreement::Visibility);
+        assert!(r[0].abs() < 1e-6 && (r[1] - 1.0).abs() < 1e-6, "{r:?}");
+        let g = gate(&[1.0 / 6.0, 0.0, 1.0], 0.5);
         assert!((g[0] - (-1.0f32 / 3.0).exp()).abs() < 1e-6);
         assert!((g[2] - (-2.0f32).exp()).abs() < 1e-6);
     }

@@ -27,23 +27,38 @@ pub struct RoundStats {
     pub seconds: f64,
 }
 
-/// One edit view as a transport round sees it: its camera, appearance plane Φ_v and
-/// prototypes (empty when the view carries no evidence).
+/// One edit view as a transport round sees it: its camera, appearance plane Φ_v,
+/// support plane 1_Ω (`H × W`; empty: unknown) and prototypes (empty when the view
+/// carries no evidence).
 pub struct RoundView<'a> {
     pub cam: &'a Camera,
     pub appearance: &'a [f32],
     pub d_app: usize,
+    pub support: &'a [f32],
     pub prototypes: &'a Prototypes,
 }
 
 /// The source side of one view's transport: visible Gaussians, masses a_i^v,
-/// projected means and normalised appearance descriptors φ_i^v.
+/// projected means, normalised appearance descriptors φ_i^v and the share ω_i^v of
+/// each one's blend weight inside the support Ω (empty when the support is unknown).
 #[derive(Clone, Debug, Default)]
 pub struct ViewSources {
     pub idx: Vec<u32>,
     pub a: Vec<f32>,
     pub m2d: Vec<[f32; 2]>,
     pub phi: Vec<f32>,
+    pub omega: Vec<f32>,
+}
+
+/// The appearance plane with the support plane appended as one more channel, so one
+/// splat-back pass lifts both.
+fn with_support(appearance: &[f32], d_app: usize, support: &[f32]) -> Vec<f32> {
+    let mut out = Vec::with_capacity(support.len() * (d_app + 1));
+    for (p, &o) in support.iter().enumerate() {
+        out.extend_from_slice(&appearance[p * d_app..(p + 1) * d_app]);
+        out.push(o);
+    }
+    out
 }
 
 /// The source side of every view (empty for views without prototypes), from one
@@ -57,16 +72,27 @@ pub fn view_sources(g: &Gaussians, views: &[RoundView]) -> Vec<ViewSources> {
             if v.prototypes.is_empty() {
                 return ViewSources::default();
             }
-            let st = gaussian_stats(&splats, v.cam, Some((v.appearance, v.d_app)));
+            let has_support = !v.support.is_empty();
+            let plane = has_support.then(|| with_support(v.appearance, v.d_app, v.support));
+            let (img, ch) = match &plane {
+                Some(p) => (p.as_slice(), v.d_app + 1),
+                None => (v.appearance, v.d_app),
+            };
+            let st = gaussian_stats(&splats, v.cam, Some((img, ch)));
             let (idx, a) = view::source_masses(&st.visibility, &opacity);
             let m2d: Vec<[f32; 2]> = idx.iter().map(|&i| st.means2d[i as usize]).collect();
             let mut phi: Vec<f32> = Vec::with_capacity(idx.len() * v.d_app);
+            let mut omega = Vec::new();
             for &i in &idx {
-                let mut p = st.splat[i as usize * v.d_app..(i as usize + 1) * v.d_app].to_vec();
+                let row = &st.splat[i as usize * ch..(i as usize + 1) * ch];
+                let mut p = row[..v.d_app].to_vec();
                 crate::normalize(&mut p, 1e-8);
                 phi.extend(p);
+                if has_support {
+                    omega.push(row[v.d_app]);
+                }
             }
-            ViewSources { idx, a, m2d, phi }
+            ViewSources { idx, a, m2d, phi, omega }
         })
         .collect()
 }
@@ -94,6 +120,7 @@ pub fn solve_views(
                 .iter()
                 .flat_map(|&i| s[i as usize * d..(i as usize + 1) * d].iter().copied())
                 .collect();
+            let b = view::evidence_masses(&src.a, &src.omega, &src.m2d, v.prototypes, cfg);
             let mut t = view::transport(
                 src.idx.clone(),
                 src.a.clone(),
@@ -101,6 +128,7 @@ pub fn solve_views(
                 &sv,
                 &src.phi,
                 v.prototypes,
+                &b,
                 diag(v.cam),
                 cfg,
             )?;
@@ -127,18 +155,11 @@ impl TransportState {
     }
 
     /// The transported support of each Gaussian over the last round's views,
-    /// `Σ_v w_i^v / Σ_v a_i^v` in [0, 1] (0 where no view saw it): the share of its
-    /// source mass that the view plans moved to the edit's prototypes.
+    /// `Σ_v ŵ_i^v / Σ_v a_i^v` in [0, 1] (0 where no view saw it; ŵ the evidence
+    /// shares, [`ViewTransport::evidence_shares`]): 1 − the visibility-weighted
+    /// residual of [`gate`].
     pub fn support(&self) -> Vec<f32> {
-        let n = self.gamma.len();
-        let (mut w, mut a) = (vec![0.0f64; n], vec![0.0f64; n]);
-        for v in &self.cached {
-            for (k, &i) in v.idx.iter().enumerate().filter(|(_, &i)| (i as usize) < n) {
-                w[i as usize] += v.w[k] as f64;
-                a[i as usize] += v.a[k] as f64;
-            }
-        }
-        w.iter().zip(&a).map(|(&w, &a)| if a > 0.0 { (w / a).clamp(0.0, 1.0) as f32 } else { 0.0 }).collect()
+        gate::visibility_residuals(self.gamma.len(), &self.cached).iter().map(|r| 1.0 - r).collect()
     }
 
     /// Fuses this round's view plans into z̄ and γ (Theorem 1, EMA, gate) for the
@@ -149,7 +170,7 @@ impl TransportState {
         let acc = accumulate(n, d, &plans, f.min_support);
         let z = canonical_targets(&acc, s, f.rho);
         self.zbar = Some(ema(self.zbar.as_deref(), &z, f.ema));
-        self.gamma = gate::gate(&gate::residuals(n, &plans, f.min_support), f.tau_r);
+        self.gamma = gate::gate(&gate::residuals(n, &plans, f.min_support, f.agreement), f.tau_r);
         self.cached = plans;
         let v = &self.cached;
         RoundStats {

@@ -33,6 +33,10 @@ pub struct TransportConfig {
     pub top_k: usize,
     /// δ in y_i = Σ T e / (Σ T + δ).
     pub delta: f32,
+    /// Evidence-mass balancing ([`evidence_masses`]; docs/method.md#m4-the-uot-solver):
+    /// each prototype's mass is the source mass its region covers, instead of its share
+    /// of the attention with Σ b = 1 (the paper's App. A.1 normalisation).
+    pub evidence_mass: bool,
 }
 
 impl Default for TransportConfig {
@@ -50,6 +54,7 @@ impl Default for TransportConfig {
             // Gaussians get no support and the gate closes on them). See README.
             top_k: 0,
             delta: 1e-8,
+            evidence_mass: true,
         }
     }
 }
@@ -138,10 +143,84 @@ pub struct ViewTransport {
     pub dual: f64,
     pub gap: f64,
     pub transported_mass: f64,
+    /// The prototypes' total mass B_v = Σ_m b_m ([`evidence_masses`]).
+    pub target_mass: f32,
+}
+
+impl ViewTransport {
+    /// Each source's support relative to the view's evidence, σ_i^v ∈ [0, 1]. The
+    /// view claims the source mass B_v ([`evidence_masses`]); the plan ranks the sources
+    /// by their relative support ρ_i = w_i / a_i. The threshold t_v is the ρ at which
+    /// the best-ranked sources' cumulative mass reaches B_v, and σ_i = min(1, ρ_i / t_v):
+    /// 1 for the sources that together hold the claimed mass, less in proportion for
+    /// the rest. Unlike raw ρ this does not depend on how much mass the relaxed
+    /// marginals let the plan move, nor on how much it smears at a given ε: only on
+    /// the plan's ranking and the evidence's mass. With B_v ≥ Σ a every source gets 1
+    /// (a global edit).
+    pub fn relative_support(&self) -> Vec<f32> {
+        let rho: Vec<f32> =
+            self.w.iter().zip(&self.a).map(|(&w, &a)| if a > 0.0 { w / a } else { 0.0 }).collect();
+        let mut order: Vec<usize> = (0..rho.len()).collect();
+        order.sort_by(|&i, &j| rho[j].total_cmp(&rho[i]));
+        let (mut cum, mut t) = (0.0f64, 0.0f32);
+        for &i in &order {
+            t = rho[i];
+            cum += self.a[i] as f64;
+            if cum >= self.target_mass as f64 {
+                break;
+            }
+        }
+        if t <= 0.0 {
+            return rho.iter().map(|&r| if r > 0.0 { 1.0 } else { 0.0 }).collect();
+        }
+        rho.iter().map(|&r| (r / t).min(1.0)).collect()
+    }
+}
+/// The prototypes' masses under evidence-mass balancing: b_m = Σ_{i→m} a_i^v ω_i^v,
+/// the source mass that prototype m's region covers. ω_i^v ∈ [0, 1] is the share of
+/// Gaussian i's blend weight inside the support Ω (splat-back of 1_Ω) and i → m
+/// assigns each covered source to the prototype with the nearest centre u_m (the
+/// regions are the k-means cells of Ω). A prototype that covers no source keeps
+/// 10⁻⁶ of the total. Returns the paper's b (Σ b = 1, App. A.1) when balancing is off
+/// or the coverage is unknown (`omega` empty).
+///
+/// *Why:* a_i is a share of the view's Gaussians (visibility × opacity), b_m a share of
+/// the attention's pixels: the units differ, and with Σ a = Σ b = 1 and a nearly hard
+/// target marginal the plan must draw a whole unit of mass from the sources however
+/// little of the scene the edit covers. When the edited object holds 5% of the source
+/// mass, the rest is pulled from its neighbours, and prototypes over sparse regions
+/// (a spill ring on a table of large Gaussians) pull hardest: leakage made by the
+/// marginals. With b in source mass the plan can be nearly balanced region by region,
+/// and a global edit (Ω everywhere) keeps b ≈ a.
+pub fn evidence_masses(
+    a: &[f32],
+    omega: &[f32],
+    means2d: &[[f32; 2]],
+    protos: &Prototypes,
+    cfg: &TransportConfig,
+) -> Vec<f32> {
+    if !cfg.evidence_mass || omega.is_empty() || protos.is_empty() {
+        return protos.b.clone();
+    }
+    let mut b = vec![0.0f64; protos.len()];
+    for ((&ai, &oi), p) in a.iter().zip(omega).zip(means2d) {
+        if oi <= 0.0 {
+            continue;
+        }
+        let d2 = |u: &[f32; 2]| (p[0] - u[0]).powi(2) + (p[1] - u[1]).powi(2);
+        let nearest = (0..protos.len()).min_by(|&j, &k| d2(&protos.u[j]).total_cmp(&d2(&protos.u[k])));
+        b[nearest.expect("prototypes exist")] += ai as f64 * oi.min(1.0) as f64;
+    }
+    let total: f64 = b.iter().sum();
+    if total <= 0.0 {
+        return protos.b.clone();
+    }
+    b.iter().map(|&x| x.max(1e-6 * total) as f32).collect()
 }
 
 /// Solves view v's transport (paper eq. (5)) and returns w, y and the statistics.
-/// `means2d`, `s`, `phi` are per visible Gaussian (aligned with `idx`, `a`).
+/// `means2d`, `s`, `phi` are per visible Gaussian (aligned with `idx`, `a`); `b` are
+/// the prototypes' masses ([`evidence_masses`]).
 #[allow(clippy::too_many_arguments)]
 pub fn transport(
     idx: Vec<u32>,
@@ -150,6 +229,7 @@ pub fn transport(
     s: &[f32],
     phi: &[f32],
     protos: &Prototypes,
+    b: &[f32],
     diag: f32,
     cfg: &TransportConfig,
 ) -> Result<ViewTransport, transsplat_transport::Error> {
@@ -166,7 +246,7 @@ pub fn transport(
         });
     }
     let c = cost(means2d, s, phi, protos, diag, cfg);
-    let p = Problem::top_k(&a, &protos.b, &c, cfg.top_k)?;
+    let p = Problem::top_k(&a, b, &c, cfg.top_k)?;
     let mut params = Params::new(cfg.eps, cfg.tau_s, cfg.tau_t);
     params.max_iters = cfg.iters;
     let sol = solve(&p, &params)?;
@@ -187,6 +267,7 @@ pub fn transport(
         dual: sol.stats.dual,
         gap: sol.stats.gap,
         transported_mass: sol.stats.transported_mass,
+        target_mass: b.iter().sum(),
     })
 }
 
@@ -199,6 +280,24 @@ mod tests {
         let (idx, a) = source_masses(&[1.0, 0.0, 0.5, 0.25], &[0.5, 0.9, 1.0, 0.0]);
         assert_eq!(idx, vec![0, 2]);
         assert!((a[0] - 0.5).abs() < 1e-6 && (a[1] - 0.5).abs() < 1e-6);
+    }
+
+    #[test]
+    fn evidence_masses_by_hand() {
+        // Prototypes at x = 0 and x = 10 (paper masses 0.9, 0.1). Sources at x = 1, 2, 9, 20
+        // with a = (0.1, 0.2, 0.3, 0.4) and coverage ω = (1, 0.5, 1, 0): the first two go
+        // to prototype 0 (0.1 + 0.1), the third to prototype 1 (0.3), the last is uncovered.
+        let protos = Prototypes { u: vec![[0.0, 0.0], [10.0, 0.0]], b: vec![0.9, 0.1], ..Default::default() };
+        let a = [0.1, 0.2, 0.3, 0.4];
+        let m2d = [[1.0, 0.0], [2.0, 0.0], [9.0, 0.0], [20.0, 0.0]];
+        let omega = [1.0, 0.5, 1.0, 0.0];
+        let cfg = TransportConfig::default();
+        let b = evidence_masses(&a, &omega, &m2d, &protos, &cfg);
+        assert!((b[0] - 0.2).abs() < 1e-6 && (b[1] - 0.3).abs() < 1e-6, "{b:?}");
+        // Off, or without coverage: the paper's masses.
+        let off = TransportConfig { evidence_mass: false, ..Default::default() };
+        assert_eq!(evidence_masses(&a, &omega, &m2d, &protos, &off), vec![0.9, 0.1]);
+        assert_eq!(evidence_masses(&a, &[], &m2d, &protos, &cfg), vec![0.9, 0.1]);
     }
 
     #[test]
@@ -235,7 +334,7 @@ mod tests {
         let phi = [1.0, 1.0, 1.0];
         let a = vec![1.0 / 3.0; 3];
         let cfg = TransportConfig { top_k: 0, ..Default::default() };
-        let vt = transport(vec![0, 1, 2], a, &m2d, &s, &phi, &protos, 141.4, &cfg).unwrap();
+        let vt = transport(vec![0, 1, 2], a, &m2d, &s, &phi, &protos, &protos.b, 141.4, &cfg).unwrap();
         assert!(vt.w[0] > 0.2 && vt.w[1] > 0.2, "{:?}", vt.w);
         assert!(vt.w[2] < 0.01 * vt.w[0], "{:?}", vt.w);
         // y of Gaussian 0 points to prototype 0's semantics.

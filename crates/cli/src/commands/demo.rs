@@ -27,7 +27,7 @@ pub struct DemoArgs {
     /// Severity of the simulated editor's failures (0 = perfect edits).
     #[arg(long, value_parser = super::common::finite_f32, default_value_t = 1.0)]
     pub severity: f32,
-    /// Methods to run (comma-separated): transsplat, naive, masklift, no_leaksup, no_prototype, geometric.
+    /// Methods to run (comma-separated): transsplat, paper, naive, masklift, no_leaksup, no_prototype, geometric.
     #[arg(long, value_delimiter = ',')]
     pub methods: Option<Vec<String>>,
     /// TOML file of edit settings (see `EditConfig`).

@@ -4,8 +4,9 @@
 //! a module, a variant of [`Method`] (a setting, in [`crate::config`]) and its arm in
 //! [`part`].
 //!
-//! - [`transsplat`]: the full method (transport rounds, L_sem, L_uot, L_leak, gated
-//!   densification) and its ablations `no_leaksup`, `no_prototype`, `geometric`.
+//! - [`transsplat`]: the full method (transport rounds, L_sem, L_uot, L_leak, the
+//!   colour gate, gated densification), its ablations `no_leaksup`, `no_prototype`,
+//!   `geometric`, and `paper`, the paper's own formulation of the gate.
 //! - [`naive`]: L_img only, every Gaussian free (Instruct-GS2GS / IN2N style).
 //! - [`masklift`]: GaussianEditor style: the 2D masks lifted and thresholded, colour
 //!   gradients masked outside.
@@ -29,7 +30,9 @@ use transsplat_train::{Reindex, Trainer};
 pub fn part(cfg: &EditConfig) -> Box<dyn EditMethod> {
     use transsplat::{Prototyping, TransSplat};
     match cfg.method {
-        Method::Transsplat | Method::Geometric => Box::new(TransSplat::new(cfg, Prototyping::Regions, true)),
+        Method::Transsplat | Method::Paper | Method::Geometric => {
+            Box::new(TransSplat::new(cfg, Prototyping::Regions, true))
+        }
         Method::NoLeaksup => Box::new(TransSplat::new(cfg, Prototyping::Regions, false)),
         Method::NoPrototype => Box::new(TransSplat::new(cfg, Prototyping::Pixels, true)),
         Method::Naive => Box::new(naive::Naive),

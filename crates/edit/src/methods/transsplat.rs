@@ -39,6 +39,8 @@ pub struct TransSplat {
     gated_densify: bool,
     /// Prototypes of each usable view.
     prototypes: Vec<Prototypes>,
+    /// Support plane 1_Ω of each usable view (for evidence-mass balancing).
+    supports: Vec<Vec<f32>>,
     /// The leakage reference c⁽⁰⁾: every SH coefficient of the source scene, `kc`
     /// values per Gaussian.
     sh0: Vec<f32>,
@@ -57,6 +59,7 @@ impl TransSplat {
             prototyping,
             gated_densify,
             prototypes: Vec::new(),
+            supports: Vec::new(),
             sh0: Vec::new(),
             kc: 0,
             transport: TransportState::new(0),
@@ -76,11 +79,12 @@ impl TransSplat {
         let views: Vec<RoundView> = ctx
             .views
             .iter()
-            .zip(&self.prototypes)
-            .map(|(v, p)| RoundView {
+            .zip(self.prototypes.iter().zip(&self.supports))
+            .map(|(v, (p, sup))| RoundView {
                 cam: &ctx.cameras[v.cam],
                 appearance: &v.appearance,
                 d_app: v.d_app,
+                support: sup,
                 prototypes: p,
             })
             .collect();
@@ -105,6 +109,10 @@ impl EditMethod for TransSplat {
         };
         let count = protos.len();
         self.prototypes.push(protos);
+        // The support plane 1_Ω, for evidence-mass balancing.
+        let needed = self.cfg.transport.evidence_mass && count > 0;
+        let omega = if needed { prototypes::view_support(ev, p).0 } else { Vec::new() };
+        self.supports.push(omega.into_iter().map(|o| o as u8 as f32).collect());
         count
     }
 
@@ -135,12 +143,16 @@ impl EditMethod for TransSplat {
         Ok(Some(stats))
     }
 
-    /// L_sem towards z̄ (after the first round), L_uot through the step view's plan
-    /// (one view per step like L_img: an unbiased estimate of the mean over views),
-    /// and L_leak towards the source colours.
+    /// The colour gradients of L_img kept only in the gated region (γ ≥
+    /// `loss.colour_gate`, when on), then L_sem towards z̄ (after the first round),
+    /// L_uot through the step view's plan (one view per step like L_img: an unbiased
+    /// estimate of the mean over views), and L_leak towards the source colours.
     fn add_gradients(&self, tr: &Trainer, view: &ViewData, grads: &mut Grads, rec: &mut StepLosses) {
         let (s, d) = (&tr.model.features, tr.model.num_features);
         let (t, l) = (&self.transport, &self.cfg.loss);
+        if l.colour_gate > 0.0 {
+            gate_colour_gradients(&mut grads.sh, &t.gamma, self.kc, l.colour_gate);
+        }
         if let Some(z) = &t.zbar {
             rec.sem = losses::semantic(s, z, &t.gamma, d, l.sem, &mut grads.features);
         }
@@ -150,8 +162,15 @@ impl EditMethod for TransSplat {
             rec.uot = l.uot as f64 * v.objective;
         }
         if l.leak > 0.0 {
-            rec.leak =
-                losses::leakage(&tr.model.gaussians.sh, &self.sh0, &t.gamma, self.kc, l.leak, &mut grads.sh);
+            let sh = &tr.model.gaussians.sh;
+            rec.leak = if l.colour_gate > 0.0 {
+                // Inside the gated region the Gaussian is free; L_leak anchors the rest.
+                let outside: Vec<f32> =
+                    t.gamma.iter().map(|&g| if g >= l.colour_gate { 1.0 } else { g }).collect();
+                losses::leakage(sh, &self.sh0, &outside, self.kc, l.leak, &mut grads.sh)
+            } else {
+                losses::leakage(sh, &self.sh0, &t.gamma, self.kc, l.leak, &mut grads.sh)
+            };
         }
     }
 
@@ -184,7 +203,10 @@ impl EditMethod for TransSplat {
                 .f32(format!("cached.{k}.w"), &v.w[..])
                 .f32(format!("cached.{k}.y"), &v.y[..])
                 .f32(format!("cached.{k}.plan_e"), &v.plan_e[..])
-                .f64(format!("cached.{k}.stats"), vec![v.objective, v.dual, v.gap, v.transported_mass]);
+                .f64(
+                    format!("cached.{k}.stats"),
+                    vec![v.objective, v.dual, v.gap, v.transported_mass, v.target_mass as f64],
+                );
         }
     }
 
@@ -211,6 +233,24 @@ impl EditMethod for TransSplat {
     }
 }
 
+/// Zeroes the colour (SH) gradients of the Gaussians outside the gated region
+/// {γ_i ≥ `open`} (`k` values per Gaussian): the image loss may recolour only what the
+/// transport supports (docs/method.md#m7-losses).
+///
+/// *Why:* a soft L_leak is a penalty the image loss can outweigh: with an L1 image
+/// loss every view that shows the spill pushes with constant force, and Adam rescales
+/// both forces alike, so a Gaussian the gate calls 0.2 still drifts towards the
+/// spilled colour. The paper's γ is meant to make weakly supported Gaussians "more
+/// conservative"; a Gaussian outside the gated region now does not respond to the
+/// edit at all, and L_leak still anchors the partly supported ones inside it.
+pub fn gate_colour_gradients(grad_sh: &mut [f32], gamma: &[f32], k: usize, open: f32) {
+    for (g, &gm) in grad_sh.chunks_mut(k.max(1)).zip(gamma) {
+        if gm < open {
+            g.fill(0.0);
+        }
+    }
+}
+
 /// Reads cached view plan `k` written by [`TransSplat::save`].
 fn load_plan(a: &Archive, k: usize, n: usize, d: usize) -> Result<ViewTransport, EditError> {
     let e = |m: String| archive_error(a.err(m));
@@ -222,7 +262,7 @@ fn load_plan(a: &Archive, k: usize, n: usize, d: usize) -> Result<ViewTransport,
     }
     let m = idx.len();
     let stats = a.f64(&p("stats")).map_err(archive_error)?;
-    let &[objective, dual, gap, transported_mass] = stats else {
+    let &[objective, dual, gap, transported_mass, target_mass] = stats else {
         return Err(e(format!("cached view plan {k}: bad statistics")));
     };
     Ok(ViewTransport {
@@ -236,5 +276,18 @@ fn load_plan(a: &Archive, k: usize, n: usize, d: usize) -> Result<ViewTransport,
         dual,
         gap,
         transported_mass,
+        target_mass: target_mass as f32,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::gate_colour_gradients;
+
+    #[test]
+    fn colour_gate_keeps_only_the_gated_region() {
+        let mut g = vec![1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0];
+        gate_colour_gradients(&mut g, &[0.49, 0.5, 0.9], 2, 0.5);
+        assert_eq!(g, vec![0.0, 0.0, 3.0, 4.0, 5.0, 6.0]);
+    }
 }
