@@ -86,7 +86,7 @@ pub fn run(
     let scene = build(size.scene, &cfg)?;
     let mut editor = SimulatedEditor::new(&scene, severity, config.seed);
     editor.instruct(prompt)?;
-    let reference = Reference::new(&scene, editor.ground_truth(), editor.target_label());
+    let reference = Reference::new(&scene, editor.ground_truth(), editor.target_labels());
     let source = scene.gaussians_with_labels();
     let job = scene_job(&scene, &source, prompt);
     let setup_s = clock.elapsed().as_secs_f64();

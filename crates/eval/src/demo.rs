@@ -110,10 +110,10 @@ pub fn run(
     let scene = build(&opts.scene, &SceneConfig { seed: opts.seed, ..scfg })?;
     let mut sim = SimulatedEditor::new(&scene, opts.severity, opts.seed);
     let description = sim.instruct(&opts.prompt)?.describe();
-    let label = sim.target_label();
+    let target_labels = sim.target_labels().to_vec();
     let truth = sim.ground_truth().clone();
     tracing::info!("demo: scene {} ({} Gaussians), {description}", scene.name, scene.gaussians.len());
-    let mut reference = Reference::new(&scene, &truth, label);
+    let mut reference = Reference::new(&scene, &truth, &target_labels);
     let (source, trained_psnr) = if opts.trained > 0 {
         let (g, psnr) = crate::trained::train_from_renders(
             &scene,
@@ -171,7 +171,7 @@ pub fn run(
             .or_else(|| (opts.trained == 0).then(|| scene.labels.clone()))
             .filter(|l| l.len() == res.gaussians.len())
             .unwrap_or_default();
-        let is_target: Vec<bool> = labels.iter().map(|&l| l == label).collect();
+        let is_target: Vec<bool> = labels.iter().map(|l| target_labels.contains(l)).collect();
         let gate_auroc =
             res.gate.as_ref().filter(|_| !is_target.is_empty()).and_then(|g| auroc(g, &is_target));
         if let Some(g) = &res.gate {

@@ -1,10 +1,13 @@
 //! Scores an edited scene against the ground-truth edit of a built-in scene on its
 //! test views (every 8th camera).
 //!
-//! - target PSNR: inside the target mask (the ground-truth edited scene's label
-//!   render), against the ground-truth edit;
-//! - background PSNR: where the target has no visible weight (< 1/255), against the
-//!   original (unedited) render — leakage;
+//! - target PSNR: inside the target mask (the pixels of the ground-truth edited scene's
+//!   label render whose label is one of the target labels), against the ground-truth
+//!   edit;
+//! - background PSNR: where the target has no visible weight (the summed weight of the
+//!   target labels, min(1, Σ w_l), below 1/255), against the original (unedited)
+//!   render — leakage. When the target includes label 0, the background itself (a
+//!   global edit), nothing lies outside the edit: the set is empty and the value NaN;
 //! - PSNR and SSIM: whole image against the ground-truth edit.
 //!
 //! Masked PSNRs pool the squared error over all test views (a small target gives
@@ -38,8 +41,10 @@ pub struct Reference {
 }
 
 impl Reference {
-    /// Prepares the references for `scene` edited into `truth` (target `label`).
-    pub fn new(scene: &Scene, truth: &Gaussians, label: u32) -> Self {
+    /// Prepares the references for `scene` edited into `truth`; `labels` are the target
+    /// labels (the objects the edit changes; every label, 0 included, for a global edit).
+    pub fn new(scene: &Scene, truth: &Gaussians, labels: &[u32]) -> Self {
+        let global = labels.contains(&0);
         let views = scene.test_views();
         let opts = RenderOptions { background: scene.background };
         let (ss, ts) = (Splats::new(&scene.gaussians), Splats::new(truth));
@@ -56,8 +61,9 @@ impl Reference {
             r.source.push(render(&ss, cam, &opts).0.rgb);
             r.truth.push(render(&ts, cam, &opts).0.rgb);
             let lr = scene.render_edited(truth, v).expect("test view exists");
-            r.target_mask.push(lr.mask(label));
-            r.background_mask.push(lr.weight(label).iter().map(|&w| w < 1.0 / 255.0).collect());
+            r.target_mask.push(lr.mask_of(labels));
+            r.background_mask
+                .push(lr.weight_of(labels).iter().map(|&w| !global && w < 1.0 / 255.0).collect());
         }
         r
     }
@@ -121,5 +127,52 @@ impl Reference {
             psnr: psnr_sum / nv,
             ssim: ssim_sum / nv,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use transsplat_scenes::{build, SceneConfig, Style};
+
+    #[test]
+    fn a_label_set_unites_the_masks_and_a_global_edit_has_no_background() {
+        let s = build("tabletop", &SceneConfig::quick()).unwrap();
+        let (ball, cone) = (s.label_of("ball").unwrap(), s.label_of("cone").unwrap());
+        let blue = [0.1, 0.2, 0.9];
+        let truth =
+            transsplat_scenes::recolor(&s.recolor(ball, blue).unwrap(), &s.labels, cone, blue).unwrap();
+        let both = Reference::new(&s, &truth, &[ball, cone]);
+        let one = Reference::new(&s, &truth, &[ball]);
+        for k in 0..both.views.len() {
+            let lr = s.render_edited(&truth, both.views[k]).unwrap();
+            for p in 0..lr.labels.len() {
+                let l = lr.labels[p];
+                assert_eq!(both.target_mask[k][p], l == ball || l == cone);
+                // outside = the summed weight of the two labels below 1/255
+                let w = (lr.weight(ball)[p] + lr.weight(cone)[p]).min(1.0);
+                assert_eq!(both.background_mask[k][p], w < 1.0 / 255.0, "view {k} pixel {p}");
+                assert!(
+                    !both.background_mask[k][p] || one.background_mask[k][p],
+                    "outside both is outside one"
+                );
+            }
+        }
+        // the truth scores perfectly inside; the source leaks nothing outside
+        let m = both.score(&s, &truth);
+        assert!(m.target_psnr > 60.0 && m.background_psnr > 60.0, "{m:?}");
+        // a global edit: every pixel is target, nothing is background
+        let autumn = s.restyle(Style::Autumn).unwrap();
+        let all: Vec<u32> = (0..s.num_labels() as u32).collect();
+        let g = Reference::new(&s, &autumn, &all);
+        assert!(g.target_mask.iter().flatten().all(|&t| t));
+        assert!(g.background_mask.iter().flatten().all(|&b| !b));
+        let m = g.score(&s, &s.gaussians);
+        assert!(m.background_psnr.is_nan(), "{m:?}");
+        assert!(
+            m.target_psnr.is_finite() && m.target_psnr < 30.0,
+            "the unedited scene misses the style: {m:?}"
+        );
+        assert!(g.score(&s, &autumn).target_psnr > 60.0);
     }
 }

@@ -6,6 +6,24 @@
 //! `quality.md` (the same as a table), and `report.html` with plots of background and
 //! target PSNR against severity per method. A case that fails (editor error, NaN,
 //! anything) is reported as failed with its reason; the others still run.
+//!
+//! **Edits** ([`EDITS`], each at severities 0–3 of the simulated editor on the built
+//! scene, and at severity 1 on the scene trained from its renders):
+//!
+//! | scene | kind | instruction | what it tests |
+//! |---|---|---|---|
+//! | tabletop | recolour | make the ball blue | the basic recolour |
+//! | tabletop | far-recolour | make the cone black | a colour far from the original (green → black) |
+//! | tabletop | material | turn the crate into marble | a texture, not a flat colour |
+//! | tabletop | two-objects | make the ball and the cone blue | two objects at once |
+//! | occluded | occluded | make the stem blue | a thin object in front of a busy backdrop |
+//! | garden | far-recolour | make the apple cyan | red → its complement, beside a look-alike tomato, thin lamp and fence, a large far background |
+//! | garden | global | make it autumn | a style of the whole scene (background included) that leakage suppression must not block |
+//!
+//! **Averages**: per method and per metric over the cases that ran and have a value:
+//! a global edit has no background (its background PSNR is NaN, shown as "-") and is
+//! left out of the background mean only; the worst method of a case is found among
+//! the methods with a value.
 
 use crate::demo::{self, DemoError, DemoOptions, MethodScore};
 use crate::report::{esc, Page};
@@ -26,18 +44,22 @@ pub struct Case {
     pub scene: String,
     /// Training steps from the scene's own renders (0: the built Gaussians).
     pub trained: u64,
-    /// What kind of edit this is (`recolour`, `far-recolour`, `material`, `occluded`).
+    /// What kind of edit this is (`recolour`, `far-recolour`, `material`, `occluded`,
+    /// `two-objects`, `global`).
     pub edit: String,
     pub prompt: String,
     pub severity: f32,
 }
 
-/// The suite's edits: (scene, kind, instruction).
-const EDITS: &[(&str, &str, &str)] = &[
+/// The suite's edits: (scene, kind, instruction); see the module doc.
+pub const EDITS: &[(&str, &str, &str)] = &[
     ("tabletop", "recolour", "make the ball blue"),
     ("tabletop", "far-recolour", "make the cone black"),
     ("tabletop", "material", "turn the crate into marble"),
+    ("tabletop", "two-objects", "make the ball and the cone blue"),
     ("occluded", "occluded", "make the stem blue"),
+    ("garden", "far-recolour", "make the apple cyan"),
+    ("garden", "global", "make it autumn"),
 ];
 
 /// The cases: every edit at severities 0 to 3 on the built scenes, and at severity 1
@@ -150,16 +172,29 @@ pub fn run(
     Ok((staged.commit()?, results))
 }
 
-/// Per-method means over the cases that ran (every method in every such case).
+/// Per-method means over the cases that ran; each metric over the cases where it has
+/// a (finite) value, counted separately.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct Average {
+    /// Cases that ran.
     pub cases: usize,
+    /// Mean target PSNR over `target_cases` cases.
     pub target_psnr: f64,
+    pub target_cases: usize,
+    /// Mean background PSNR over `background_cases` cases (a global edit has none).
     pub background_psnr: f64,
+    pub background_cases: usize,
     /// Over the cases with a gate.
     pub gate_auroc: Option<f64>,
-    /// Cases where this method has the lowest target or background PSNR of all.
+    /// Cases where this method has the lowest target or background PSNR of all the
+    /// methods with a value.
     pub worst_cases: usize,
+}
+
+/// The method with the lowest finite value of `f` in `scores` (none when no method
+/// has one).
+fn worst(scores: &[MethodScore], f: fn(&MethodScore) -> f64) -> Option<&str> {
+    scores.iter().filter(|s| f(s).is_finite()).min_by(|a, b| f(a).total_cmp(&f(b))).map(|s| s.name.as_str())
 }
 
 /// The per-method averages of the cases that ran.
@@ -167,31 +202,43 @@ pub fn averages(results: &[CaseResult]) -> BTreeMap<String, Average> {
     let mut out: BTreeMap<String, Average> = BTreeMap::new();
     let mut aurocs: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     for r in results.iter().filter(|r| r.failed.is_none()) {
-        let worst = |f: fn(&MethodScore) -> f64| {
-            r.scores.iter().min_by(|a, b| f(a).total_cmp(&f(b))).map(|s| s.name.clone())
-        };
-        let worst_t = worst(|s| s.metrics.target_psnr);
-        let worst_b = worst(|s| s.metrics.background_psnr);
+        let worst_t = worst(&r.scores, |s| s.metrics.target_psnr);
+        let worst_b = worst(&r.scores, |s| s.metrics.background_psnr);
         for s in &r.scores {
             let a = out.entry(s.name.clone()).or_default();
             a.cases += 1;
-            a.target_psnr += s.metrics.target_psnr;
-            a.background_psnr += s.metrics.background_psnr;
-            if worst_t.as_deref() == Some(&s.name) || worst_b.as_deref() == Some(&s.name) {
+            if s.metrics.target_psnr.is_finite() {
+                a.target_psnr += s.metrics.target_psnr;
+                a.target_cases += 1;
+            }
+            if s.metrics.background_psnr.is_finite() {
+                a.background_psnr += s.metrics.background_psnr;
+                a.background_cases += 1;
+            }
+            if worst_t == Some(s.name.as_str()) || worst_b == Some(s.name.as_str()) {
                 a.worst_cases += 1;
             }
-            if let Some(g) = s.gate_auroc {
+            if let Some(g) = s.gate_auroc.filter(|g| g.is_finite()) {
                 aurocs.entry(s.name.clone()).or_default().push(g);
             }
         }
     }
+    let mean = |sum: f64, n: usize| if n == 0 { f64::NAN } else { sum / n as f64 };
     for (name, a) in out.iter_mut() {
-        let n = a.cases.max(1) as f64;
-        a.target_psnr /= n;
-        a.background_psnr /= n;
+        a.target_psnr = mean(a.target_psnr, a.target_cases);
+        a.background_psnr = mean(a.background_psnr, a.background_cases);
         a.gate_auroc = aurocs.get(name).map(|v| v.iter().sum::<f64>() / v.len() as f64);
     }
     out
+}
+
+/// A PSNR with two decimals, "-" when it is not a number.
+fn db(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v:.2}")
+    } else {
+        "-".into()
+    }
 }
 
 /// The suite as Markdown: one row per case and method, then the averages.
@@ -210,22 +257,24 @@ pub fn table(results: &[CaseResult], avg: &BTreeMap<String, Average>) -> String 
         }
         for m in &r.scores {
             s += &format!(
-                "| {} | {} | {:.2} | {:.2} | {} |\n",
+                "| {} | {} | {} | {} | {} |\n",
                 r.case.name,
                 m.name,
-                m.metrics.target_psnr,
-                m.metrics.background_psnr,
+                db(m.metrics.target_psnr),
+                db(m.metrics.background_psnr),
                 m.gate_auroc.map_or("-".into(), |a| format!("{a:.4}"))
             );
         }
     }
-    s += "\n| method | cases | mean target PSNR | mean background PSNR | mean gate AUROC | worst on a case |\n|---|---|---|---|---|---|\n";
+    s += "\n| method | cases | mean target PSNR (cases) | mean background PSNR (cases) | mean gate AUROC | worst on a case |\n|---|---|---|---|---|---|\n";
     for (name, a) in avg {
         s += &format!(
-            "| {name} | {} | {:.2} | {:.2} | {} | {} |\n",
+            "| {name} | {} | {} ({}) | {} ({}) | {} | {} |\n",
             a.cases,
-            a.target_psnr,
-            a.background_psnr,
+            db(a.target_psnr),
+            a.target_cases,
+            db(a.background_psnr),
+            a.background_cases,
             a.gate_auroc.map_or("-".into(), |g| format!("{g:.4}")),
             a.worst_cases
         );
@@ -251,14 +300,24 @@ fn write_report(
             vec![
                 n.clone(),
                 a.cases.to_string(),
-                format!("{:.2}", a.target_psnr),
-                format!("{:.2}", a.background_psnr),
+                format!("{} ({})", db(a.target_psnr), a.target_cases),
+                format!("{} ({})", db(a.background_psnr), a.background_cases),
                 a.gate_auroc.map_or("-".into(), |g| format!("{g:.4}")),
                 a.worst_cases.to_string(),
             ]
         })
         .collect();
-    p.table(&["method", "cases", "target PSNR", "background PSNR", "gate AUROC", "worst on a case"], &rows);
+    p.table(
+        &[
+            "method",
+            "cases",
+            "target PSNR (cases)",
+            "background PSNR (cases)",
+            "gate AUROC",
+            "worst on a case",
+        ],
+        &rows,
+    );
     // Per edit (built scenes): PSNR against severity, one line per method.
     let mut edits: Vec<(String, String)> = Vec::new();
     for r in results {
@@ -294,7 +353,11 @@ fn write_report(
         .iter()
         .map(|r| {
             let best = |f: fn(&MethodScore) -> f64| {
-                r.scores.iter().max_by(|a, b| f(a).total_cmp(&f(b))).map_or("-".into(), |s| s.name.clone())
+                r.scores
+                    .iter()
+                    .filter(|s| f(s).is_finite())
+                    .max_by(|a, b| f(a).total_cmp(&f(b)))
+                    .map_or("-".into(), |s| s.name.clone())
             };
             vec![
                 r.case.name.clone(),
@@ -332,8 +395,71 @@ mod tests {
         assert!(e.contains("unknown case \"nope\"") && e.contains("tabletop-built-recolour-s1"), "{e}");
         let one = select(cases(0), &["occluded-built-occluded-s2".into()]).unwrap();
         assert_eq!(one.len(), 1);
-        assert_eq!(select(cases(0), &[]).unwrap().len(), 16);
-        assert_eq!(cases(500).len(), 20);
+        assert_eq!(select(cases(0), &[]).unwrap().len(), 28);
+        assert_eq!(cases(500).len(), 35);
+        let e = select(cases(0), &["garden-built-global-s1".into(), "garden-built-global-s9".into()])
+            .unwrap_err();
+        assert!(e.contains("\"garden-built-global-s9\"") && e.contains("garden-built-global-s3"), "{e}");
+    }
+
+    #[test]
+    fn the_edits_cover_three_scenes_and_six_kinds_and_each_parses_on_its_scene() {
+        use transsplat_editors::simulated::parse_instruction;
+        use transsplat_scenes::{build, SceneConfig};
+        let mut scenes: Vec<&str> = EDITS.iter().map(|e| e.0).collect();
+        scenes.dedup();
+        let mut kinds: Vec<&str> = EDITS.iter().map(|e| e.1).collect();
+        kinds.sort_unstable();
+        kinds.dedup();
+        assert_eq!(scenes, ["tabletop", "occluded", "garden"]);
+        assert_eq!(kinds, ["far-recolour", "global", "material", "occluded", "recolour", "two-objects"]);
+        for &(scene, kind, prompt) in EDITS {
+            let s = build(scene, &SceneConfig::quick()).unwrap();
+            let ins = parse_instruction(&s, prompt).unwrap_or_else(|e| panic!("{scene}: {prompt:?}: {e}"));
+            assert_eq!(ins.is_global(), kind == "global", "{prompt:?}");
+            assert_eq!(
+                ins.objects.len(),
+                if kind == "two-objects" { 2 } else { (kind != "global") as usize }
+            );
+        }
+    }
+
+    #[test]
+    fn nan_values_are_left_out_of_their_metric_only() {
+        let c = cases(0);
+        let global = c.iter().find(|c| c.edit == "global").unwrap().clone();
+        let results = vec![
+            CaseResult {
+                case: c[0].clone(),
+                scores: vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)],
+                failed: None,
+            },
+            CaseResult {
+                case: global,
+                scores: vec![score("a", 10.0, f64::NAN), score("b", 14.0, f64::NAN)],
+                failed: None,
+            },
+        ];
+        let avg = averages(&results);
+        assert_eq!((avg["a"].cases, avg["a"].target_cases, avg["a"].background_cases), (2, 2, 1));
+        assert_eq!(avg["a"].target_psnr, 20.0);
+        assert_eq!(avg["a"].background_psnr, 40.0, "the global case has no background");
+        assert_eq!(avg["b"].background_psnr, 50.0);
+        // a: worst target in the global case, worst background in case 0 (counted once
+        // per case); b: worst target in case 0; no one is worst on a NaN background
+        assert_eq!((avg["a"].worst_cases, avg["b"].worst_cases), (2, 1));
+        let t = table(&results, &avg);
+        assert!(t.contains("| garden-built-global-s0 | a | 10.00 | - | - |"), "{t}");
+        assert!(t.contains("| a | 2 | 20.00 (2) | 40.00 (1) | - | 2 |"), "{t}");
+        // a method without any value shows "-"
+        let only_nan = vec![CaseResult {
+            case: c[1].clone(),
+            scores: vec![score("a", f64::NAN, f64::NAN)],
+            failed: None,
+        }];
+        let avg = averages(&only_nan);
+        assert!(avg["a"].target_psnr.is_nan() && avg["a"].worst_cases == 0);
+        assert!(table(&only_nan, &avg).contains("| a | 1 | - (0) | - (0) | - | 0 |"));
     }
 
     #[test]

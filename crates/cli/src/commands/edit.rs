@@ -72,7 +72,7 @@ pub struct EditArgs {
     /// TOML file of edit settings.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Method: transsplat, naive, masklift, no_leaksup, no_prototype, geometric.
+    /// Method: transsplat, paper, naive, masklift, no_leaksup, no_prototype, geometric.
     #[arg(long)]
     pub method: Option<String>,
     /// Optimisation steps (overrides the config).
@@ -179,8 +179,10 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
             if scene.gaussians.len() != g.len() {
                 bail!("{}: the scene does not match its built-in source (labels.json)", scene_path.display());
             }
-            let sim = SimulatedEditor::new(&scene, args.severity, config.seed);
-            target = Some(scene.labels.iter().map(|&l| l == sim.target_label()).collect());
+            let mut sim = SimulatedEditor::new(&scene, args.severity, config.seed);
+            // the instruction's target labels (the Gaussians the ground truth changes)
+            let labels = sim.instruct(&args.prompt)?.labels.clone();
+            target = Some(scene.labels.iter().map(|l| labels.contains(l)).collect());
             Box::new(sim)
         }
         EditorKind::Ip2p => {
