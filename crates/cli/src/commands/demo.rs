@@ -18,7 +18,7 @@ pub struct DemoArgs {
     /// Small scene and few steps (about a minute).
     #[arg(long)]
     pub quick: bool,
-    /// Built-in scene.
+    /// Built-in scene: tabletop, occluded or garden.
     #[arg(long, default_value = "tabletop")]
     pub scene: String,
     /// Instruction for the simulated editor.
