@@ -22,8 +22,9 @@
 //!
 //! **Averages**: per method and per metric over the cases that ran and have a value:
 //! a global edit has no background (its background PSNR is NaN, shown as "-") and is
-//! left out of the background mean only; the worst method of a case is found among
-//! the methods with a value.
+//! left out of the background mean only. The worst methods of a case on a metric are
+//! those at its lowest value among the methods with a value, ties included (naive and
+//! no_leaksup are often identical); when every method has the same value none is worst.
 
 use crate::demo::{self, DemoError, DemoOptions, MethodScore};
 use crate::report::{esc, Page};
@@ -187,14 +188,19 @@ pub struct Average {
     /// Over the cases with a gate.
     pub gate_auroc: Option<f64>,
     /// Cases where this method has the lowest target or background PSNR of all the
-    /// methods with a value.
+    /// methods with a value (every method tied at the lowest counts; none when all tie).
     pub worst_cases: usize,
 }
 
-/// The method with the lowest finite value of `f` in `scores` (none when no method
-/// has one).
-fn worst(scores: &[MethodScore], f: fn(&MethodScore) -> f64) -> Option<&str> {
-    scores.iter().filter(|s| f(s).is_finite()).min_by(|a, b| f(a).total_cmp(&f(b))).map(|s| s.name.as_str())
+/// The methods at the lowest finite value of `f` in `scores`: every method tied there,
+/// and none when every method with a value has the same one (nobody is worse).
+fn worst(scores: &[MethodScore], f: fn(&MethodScore) -> f64) -> Vec<&str> {
+    let values: Vec<f64> = scores.iter().map(f).filter(|v| v.is_finite()).collect();
+    let lo = values.iter().copied().fold(f64::INFINITY, f64::min);
+    if values.iter().all(|&v| v == lo) {
+        return Vec::new();
+    }
+    scores.iter().filter(|s| f(s) == lo).map(|s| s.name.as_str()).collect()
 }
 
 /// The per-method averages of the cases that ran.
@@ -215,7 +221,7 @@ pub fn averages(results: &[CaseResult]) -> BTreeMap<String, Average> {
                 a.background_psnr += s.metrics.background_psnr;
                 a.background_cases += 1;
             }
-            if worst_t == Some(s.name.as_str()) || worst_b == Some(s.name.as_str()) {
+            if worst_t.contains(&s.name.as_str()) || worst_b.contains(&s.name.as_str()) {
                 a.worst_cases += 1;
             }
             if let Some(g) = s.gate_auroc.filter(|g| g.is_finite()) {
@@ -460,6 +466,21 @@ mod tests {
         let avg = averages(&only_nan);
         assert!(avg["a"].target_psnr.is_nan() && avg["a"].worst_cases == 0);
         assert!(table(&only_nan, &avg).contains("| a | 1 | - (0) | - (0) | - | 0 |"));
+        // ties: both methods at the lowest value are worst; when all tie, none is
+        let tied = vec![CaseResult {
+            case: c[1].clone(),
+            scores: vec![score("a", 20.0, 30.0), score("b", 20.0, 35.0), score("c", 25.0, 30.0)],
+            failed: None,
+        }];
+        let avg = averages(&tied);
+        assert_eq!([avg["a"].worst_cases, avg["b"].worst_cases, avg["c"].worst_cases], [1, 1, 1]);
+        let all_tie = vec![CaseResult {
+            case: c[1].clone(),
+            scores: vec![score("a", 20.0, 30.0), score("b", 20.0, 30.0)],
+            failed: None,
+        }];
+        let avg = averages(&all_tie);
+        assert_eq!((avg["a"].worst_cases, avg["b"].worst_cases), (0, 0));
     }
 
     #[test]
