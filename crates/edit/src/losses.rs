@@ -14,14 +14,25 @@ pub fn semantic(s: &[f32], z: &[f32], gamma: &[f32], d: usize, lambda: f32, grad
     lambda as f64 * loss
 }
 
-/// L_leak = (1/N) Σ_i (1 − γ_i) ‖c_i − c_i⁽⁰⁾‖₁ over all SH coefficients (`k` values
-/// per Gaussian): returns λ L and adds λ ∂L/∂c into `grad`. The mean over the N
-/// Gaussians (not the paper's plain sum) keeps λ independent of the scene size: the
-/// per-Gaussian image-loss gradient it competes with also scales like 1/N.
-pub fn leakage(c: &[f32], c0: &[f32], gamma: &[f32], k: usize, lambda: f32, grad: &mut [f32]) -> f64 {
+/// L_leak = (1/N) Σ_{i: γ_i < open} (1 − γ_i) ‖c_i − c_i⁽⁰⁾‖₁ over all SH coefficients
+/// (`k` values per Gaussian): returns λ L and adds λ ∂L/∂c into `grad`. The mean over
+/// the N Gaussians (not the paper's plain sum) keeps λ independent of the scene size:
+/// the per-Gaussian image-loss gradient it competes with also scales like 1/N.
+/// Gaussians in the gated region {γ ≥ `open`} are left free (the colour gate,
+/// docs/method.md#m7-losses); `open` > 1 anchors every Gaussian (the paper).
+#[allow(clippy::too_many_arguments)]
+pub fn leakage(
+    c: &[f32],
+    c0: &[f32],
+    gamma: &[f32],
+    open: f32,
+    k: usize,
+    lambda: f32,
+    grad: &mut [f32],
+) -> f64 {
     let mut loss = 0.0f64;
     let inv_n = 1.0 / gamma.len().max(1) as f32;
-    for (i, &g) in gamma.iter().enumerate() {
+    for (i, &g) in gamma.iter().enumerate().filter(|(_, &g)| g < open) {
         let wgt = (1.0 - g) * inv_n;
         for j in i * k..(i + 1) * k {
             let diff = c[j] - c0[j];
@@ -94,9 +105,13 @@ mod tests {
         c02.extend_from_slice(&c0);
         let mut gc = [0.0f32; 6];
         // Two Gaussians (N = 2): the second is unchanged.
-        let l = leakage(&c2, &c02, &[0.25, 0.0], 3, 4.0, &mut gc);
+        let l = leakage(&c2, &c02, &[0.25, 0.0], 2.0, 3, 4.0, &mut gc);
         assert!((l - 4.0 * 0.75 * 0.5 / 2.0).abs() < 1e-6, "{l}");
         assert_eq!(gc, [1.5, -1.5, 0.0, 0.0, 0.0, 0.0]);
+        // With the gated region open at γ ≥ 0.2 the first Gaussian is free.
+        let mut gc = [0.0f32; 6];
+        assert_eq!(leakage(&c2, &c02, &[0.25, 0.0], 0.2, 3, 4.0, &mut gc), 0.0);
+        assert_eq!(gc, [0.0; 6]);
     }
 
     #[test]

@@ -28,13 +28,13 @@ pub struct RoundStats {
 }
 
 /// One edit view as a transport round sees it: its camera, appearance plane Φ_v,
-/// support plane 1_Ω (`H × W`; empty: unknown) and prototypes (empty when the view
-/// carries no evidence).
+/// support Ω (`H × W`; empty: unknown) and prototypes (empty when the view carries no
+/// evidence).
 pub struct RoundView<'a> {
     pub cam: &'a Camera,
     pub appearance: &'a [f32],
     pub d_app: usize,
-    pub support: &'a [f32],
+    pub support: &'a [bool],
     pub prototypes: &'a Prototypes,
 }
 
@@ -50,13 +50,13 @@ pub struct ViewSources {
     pub omega: Vec<f32>,
 }
 
-/// The appearance plane with the support plane appended as one more channel, so one
-/// splat-back pass lifts both.
-fn with_support(appearance: &[f32], d_app: usize, support: &[f32]) -> Vec<f32> {
+/// The appearance plane with 1_Ω appended as one more channel, so one splat-back
+/// pass lifts both.
+fn with_support(appearance: &[f32], d_app: usize, support: &[bool]) -> Vec<f32> {
     let mut out = Vec::with_capacity(support.len() * (d_app + 1));
     for (p, &o) in support.iter().enumerate() {
         out.extend_from_slice(&appearance[p * d_app..(p + 1) * d_app]);
-        out.push(o);
+        out.push(if o { 1.0 } else { 0.0 });
     }
     out
 }

@@ -181,8 +181,8 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
             }
             let mut sim = SimulatedEditor::new(&scene, args.severity, config.seed);
             // the instruction's target labels (the Gaussians the ground truth changes)
-            let labels = sim.instruct(&args.prompt)?.labels.clone();
-            target = Some(scene.labels.iter().map(|l| labels.contains(l)).collect());
+            sim.instruct(&args.prompt)?;
+            target = Some(scene.labels.iter().map(|l| sim.target_labels().contains(l)).collect());
             Box::new(sim)
         }
         EditorKind::Ip2p => {

@@ -39,8 +39,8 @@ pub struct TransSplat {
     gated_densify: bool,
     /// Prototypes of each usable view.
     prototypes: Vec<Prototypes>,
-    /// Support plane 1_Ω of each usable view (for evidence-mass balancing).
-    supports: Vec<Vec<f32>>,
+    /// Support Ω of each usable view (for evidence-mass balancing).
+    supports: Vec<Vec<bool>>,
     /// The leakage reference c⁽⁰⁾: every SH coefficient of the source scene, `kc`
     /// values per Gaussian.
     sh0: Vec<f32>,
@@ -112,7 +112,7 @@ impl EditMethod for TransSplat {
         // The support plane 1_Ω, for evidence-mass balancing.
         let needed = self.cfg.transport.evidence_mass && count > 0;
         let omega = if needed { prototypes::view_support(ev, p).0 } else { Vec::new() };
-        self.supports.push(omega.into_iter().map(|o| o as u8 as f32).collect());
+        self.supports.push(omega);
         count
     }
 
@@ -162,15 +162,10 @@ impl EditMethod for TransSplat {
             rec.uot = l.uot as f64 * v.objective;
         }
         if l.leak > 0.0 {
+            // With the colour gate, L_leak anchors only the Gaussians outside the gated region.
+            let open = if l.colour_gate > 0.0 { l.colour_gate } else { f32::INFINITY };
             let sh = &tr.model.gaussians.sh;
-            rec.leak = if l.colour_gate > 0.0 {
-                // Inside the gated region the Gaussian is free; L_leak anchors the rest.
-                let outside: Vec<f32> =
-                    t.gamma.iter().map(|&g| if g >= l.colour_gate { 1.0 } else { g }).collect();
-                losses::leakage(sh, &self.sh0, &outside, self.kc, l.leak, &mut grads.sh)
-            } else {
-                losses::leakage(sh, &self.sh0, &t.gamma, self.kc, l.leak, &mut grads.sh)
-            };
+            rec.leak = losses::leakage(sh, &self.sh0, &t.gamma, open, self.kc, l.leak, &mut grads.sh);
         }
     }
 
