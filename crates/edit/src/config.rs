@@ -118,7 +118,8 @@ pub struct LossConfig {
     /// λ_leak.
     pub leak: f32,
     /// The image loss's colour gradients are kept only where γ ≥ this (the gated
-    /// region; `transsplat::gate_colour_gradients`); 0 = off (the paper).
+    /// region, TransSplat's colour mask; `optimise::mask_colour_gradients`); 0 = off
+    /// (the paper).
     pub colour_gate: f32,
 }
 
@@ -141,11 +142,21 @@ pub struct ScheduleConfig {
     pub densify_every: usize,
     /// Gaussians with γ ≥ this may be densified.
     pub densify_gate: f32,
+    /// With frozen geometry and a colour mask, a step renders only the colour change
+    /// of the Gaussians that can change (`delta`): the same edit up to float
+    /// rounding, in a fraction of the time. Off: every step renders in full.
+    pub delta_render: bool,
 }
 
 impl Default for ScheduleConfig {
     fn default() -> Self {
-        ScheduleConfig { steps: 600, transport_every: 150, densify_every: 0, densify_gate: 0.5 }
+        ScheduleConfig {
+            steps: 600,
+            transport_every: 150,
+            densify_every: 0,
+            densify_gate: 0.5,
+            delta_render: true,
+        }
     }
 }
 

@@ -9,11 +9,11 @@
 
 use crate::checkpoint as ckpt;
 use crate::config::EditConfig;
-use crate::edits::{self, ViewData};
+use crate::edits;
 use crate::error::EditError;
 use crate::job::{EditJob, EditResult, Progress, Timing};
 use crate::methods::{Context, EditMethod};
-use crate::optimise::{self, LoopState, StageTimes, StepLosses};
+use crate::optimise::{self, LoopState, Renderer, StageTimes, StepLosses};
 use crate::semantic::{set_semantic_extras, SemanticSpace};
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
@@ -65,7 +65,6 @@ pub fn run_with(
 
     // 2. The semantic space of the source and edited views.
     let mut space = SemanticSpace::fit(job.semantic, &cams, &sources, &edited, cfg.semantic_dim, cfg.seed)?;
-    drop(sources);
 
     // 3. Each usable view's evidence, taken in by the method.
     let mut method = crate::methods::part(cfg);
@@ -73,6 +72,12 @@ pub fn run_with(
         edits::gather(&job.edit_views, &edited, &mut space, |cam, ev| method.add_view(cam, ev));
     let ctx = Context { cameras: job.cameras, views: &views };
     method.start(job.gaussians, &ctx)?;
+    let view_cams: Vec<&Camera> = views.iter().map(|v| &job.cameras[v.cam]).collect();
+    let mut renderer = Renderer::new(cfg.schedule.delta_render && optimise::geometry_frozen(cfg), || {
+        let at = |cam| job.edit_views.iter().position(|&c| c == cam).expect("a usable view is an edit view");
+        views.iter().map(|v| sources[at(v.cam)].clone()).collect()
+    });
+    drop(sources);
 
     // 4. The optimiser, from the source scene with its initial semantic latents.
     let latents = space.initial_latents(job.gaussians, &cams);
@@ -95,8 +100,11 @@ pub fn run_with(
             progress(Progress::Round(&r));
             ls.rounds.push(r);
         }
-        let vd = &views[ls.order.next(views.len())];
-        let rec = optimise_step(step, &mut tr, method.as_mut(), vd, job.cameras, cfg, &mut ls.stages)?;
+        let t = Instant::now();
+        renderer.follow(method.colour_mask(), &tr, job.gaussians, &view_cams);
+        ls.stages.weights += t.elapsed().as_secs_f64();
+        let k = ls.order.next(views.len());
+        let rec = optimise_step(step, &mut tr, method.as_mut(), &mut renderer, k, &ctx, cfg, &mut ls.stages)?;
         progress(Progress::Step {
             step: step + 1,
             steps: cfg.schedule.steps,
@@ -171,19 +179,25 @@ fn checkpoint_or_stop(
     Ok(())
 }
 
-/// One optimisation step on view `vd`: L_img and the method's terms, the NaN
-/// checks, Adam and densification (only where the method allows).
+/// One optimisation step on usable view `k`: L_img (colour gradients inside the
+/// method's colour mask) and the method's terms, the NaN checks, Adam and
+/// densification (only where the method allows).
+#[allow(clippy::too_many_arguments)]
 fn optimise_step(
     step: usize,
     tr: &mut Trainer,
     method: &mut dyn EditMethod,
-    vd: &ViewData,
-    cameras: &[Camera],
+    renderer: &mut Renderer,
+    k: usize,
+    ctx: &Context,
     cfg: &EditConfig,
     times: &mut StageTimes,
 ) -> Result<StepLosses, EditError> {
     tr.begin_step();
-    let (frame, mut grads, img) = optimise::image_gradients(tr, &cameras[vd.cam], &vd.target, cfg, times);
+    let vd = &ctx.views[k];
+    let cam = &ctx.cameras[vd.cam];
+    let (frame, mut grads, img) =
+        renderer.image_gradients(tr, k, cam, &vd.target, method.colour_mask(), cfg, times);
     let mut rec = StepLosses { step, img, ..Default::default() };
     let mut clock = Instant::now();
     method.add_gradients(tr, vd, &mut grads, &mut rec);
@@ -191,8 +205,10 @@ fn optimise_step(
     optimise::check_losses(&rec, tr.step)?;
     // The mask is read only at densification steps: built only then.
     let mask = if tr.config.densify.densifies(tr.step) { method.densify_mask() } else { None };
-    let report =
-        tr.finish_step(&grads, &frame, mask.as_deref()).map_err(|e| EditError::Train(e.to_string()))?;
+    let report = tr
+        .finish_step(&grads, frame.as_ref(), mask.as_deref())
+        .map_err(|e| EditError::Train(e.to_string()))?;
+    renderer.recycle(grads);
     times.optimiser += optimise::lap(&mut clock);
     if let Some(r) = &report.reindex {
         method.reindex(r);

@@ -12,8 +12,10 @@
 //! 4. [`round`]: one transport round: per view the source side and [`view`]'s
 //!    view-wise unbalanced transport (Sec. 3.3), then [`fusion`] (Theorem 1, EMA)
 //!    and [`gate`] (docs/method.md#m6-residual-and-gate).
-//! 5. [`optimise`]: the trainer, the view order, L_img of a step; [`losses`]: the
-//!    gradients of L_sem, L_uot (through the cost at fixed T*) and L_leak.
+//! 5. [`optimise`]: the trainer, the view order, L_img of a step (a full render, or
+//!    with frozen geometry and a colour mask only the colour change of the Gaussians
+//!    that can change, [`delta`]); [`losses`]: the gradients of L_sem, L_uot (through
+//!    the cost at fixed T*) and L_leak.
 //!
 //! The method is one pluggable part, [`methods`]: TransSplat with its ablations, and
 //! the baselines. [`config`] holds every hyperparameter with the paper's defaults;
@@ -21,6 +23,7 @@
 
 pub mod checkpoint;
 pub mod config;
+pub mod delta;
 pub mod edits;
 pub mod engine;
 pub mod error;

@@ -1,16 +1,24 @@
 //! Gradients of the TransSplat regularisers (paper Sec. 3.5, eqs. for L_sem, L_uot,
 //! L_leak; docs/method.md#m7-losses). L_img is the trainer's photometric loss.
 
+use rayon::prelude::*;
+
 /// L_sem = Σ_i γ_i ‖s_i − sg(z̄_i)‖²: returns the loss and adds λ ∂L/∂s into `grad`.
 pub fn semantic(s: &[f32], z: &[f32], gamma: &[f32], d: usize, lambda: f32, grad: &mut [f32]) -> f64 {
-    let mut loss = 0.0f64;
-    for (i, &g) in gamma.iter().enumerate() {
-        for j in i * d..(i + 1) * d {
-            let diff = s[j] - z[j];
-            loss += (g * diff * diff) as f64;
-            grad[j] += lambda * 2.0 * g * diff;
-        }
-    }
+    let d = d.max(1);
+    let loss: f64 = (s.par_chunks(d), z.par_chunks(d), gamma.par_iter(), grad.par_chunks_mut(d))
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|(s, z, &g, grad)| {
+            let mut loss = 0.0f64;
+            for j in 0..s.len() {
+                let diff = s[j] - z[j];
+                loss += (g * diff * diff) as f64;
+                grad[j] += lambda * 2.0 * g * diff;
+            }
+            loss
+        })
+        .sum();
     lambda as f64 * loss
 }
 
@@ -19,7 +27,9 @@ pub fn semantic(s: &[f32], z: &[f32], gamma: &[f32], d: usize, lambda: f32, grad
 /// the N Gaussians (not the paper's plain sum) keeps λ independent of the scene size:
 /// the per-Gaussian image-loss gradient it competes with also scales like 1/N.
 /// Gaussians in the gated region {γ ≥ `open`} are left free (the colour gate,
-/// docs/method.md#m7-losses); `open` > 1 anchors every Gaussian (the paper).
+/// docs/method.md#m7-losses); `open` > 1 anchors every Gaussian (the paper). Only the
+/// Gaussians `rows` are visited: any set holding every i with c_i ≠ c_i⁽⁰⁾ gives the
+/// same result, as the others add nothing.
 #[allow(clippy::too_many_arguments)]
 pub fn leakage(
     c: &[f32],
@@ -28,11 +38,12 @@ pub fn leakage(
     open: f32,
     k: usize,
     lambda: f32,
+    rows: impl Iterator<Item = usize>,
     grad: &mut [f32],
 ) -> f64 {
     let mut loss = 0.0f64;
     let inv_n = 1.0 / gamma.len().max(1) as f32;
-    for (i, &g) in gamma.iter().enumerate().filter(|(_, &g)| g < open) {
+    for (i, g) in rows.map(|i| (i, gamma[i])).filter(|&(_, g)| g < open) {
         let wgt = (1.0 - g) * inv_n;
         for j in i * k..(i + 1) * k {
             let diff = c[j] - c0[j];
@@ -105,12 +116,16 @@ mod tests {
         c02.extend_from_slice(&c0);
         let mut gc = [0.0f32; 6];
         // Two Gaussians (N = 2): the second is unchanged.
-        let l = leakage(&c2, &c02, &[0.25, 0.0], 2.0, 3, 4.0, &mut gc);
+        let l = leakage(&c2, &c02, &[0.25, 0.0], 2.0, 3, 4.0, 0..2, &mut gc);
         assert!((l - 4.0 * 0.75 * 0.5 / 2.0).abs() < 1e-6, "{l}");
         assert_eq!(gc, [1.5, -1.5, 0.0, 0.0, 0.0, 0.0]);
         // With the gated region open at γ ≥ 0.2 the first Gaussian is free.
         let mut gc = [0.0f32; 6];
-        assert_eq!(leakage(&c2, &c02, &[0.25, 0.0], 0.2, 3, 4.0, &mut gc), 0.0);
+        assert_eq!(leakage(&c2, &c02, &[0.25, 0.0], 0.2, 3, 4.0, 0..2, &mut gc), 0.0);
+        // Visiting only the changed Gaussian gives the same as visiting both.
+        let mut g1 = [0.0f32; 6];
+        assert_eq!(leakage(&c2, &c02, &[0.25, 0.0], 2.0, 3, 4.0, [0].into_iter(), &mut g1), l);
+        assert_eq!(g1, [1.5, -1.5, 0.0, 0.0, 0.0, 0.0]);
         assert_eq!(gc, [0.0; 6]);
     }
 

@@ -3,11 +3,13 @@
 //! per epoch), the image term L_img of one step, and the loop's records.
 
 use crate::config::EditConfig;
+use crate::delta::Delta;
 use crate::error::EditError;
 use crate::round::RoundStats;
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use std::time::Instant;
 use transsplat_raster::{Frame, Grads, ImageGrads};
 use transsplat_scene::{Camera, Gaussians};
@@ -92,6 +94,9 @@ pub struct StageTimes {
     pub optimiser: f64,
     /// Checkpoint writes.
     pub checkpoint: f64,
+    /// Building the blend weights of the Gaussians that can change colour (frozen
+    /// geometry with a colour mask, [`crate::delta`]).
+    pub weights: f64,
 }
 
 /// Seconds since `t`, restarting it.
@@ -102,29 +107,128 @@ pub fn lap(t: &mut Instant) -> f64 {
     s
 }
 
-/// Renders `cam` with the current model and backpropagates λ_img L_img against
-/// `target`: returns the frame, the gradients and λ_img L_img; adds the stages' times.
-pub fn image_gradients(
-    tr: &Trainer,
-    cam: &Camera,
-    target: &[f32],
-    cfg: &EditConfig,
-    times: &mut StageTimes,
-) -> (Frame, Grads, f64) {
-    let (w, h) = (cam.width as usize, cam.height as usize);
-    let mut clock = Instant::now();
-    let (img, frame) = tr.render(cam);
-    times.binning += frame.binning_s;
-    times.tiles += lap(&mut clock) - frame.binning_s;
-    let mut il = transsplat_train::loss::image_loss(&img.rgb, target, w, h, None, cfg.loss.dssim);
-    if cfg.loss.img != 1.0 {
-        il.grad.iter_mut().for_each(|g| *g *= cfg.loss.img);
+/// How the steps render and take L_img's colour gradients (docs/method.md#m10-speed).
+pub enum Renderer {
+    /// Every Gaussian of the view: the rasterizer's forward and backward.
+    Full,
+    /// Geometry is frozen and the method's colour mask is not known yet: the usable
+    /// views' source renders, kept for [`Delta`].
+    Pending(Vec<Vec<f32>>),
+    /// The colour change of the covered Gaussians alone, with the gradient buffer
+    /// reused from step to step (zero outside the covered rows between steps).
+    Delta(Delta, Grads),
+}
+
+impl Renderer {
+    /// [`Renderer::Pending`] when `frozen` (the source renders `bases` of the usable
+    /// views), else [`Renderer::Full`].
+    pub fn new(frozen: bool, bases: impl FnOnce() -> Vec<Vec<f32>>) -> Self {
+        if frozen {
+            Renderer::Pending(bases())
+        } else {
+            Renderer::Full
+        }
     }
-    times.image_loss += lap(&mut clock);
-    let mut grads = tr.zero_grads();
-    tr.backward(cam, &frame, &ImageGrads { rgb: &il.grad, ..Default::default() }, &mut grads);
-    times.backward += lap(&mut clock);
-    (frame, grads, (il.loss * cfg.loss.img) as f64)
+
+    /// Follows the method's colour mask `mask` at the top of a step: starts or extends
+    /// the covered set, or settles on full renders when there is no mask or it is
+    /// too large ([`crate::delta::MAX_SHARE`]). `source` is the source scene and
+    /// `cams` the usable views' cameras.
+    pub fn follow(&mut self, mask: Option<&[bool]>, tr: &Trainer, source: &Gaussians, cams: &[&Camera]) {
+        let Some(mask) = mask else {
+            *self = Renderer::Full;
+            return;
+        };
+        match self {
+            Renderer::Full => {}
+            Renderer::Pending(bases) => {
+                let bases = std::mem::take(bases);
+                *self = match Delta::new(source, &tr.model.gaussians.sh, mask, cams, bases) {
+                    Some(d) => Renderer::Delta(d, tr.zero_grads()),
+                    None => Renderer::Full,
+                };
+            }
+            Renderer::Delta(d, _) => {
+                if !d.cover(source, mask, cams) {
+                    *self = Renderer::Full;
+                }
+            }
+        }
+    }
+
+    /// Renders usable view `k` (camera `cam`) with the current model and
+    /// backpropagates λ_img L_img against `target`, keeping the colour gradients only
+    /// inside `mask`: returns the frame (of a full render), the gradients and
+    /// λ_img L_img; adds the stages' times.
+    #[allow(clippy::too_many_arguments)]
+    pub fn image_gradients(
+        &mut self,
+        tr: &Trainer,
+        k: usize,
+        cam: &Camera,
+        target: &[f32],
+        mask: Option<&[bool]>,
+        cfg: &EditConfig,
+        times: &mut StageTimes,
+    ) -> (Option<Frame>, Grads, f64) {
+        let (w, h) = (cam.width as usize, cam.height as usize);
+        let mut clock = Instant::now();
+        let splats = tr.splats();
+        let (rgb, frame) = match self {
+            Renderer::Delta(d, _) => (d.render(k, &splats, cam), None),
+            _ => {
+                let (img, frame) = tr.render(cam);
+                times.binning += frame.binning_s;
+                (img.rgb, Some(frame))
+            }
+        };
+        times.tiles += lap(&mut clock) - frame.as_ref().map_or(0.0, |f| f.binning_s);
+        let mut il = transsplat_train::loss::image_loss(&rgb, target, w, h, None, cfg.loss.dssim);
+        if cfg.loss.img != 1.0 {
+            il.grad.iter_mut().for_each(|g| *g *= cfg.loss.img);
+        }
+        times.image_loss += lap(&mut clock);
+        let grads = match (self, &frame) {
+            (Renderer::Delta(d, buf), _) => {
+                let mut grads = std::mem::take(buf);
+                let mask = mask.expect("a delta render follows a colour mask");
+                d.backward(k, &splats, cam, &il.grad, mask, &mut grads.sh);
+                grads
+            }
+            (_, Some(frame)) => {
+                let mut grads = tr.zero_grads();
+                tr.backward(cam, frame, &ImageGrads { rgb: &il.grad, ..Default::default() }, &mut grads);
+                if let Some(m) = mask {
+                    mask_colour_gradients(&mut grads.sh, m, tr.model.gaussians.sh_coeffs() * 3);
+                }
+                grads
+            }
+            (_, None) => unreachable!("a full render has a frame"),
+        };
+        times.backward += lap(&mut clock);
+        (frame, grads, (il.loss * cfg.loss.img) as f64)
+    }
+
+    /// Takes back the step's gradients: with [`Renderer::Delta`] they are zeroed where
+    /// a step can write them (the covered rows' colours, the features) and kept for
+    /// the next step.
+    pub fn recycle(&mut self, mut grads: Grads) {
+        if let Renderer::Delta(d, buf) = self {
+            d.zero_rows(&mut grads.sh);
+            grads.features.par_iter_mut().for_each(|g| *g = 0.0);
+            *buf = grads;
+        }
+    }
+}
+
+/// Zeroes the colour (SH) gradients outside `mask` (`k` values per Gaussian): the
+/// colour mask of the method (TransSplat's colour gate, masklift's lifted mask).
+pub fn mask_colour_gradients(grad_sh: &mut [f32], mask: &[bool], k: usize) {
+    grad_sh.par_chunks_mut(k.max(1)).zip(mask).for_each(|(g, &keep)| {
+        if !keep && g.iter().any(|&v| v != 0.0) {
+            g.fill(0.0);
+        }
+    });
 }
 
 /// Stops the run when a loss of the step is NaN or infinite, naming the loss.
@@ -205,6 +309,13 @@ mod tests {
             epoch.sort();
             assert_eq!(epoch, vec![0, 1, 2, 3, 4]);
         }
+    }
+
+    #[test]
+    fn colour_gradients_are_kept_inside_the_mask() {
+        let mut g = vec![1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0];
+        mask_colour_gradients(&mut g, &[false, true, false], 2);
+        assert_eq!(g, vec![0.0, 0.0, 3.0, 4.0, 0.0, 0.0]);
     }
 
     #[test]

@@ -2,8 +2,10 @@
 //! stopped at step k and resumed from its checkpoint gives bit-identical Gaussians,
 //! gate, losses and transport rounds to an uninterrupted edit, without calling the
 //! 2D editor again (with transport rounds, densification inside the gate and a
-//! stop between rounds); a changed setting or instruction is refused; a poisoned
-//! learning rate stops naming the step and the parameter group.
+//! stop between rounds, and with frozen geometry, where steps render only the colour
+//! change); with frozen geometry that render gives the edit of full renders; a
+//! changed setting or instruction is refused; a poisoned learning rate stops naming
+//! the step and the parameter group.
 
 use transsplat_edit::checkpoint::{EDITOR_FILE, STATE_FILE};
 use transsplat_edit::{run_with, semantic, EditConfig, EditError, EditJob, EditResult, Method};
@@ -120,6 +122,57 @@ fn stopped_and_resumed_edits_are_bit_identical_without_calling_the_editor_again(
         assert_eq!(control.checkpoint.unwrap().last, Some(30), "periodic checkpoints continue");
         assert_same(&whole, &resumed);
     }
+}
+
+/// The edit's default settings (frozen geometry) at the test's size.
+fn frozen(method: Method) -> EditConfig {
+    let mut c = EditConfig::default().for_method(method);
+    c.schedule.steps = 40;
+    c.schedule.transport_every = 10;
+    c
+}
+
+#[test]
+fn with_frozen_geometry_rendering_the_colour_change_alone_gives_the_full_render_edit() {
+    let scene = scene();
+    let calls = std::cell::Cell::new(0);
+    for method in [Method::Transsplat, Method::Masklift] {
+        let cfg = frozen(method);
+        let mut full_cfg = cfg.clone();
+        full_cfg.schedule.delta_render = false;
+        let delta = edit(&scene, &cfg, PROMPT, &mut Control::default(), &calls).unwrap();
+        let full = edit(&scene, &full_cfg, PROMPT, &mut Control::default(), &calls).unwrap();
+        let (a, b) = (&delta.gaussians.sh, &full.gaussians.sh);
+        let src = &scene.gaussians.sh;
+        let moved = b.iter().zip(src).filter(|(x, y)| (*x - *y).abs() > 1e-3).count();
+        assert!(moved > 20, "{method:?}: the edit changes colours ({moved})");
+        let worst = a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+        assert!(worst < 1e-3, "{method:?}: largest SH difference {worst}");
+        for (x, y) in delta.losses.iter().zip(&full.losses) {
+            assert!((x.img - y.img).abs() <= 1e-4 * y.img.abs().max(1e-3), "{method:?} step {}", x.step);
+        }
+        assert_eq!(delta.rounds.len(), full.rounds.len());
+    }
+}
+
+#[test]
+fn a_resumed_edit_with_frozen_geometry_is_bit_identical() {
+    let scene = scene();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = frozen(Method::Transsplat);
+    let calls = std::cell::Cell::new(0);
+    let whole = edit(&scene, &cfg, PROMPT, &mut Control::default(), &calls).unwrap();
+    let ckdir = dir.path().join("frozen");
+    let mut control = Control {
+        checkpoint: Some(Checkpointer::new(&ckdir, 10)),
+        stop_after: Some(23),
+        ..Default::default()
+    };
+    edit(&scene, &cfg, PROMPT, &mut control, &calls).unwrap_err();
+    let mut control =
+        Control { checkpoint: Some(Checkpointer::new(&ckdir, 10)), resume: true, ..Default::default() };
+    let resumed = edit(&scene, &cfg, PROMPT, &mut control, &calls).unwrap();
+    assert_same(&whole, &resumed);
 }
 
 #[test]

@@ -11,8 +11,8 @@ use crate::bin::{Binned, Packed, TILE};
 use crate::fastexp::exp_neg;
 use crate::project::Splat2dGrads;
 
-const ALPHA_MIN: f32 = 1.0 / 255.0;
-const T_MIN: f32 = 1e-4;
+pub(crate) const ALPHA_MIN: f32 = 1.0 / 255.0;
+pub(crate) const T_MIN: f32 = 1e-4;
 
 /// Lanes per vector: a tile row is processed as two halves of 8 pixels.
 const HALF: usize = 8;

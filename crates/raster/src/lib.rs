@@ -26,6 +26,7 @@ pub mod kernel;
 mod par;
 pub mod project;
 pub mod sh;
+pub mod weights;
 
 use bin::Binned;
 use kernel::{Accum, ForwardState, PixelGrads, TileOut};
@@ -155,7 +156,7 @@ impl Frame {
     }
 }
 
-fn validate(splats: &Splats, cam: &Camera) {
+pub(crate) fn validate(splats: &Splats, cam: &Camera) {
     let n = splats.len();
     assert!(
         splats.log_scales.len() == n

@@ -230,6 +230,31 @@ fn sh_color(view: &View, p: &GaussianParams) -> [f32; 3] {
     c
 }
 
+/// The colour a Gaussian is rendered with from `view`: c = max(Σ_k sh_k Y_k(d) + 0.5, 0)
+/// over the active SH degree, d the unit direction from the camera centre.
+#[inline(always)]
+pub fn view_colour(view: &View, p: &GaussianParams) -> [f32; 3] {
+    sh_color(view, p).map(|c| c.max(0.0))
+}
+
+/// Backward of [`view_colour`] to the SH coefficients (mean held fixed): writes
+/// ∂L/∂sh_{k,c} = Y_k(d) ∂L/∂c_c into `v_sh` (`[coefficient][channel]`, the active
+/// coefficients) and returns ∂L/∂c with the clamp applied (0 where the SH colour is
+/// below 0: the clamp passes no gradient there).
+#[inline(always)]
+pub fn colour_backward(view: &View, p: &GaussianParams, v_colour: [f32; 3], v_sh: &mut [f32]) -> [f32; 3] {
+    let raw = sh_color(view, p);
+    let vcol: [f32; 3] = std::array::from_fn(|c| if raw[c] < 0.0 { 0.0 } else { v_colour[c] });
+    let (d, _) = view_dir(view, p.mean);
+    let b = sh::basis(p.active_degree, d);
+    for kk in 0..crate::sh_coeffs(p.active_degree) {
+        for c in 0..3 {
+            v_sh[kk * 3 + c] = b[kk] * vcol[c];
+        }
+    }
+    vcol
+}
+
 /// Projects one Gaussian. Returns `None` when it is culled (behind the near plane,
 /// degenerate covariance, or a bounding box that misses the image), else the splat
 /// and its per-axis pixel radius.
@@ -277,7 +302,7 @@ pub fn project(view: &View, p: &GaussianParams) -> Option<(Splat2d, [u32; 2])> {
     {
         return None;
     }
-    let color = sh_color(view, p).map(|c| c.max(0.0));
+    let color = view_colour(view, p);
     let opacity = transsplat_scene::sigmoid(p.opacity_logit);
     Some((Splat2d { xy, conic, opacity, color, depth: tz }, [rx as u32, ry as u32]))
 }
@@ -380,15 +405,12 @@ pub fn project_backward(
     let v_quat: [f32; 4] = std::array::from_fn(|k| (vqn[k] - f.qn[k] * dot) / f.qnorm);
 
     // Colour: c = max(Σ_k sh_k Y_k(d) + 0.5, 0).
-    let raw = sh_color(view, p);
-    let vcol: [f32; 3] = std::array::from_fn(|c| if raw[c] < 0.0 { 0.0 } else { g.color[c] });
+    let vcol = colour_backward(view, p, g.color, v_sh);
     let (d, dn) = view_dir(view, p.mean);
-    let b = sh::basis(p.active_degree, d);
     let k = crate::sh_coeffs(p.active_degree);
     let mut gk = [0.0f32; 16];
     for kk in 0..k {
         for c in 0..3 {
-            v_sh[kk * 3 + c] = b[kk] * vcol[c];
             gk[kk] += p.sh[kk * 3 + c] * vcol[c];
         }
     }

@@ -141,12 +141,37 @@ pub fn expon_lr(step: u64, init: f32, final_: f32, max_steps: u64) -> f32 {
 
 /// Adam state of one group: moments with `width` values per Gaussian (allocated at
 /// the group's first step) and the step counter.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default)]
 pub struct GroupState {
     pub width: usize,
     pub m: Vec<f32>,
     pub v: Vec<f32>,
     pub step: u64,
+    /// `live[i]`: row i of `m` or `v` holds a non-zero value. A cache of the moments
+    /// (not part of equality, not saved): empty means unknown, rebuilt at the next step.
+    pub live: Vec<bool>,
+}
+
+impl PartialEq for GroupState {
+    fn eq(&self, o: &Self) -> bool {
+        (self.width, &self.m, &self.v, self.step) == (o.width, &o.m, &o.v, o.step)
+    }
+}
+
+impl GroupState {
+    /// Recomputes [`GroupState::live`] from the moments.
+    fn rebuild_live(&mut self, n: usize) {
+        let w = self.width.max(1);
+        self.live = if self.m.is_empty() {
+            vec![false; n]
+        } else {
+            self.m
+                .par_chunks(w)
+                .zip(self.v.par_chunks(w))
+                .map(|(m, v)| m.iter().chain(v).any(|&x| x != 0.0))
+                .collect()
+        };
+    }
 }
 
 /// Adam over the seven groups.
@@ -180,6 +205,7 @@ impl Adam {
             let w = g.width;
             g.m = r.gather_fresh_zero(&g.m, w, 0.0);
             g.v = r.gather_fresh_zero(&g.v, w, 0.0);
+            g.live.clear();
         }
     }
 
@@ -188,6 +214,7 @@ impl Adam {
     pub fn zero_moments(&mut self, group: Group, which: Option<&[bool]>) {
         let g = &mut self.groups[group.index()];
         let w = g.width;
+        g.live.clear();
         match which {
             None => {
                 g.m.fill(0.0);
@@ -205,6 +232,11 @@ impl Adam {
 
     /// One Adam step of every group with a non-zero learning rate. `lr` is indexed by
     /// [`Group::index`]. Panics if `grads` does not match the model (a programming error).
+    ///
+    /// A row whose gradient is zero and whose moments are zero is skipped: dense Adam
+    /// would leave it exactly as it is (m and v stay 0, the update is lr · 0 / eps = 0),
+    /// so the result is bit-identical to updating every row, and a step in which few
+    /// Gaussians can change (an edit with frozen geometry) touches only those.
     ///
     /// Returns the first group in which an updated parameter is NaN or infinite (checked
     /// in the same pass as the update, so the numerical-health check costs no extra pass
@@ -236,6 +268,9 @@ impl Adam {
                 st.m = vec![0.0; n * st.width];
                 st.v = vec![0.0; n * st.width];
             }
+            if st.live.len() != n {
+                st.rebuild_live(n);
+            }
             st.step += 1;
             let t = st.step as i32;
             let h = Hyper {
@@ -255,7 +290,8 @@ impl Adam {
                 Group::Rotation => (gs.rotations.as_flattened_mut(), grads.rotations.as_flattened(), 4, 0),
                 Group::Features => (&mut model.features, &grads.features, f, 0),
             };
-            let bad = update_block(params, grad, &mut st.m, &mut st.v, row, off, st.width, &h);
+            let moments = Moments { m: &mut st.m, v: &mut st.v, live: &mut st.live };
+            let bad = update_block(params, grad, moments, row, off, st.width, &h);
             if bad && first_bad.is_none() {
                 first_bad = Some(group);
             }
@@ -273,30 +309,34 @@ struct Hyper {
     sqrt_bc2: f32,
 }
 
-/// Updates columns `off..off + w` of a row-major array with rows of `row` values;
-/// true if any updated value is NaN or infinite.
-#[allow(clippy::too_many_arguments)]
-fn update_block(
-    p: &mut [f32],
-    g: &[f32],
-    m: &mut [f32],
-    v: &mut [f32],
-    row: usize,
-    off: usize,
-    w: usize,
-    h: &Hyper,
-) -> bool {
+/// One group's moments and their live rows.
+struct Moments<'a> {
+    m: &'a mut [f32],
+    v: &'a mut [f32],
+    live: &'a mut [bool],
+}
+
+/// Updates columns `off..off + w` of a row-major array with rows of `row` values,
+/// skipping rows with zero gradient and zero moments ([`Adam::step`]); true if any
+/// updated value is NaN or infinite.
+fn update_block(p: &mut [f32], g: &[f32], mo: Moments, row: usize, off: usize, w: usize, h: &Hyper) -> bool {
     const ROWS: usize = 2048;
     p.par_chunks_mut(row * ROWS)
         .zip(g.par_chunks(row * ROWS))
-        .zip(m.par_chunks_mut(w * ROWS).zip(v.par_chunks_mut(w * ROWS)))
-        .map(|((p, g), (m, v))| {
+        .zip(mo.m.par_chunks_mut(w * ROWS).zip(mo.v.par_chunks_mut(w * ROWS)))
+        .zip(mo.live.par_chunks_mut(ROWS))
+        .map(|(((p, g), (m, v)), live)| {
             let mut bad = false;
-            for ((pr, gr), (mr, vr)) in p
+            for (((pr, gr), (mr, vr)), lv) in p
                 .chunks_exact_mut(row)
                 .zip(g.chunks_exact(row))
                 .zip(m.chunks_exact_mut(w).zip(v.chunks_exact_mut(w)))
+                .zip(live.iter_mut())
             {
+                if !*lv && gr[off..off + w].iter().all(|&x| x == 0.0) {
+                    continue;
+                }
+                let mut nonzero = false;
                 for k in 0..w {
                     let gk = gr[off + k];
                     let mk = h.b1 * mr[k] + (1.0 - h.b1) * gk;
@@ -306,7 +346,9 @@ fn update_block(
                     let pk = pr[off + k] - h.step_size * mk / (vk.sqrt() / h.sqrt_bc2 + h.eps);
                     pr[off + k] = pk;
                     bad |= !pk.is_finite();
+                    nonzero |= (mk != 0.0) | (vk != 0.0);
                 }
+                *lv = nonzero;
             }
             bad
         })
@@ -373,6 +415,51 @@ mod tests {
         let want = 2.1 - 0.1 / (1.0 - b1 * b1) * m / (v.sqrt() / (1.0 - b2 * b2).sqrt());
         assert!((model.gaussians.means[0][1] as f64 - want).abs() < 1e-6);
         assert_eq!(adam.groups[Group::Position.index()].step, 2);
+    }
+
+    #[test]
+    fn skipping_rows_without_gradient_or_moments_is_bit_identical_to_dense_adam() {
+        // Eight Gaussians; the features group (width 2). Row 1 gets a gradient at step 1
+        // only (it must keep moving by momentum), row 5 from step 2 on, row 3 never.
+        let g = Gaussians {
+            means: vec![[0.0; 3]; 8],
+            log_scales: vec![[0.0; 3]; 8],
+            rotations: vec![[1.0, 0.0, 0.0, 0.0]; 8],
+            opacity_logits: vec![0.0; 8],
+            sh_degree: 0,
+            sh: vec![0.0; 24],
+            ..Default::default()
+        };
+        let feats: Vec<f32> = (0..16).map(|k| (k as f32 * 0.37).sin()).collect();
+        let mut model = Model::with_features(g, feats.clone(), 2).unwrap();
+        let mut adam = Adam::new(&model);
+        let lr = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.05];
+        // Dense reference in f32 with the same expressions.
+        let (mut p, mut m, mut v) = (feats, vec![0.0f32; 16], vec![0.0f32; 16]);
+        for step in 1..=4 {
+            let mut grads = Grads::zeros(8, 0, 2);
+            let rows: &[usize] = if step == 1 { &[1, 6] } else { &[5, 6] };
+            for &r in rows {
+                grads.features[r * 2] = 0.3 * step as f32 - 0.5;
+                grads.features[r * 2 + 1] = -0.2;
+            }
+            assert!(adam.step(&mut model, &grads, &lr).is_none());
+            let (b1, b2) = (0.9f32, 0.999f32);
+            let step_size = 0.05 / (1.0 - b1.powi(step));
+            let bc2 = (1.0 - b2.powi(step)).sqrt();
+            for k in 0..16 {
+                let gk = grads.features[k];
+                m[k] = b1 * m[k] + (1.0 - b1) * gk;
+                v[k] = b2 * v[k] + (1.0 - b2) * gk * gk;
+                p[k] -= step_size * m[k] / (v[k].sqrt() / bc2 + 1e-15);
+            }
+            let bits = |x: &[f32]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&model.features), bits(&p), "step {step}");
+            let st = &adam.groups[Group::Features.index()];
+            assert_eq!((bits(&st.m), bits(&st.v)), (bits(&m), bits(&v)), "step {step}");
+        }
+        let live = &adam.groups[Group::Features.index()].live;
+        assert_eq!(live, &[false, true, false, false, false, true, true, false]);
     }
 
     #[test]

@@ -286,7 +286,7 @@ pub fn get_trainer(a: &Archive, p: &str, config: TrainConfig) -> Result<Trainer,
         if m.len() != v.len() || !(m.is_empty() || m.len() == want) {
             return Err(a.err(format!("Adam moments of group {g} do not match {n} Gaussians")).into());
         }
-        *st = GroupState { width: st.width, m: m.to_vec(), v: v.to_vec(), step: steps[g] };
+        *st = GroupState { width: st.width, m: m.to_vec(), v: v.to_vec(), step: steps[g], live: Vec::new() };
     }
     let stats = DensifyStats {
         grad_accum: len("stats.grad_accum", 1)?,

@@ -10,7 +10,7 @@
 //! let mut pass = trainer.forward_backward(&cam, &target, weights);  // image loss + grads
 //! // ... add their own terms into pass.grads (sh, features, ...), or render and
 //! // call trainer.backward(...) with their own image gradients ...
-//! let report = trainer.finish_step(&pass.grads, &pass.frame, densify_mask)?;
+//! let report = trainer.finish_step(&pass.grads, Some(&pass.frame), densify_mask)?;
 //! // report.reindex: apply it to any per-Gaussian array kept outside the model
 //! ```
 //!
@@ -232,7 +232,9 @@ impl Trainer {
     }
 
     /// Finishes a step begun with [`Trainer::begin_step`]: records densification
-    /// statistics from `grads.means2d` and `frame`, takes the Adam step, then
+    /// statistics from `grads.means2d` and `frame` (the step's render; `None` only
+    /// when no statistics are due, e.g. a step rendered by blend weights with frozen
+    /// geometry), takes the Adam step, then
     /// densifies / prunes / resets opacity on schedule. `densify_mask` restricts
     /// which Gaussians may be cloned, split, pruned or reset. A NaN or infinite
     /// gradient (before the update) or parameter (after it) is a
@@ -240,11 +242,11 @@ impl Trainer {
     pub fn finish_step(
         &mut self,
         grads: &Grads,
-        frame: &Frame,
+        frame: Option<&Frame>,
         densify_mask: Option<&[bool]>,
     ) -> Result<StepReport, TrainError> {
         let n = self.model.len();
-        if grads.means.len() != n || grads.means2d.len() != n || frame.radii().len() != n {
+        if grads.means.len() != n || grads.means2d.len() != n || frame.is_some_and(|f| f.radii().len() != n) {
             return Err(TrainError::Mismatch(format!(
                 "gradients or frame were made for a different number of Gaussians than the model's {n}"
             )));
@@ -262,6 +264,9 @@ impl Trainer {
         }
         let d = self.config.densify.clone();
         if d.records(step) {
+            let frame = frame.ok_or_else(|| {
+                TrainError::Mismatch("densification statistics need the step's frame".into())
+            })?;
             self.stats.record(
                 &grads.means2d,
                 frame.radii(),
@@ -305,7 +310,7 @@ impl Trainer {
         if !pass.loss.loss.is_finite() {
             return Err(TrainError::NonFinite { step: self.step, what: "the image loss".into() });
         }
-        let mut report = self.finish_step(&pass.grads, &pass.frame, None)?;
+        let mut report = self.finish_step(&pass.grads, Some(&pass.frame), None)?;
         report.loss = pass.loss.loss;
         Ok(report)
     }

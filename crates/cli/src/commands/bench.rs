@@ -203,6 +203,7 @@ pub fn edit(args: &EditArgs, cancel: &AtomicBool) -> anyhow::Result<()> {
             ("    method terms", st.method_terms),
             ("    optimiser + densification", st.optimiser),
             ("    checkpoints", st.checkpoint),
+            ("    blend weights", st.weights),
             ("write PLY", r.write_s),
         ];
         for (name, s) in rows {

@@ -64,17 +64,16 @@ impl EditMethod for Masklift {
         Ok(())
     }
 
-    fn add_gradients(&self, tr: &Trainer, _view: &ViewData, grads: &mut Grads, _rec: &mut StepLosses) {
-        let kc = tr.model.gaussians.sh_coeffs() * 3;
-        for (g, &keep) in grads.sh.chunks_mut(kc).zip(&self.inside) {
-            if !keep {
-                g.fill(0.0);
-            }
-        }
-    }
+    /// Nothing of its own: the colour gradients are masked outside the lifted mask by
+    /// the loop ([`EditMethod::colour_mask`]).
+    fn add_gradients(&self, _tr: &Trainer, _view: &ViewData, _grads: &mut Grads, _rec: &mut StepLosses) {}
 
     fn densify_mask(&self) -> Option<Vec<bool>> {
         Some(self.inside.clone())
+    }
+
+    fn colour_mask(&self) -> Option<&[bool]> {
+        Some(&self.inside)
     }
 
     fn reindex(&mut self, r: &Reindex) {

@@ -49,7 +49,7 @@ pub struct Context<'a> {
 
 /// A method's part in the edit loop. The loop calls, in order: [`add_view`] for
 /// each usable edit view, [`start`] once, then per step [`before_step`],
-/// [`add_gradients`] after the image gradient, [`densify_mask`] when densification
+/// [`colour_mask`] and [`add_gradients`] after the image gradient, [`densify_mask`] when densification
 /// is on and [`reindex`] after the model was rearranged; [`save`] / [`load`] at
 /// checkpoints, and [`gate`] at the end.
 ///
@@ -57,6 +57,7 @@ pub struct Context<'a> {
 /// [`start`]: EditMethod::start
 /// [`before_step`]: EditMethod::before_step
 /// [`add_gradients`]: EditMethod::add_gradients
+/// [`colour_mask`]: EditMethod::colour_mask
 /// [`densify_mask`]: EditMethod::densify_mask
 /// [`reindex`]: EditMethod::reindex
 /// [`save`]: EditMethod::save
@@ -108,6 +109,15 @@ pub trait EditMethod {
     /// The per-Gaussian share of source mass the last transport round moved, if the
     /// method transports ([`crate::round::TransportState::support`]).
     fn support(&self) -> Option<Vec<f32>> {
+        None
+    }
+
+    /// The colour mask: the Gaussians whose colour L_img may change at this step
+    /// (`None`: all). The loop keeps L_img's colour gradients only there. The method's
+    /// own terms may move colours only of Gaussians whose colour already differs from
+    /// the source; then no other Gaussian ever changes colour, and with frozen
+    /// geometry a step renders the change of those alone ([`crate::delta`]).
+    fn colour_mask(&self) -> Option<&[bool]> {
         None
     }
 

@@ -50,6 +50,12 @@ pub struct TransSplat {
     force_round: bool,
     /// Source sides of the last round, reused while the geometry cannot change.
     sources: Vec<ViewSources>,
+    /// With the colour gate: the gated region {γ ≥ `loss.colour_gate`}, where L_img
+    /// may recolour ([`EditMethod::colour_mask`]); empty without the gate.
+    open: Vec<bool>,
+    /// With the colour gate: the rows L_leak visits until the next round
+    /// ([`changeable`]), ascending; `None`: every row.
+    leak_rows: Option<Vec<u32>>,
 }
 
 impl TransSplat {
@@ -65,7 +71,32 @@ impl TransSplat {
             transport: TransportState::new(0),
             force_round: false,
             sources: Vec::new(),
+            open: Vec::new(),
+            leak_rows: None,
         }
+    }
+
+    /// Follows a change of γ: the gated region, and the rows L_leak must visit
+    /// (`tr`: the model now; `None` when it is not at hand, then every row).
+    ///
+    /// The colour gate (docs/method.md#m7-losses): L_img recolours only the gated
+    /// region {γ ≥ `loss.colour_gate`}, the colour mask the loop applies.
+    /// *Why:* a soft L_leak is a penalty the image loss can outweigh: with an L1 image
+    /// loss every view that shows the spill pushes with constant force, and Adam rescales
+    /// both forces alike, so a Gaussian the gate calls 0.2 still drifts towards the
+    /// spilled colour. The paper's γ is meant to make weakly supported Gaussians "more
+    /// conservative"; a Gaussian outside the gated region now does not respond to the
+    /// edit at all, and L_leak still anchors the partly supported ones inside it.
+    fn gate_changed(&mut self, tr: Option<&Trainer>) {
+        let open = self.cfg.loss.colour_gate;
+        if open <= 0.0 {
+            return;
+        }
+        self.open = self.transport.gamma.iter().map(|&g| g >= open).collect();
+        self.leak_rows = tr.map(|tr| {
+            let c = changeable(&tr.model.gaussians.sh, &self.sh0, &self.open, self.kc);
+            (0..c.len() as u32).filter(|&i| c[i as usize]).collect()
+        });
     }
 
     /// True at the steps that run a transport round.
@@ -138,21 +169,21 @@ impl EditMethod for TransSplat {
         self.force_round = false;
         let t = Instant::now();
         let mut stats = self.round(tr, ctx)?;
+        self.gate_changed(Some(tr));
         stats.step = step;
         stats.seconds = t.elapsed().as_secs_f64();
         Ok(Some(stats))
     }
 
-    /// The colour gradients of L_img kept only in the gated region (γ ≥
-    /// `loss.colour_gate`, when on), then L_sem towards z̄ (after the first round),
+    /// (The colour gradients of L_img are kept only in the gated region γ ≥
+    /// `loss.colour_gate` by the loop, through [`EditMethod::colour_mask`].)
+    /// L_sem towards z̄ (after the first round),
     /// L_uot through the step view's plan (one view per step like L_img: an unbiased
     /// estimate of the mean over views), and L_leak towards the source colours.
     fn add_gradients(&self, tr: &Trainer, view: &ViewData, grads: &mut Grads, rec: &mut StepLosses) {
         let (s, d) = (&tr.model.features, tr.model.num_features);
         let (t, l) = (&self.transport, &self.cfg.loss);
-        if l.colour_gate > 0.0 {
-            gate_colour_gradients(&mut grads.sh, &t.gamma, self.kc, l.colour_gate);
-        }
+        let n = t.gamma.len();
         if let Some(z) = &t.zbar {
             rec.sem = losses::semantic(s, z, &t.gamma, d, l.sem, &mut grads.features);
         }
@@ -165,7 +196,14 @@ impl EditMethod for TransSplat {
             // With the colour gate, L_leak anchors only the Gaussians outside the gated region.
             let open = if l.colour_gate > 0.0 { l.colour_gate } else { f32::INFINITY };
             let sh = &tr.model.gaussians.sh;
-            rec.leak = losses::leakage(sh, &self.sh0, &t.gamma, open, self.kc, l.leak, &mut grads.sh);
+            let k = self.kc;
+            rec.leak = match &self.leak_rows {
+                Some(r) => {
+                    let rows = r.iter().map(|&i| i as usize);
+                    losses::leakage(sh, &self.sh0, &t.gamma, open, k, l.leak, rows, &mut grads.sh)
+                }
+                None => losses::leakage(sh, &self.sh0, &t.gamma, open, k, l.leak, 0..n, &mut grads.sh),
+            };
         }
     }
 
@@ -181,6 +219,7 @@ impl EditMethod for TransSplat {
         t.zbar = t.zbar.take().map(|z| r.gather(&z, self.cfg.semantic_dim));
         t.cached.clear();
         self.sources.clear();
+        self.gate_changed(None);
         self.force_round = true;
     }
 
@@ -216,6 +255,7 @@ impl EditMethod for TransSplat {
             return Err(archive_error(a.err(format!("{count} cached view plans for {views} views"))));
         }
         self.transport.cached = (0..count).map(|k| load_plan(a, k, n, d)).collect::<Result<_, _>>()?;
+        self.gate_changed(None);
         Ok(())
     }
 
@@ -223,27 +263,28 @@ impl EditMethod for TransSplat {
         Some(self.transport.support())
     }
 
+    fn colour_mask(&self) -> Option<&[bool]> {
+        (!self.open.is_empty()).then_some(&self.open[..])
+    }
+
     fn gate(self: Box<Self>) -> Option<Vec<f32>> {
         Some(self.transport.gamma)
     }
 }
 
-/// Zeroes the colour (SH) gradients of the Gaussians outside the gated region
-/// {γ_i ≥ `open`} (`k` values per Gaussian): the image loss may recolour only what the
-/// transport supports (docs/method.md#m7-losses).
-///
-/// *Why:* a soft L_leak is a penalty the image loss can outweigh: with an L1 image
-/// loss every view that shows the spill pushes with constant force, and Adam rescales
-/// both forces alike, so a Gaussian the gate calls 0.2 still drifts towards the
-/// spilled colour. The paper's γ is meant to make weakly supported Gaussians "more
-/// conservative"; a Gaussian outside the gated region now does not respond to the
-/// edit at all, and L_leak still anchors the partly supported ones inside it.
-pub fn gate_colour_gradients(grad_sh: &mut [f32], gamma: &[f32], k: usize, open: f32) {
-    for (g, &gm) in grad_sh.chunks_mut(k.max(1)).zip(gamma) {
-        if gm < open {
-            g.fill(0.0);
-        }
-    }
+/// The Gaussians whose colour can change until the next round under the colour
+/// gate: the gated region `open`, where L_img may recolour, and those whose colour
+/// already differs from the source (`c`, `c0`: `k` SH values each), where L_leak
+/// pulls back. Every other one gets no colour gradient and keeps its source colour,
+/// so L_leak need not visit it (docs/method.md#m10-speed).
+pub fn changeable(c: &[f32], c0: &[f32], open: &[bool], k: usize) -> Vec<bool> {
+    use rayon::prelude::*;
+    let k = k.max(1);
+    (c.par_chunks(k), c0.par_chunks(k), open.par_iter())
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|(c, c0, &o)| o || c != c0)
+        .collect()
 }
 
 /// Reads cached view plan `k` written by [`TransSplat::save`].
@@ -277,12 +318,12 @@ fn load_plan(a: &Archive, k: usize, n: usize, d: usize) -> Result<ViewTransport,
 
 #[cfg(test)]
 mod tests {
-    use super::gate_colour_gradients;
+    use super::changeable;
 
     #[test]
-    fn colour_gate_keeps_only_the_gated_region() {
-        let mut g = vec![1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0];
-        gate_colour_gradients(&mut g, &[0.49, 0.5, 0.9], 2, 0.5);
-        assert_eq!(g, vec![0.0, 0.0, 3.0, 4.0, 5.0, 6.0]);
+    fn changeable_are_the_gated_region_and_the_changed() {
+        let c0 = [0.1f32, 0.2, 0.3, 0.4, 0.5, 0.6];
+        let c = [0.1f32, 0.2, 0.3, 0.45, 0.5, 0.6];
+        assert_eq!(changeable(&c, &c0, &[true, false, false], 2), vec![true, true, false]);
     }
 }
