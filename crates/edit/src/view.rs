@@ -82,12 +82,36 @@ pub fn source_masses(visibility: &[f32], opacity: &[f32]) -> (Vec<u32>, Vec<f32>
     (idx, a)
 }
 
-fn cosine_distance(x: &[f32], y_unit: &[f32]) -> f32 {
+/// Adds `lambda` (1 − cos(x, y_j)) to `row[j]` for every unit row y_j of `yt`
+/// (stored transposed: `yt[k * m + j]` = y_j[k]), accumulating the dot products in
+/// `dot` (`m` long) so they vectorise over the prototypes; 1 − cos is 1 for x = 0.
+fn add_cosine_distances(row: &mut [f32], lambda: f32, x: &[f32], yt: &[f32], dot: &mut [f32]) {
     let n = x.iter().map(|v| v * v).sum::<f32>().sqrt();
-    if n <= 0.0 {
-        return 1.0;
+    if !(n > 0.0) {
+        row.iter_mut().for_each(|c| *c += lambda * if n.is_nan() { n } else { 1.0 });
+        return;
     }
-    1.0 - x.iter().zip(y_unit).map(|(a, b)| a * b).sum::<f32>() / n
+    let m = row.len();
+    dot.fill(0.0);
+    for (k, &xk) in x.iter().enumerate() {
+        for (dj, &yj) in dot.iter_mut().zip(&yt[k * m..(k + 1) * m]) {
+            *dj += xk * yj;
+        }
+    }
+    for (c, &dj) in row.iter_mut().zip(dot.iter()) {
+        *c += lambda * (1.0 - dj / n);
+    }
+}
+
+/// `rows × cols` row-major → `cols × rows`.
+fn transposed(v: &[f32], rows: usize, cols: usize) -> Vec<f32> {
+    let mut t = vec![0.0f32; v.len()];
+    for r in 0..rows {
+        for c in 0..cols {
+            t[c * rows + r] = v[r * cols + c];
+        }
+    }
+    t
 }
 
 /// The three-term cost (paper eq. (4) / appendix eq. for C_im^v), row-major
@@ -104,23 +128,29 @@ pub fn cost(
     use rayon::prelude::*;
     let (m, d, da) = (protos.len(), protos.d, protos.d_app);
     let inv = 1.0 / (diag * diag);
+    let (et, psit) = (transposed(&protos.e, m, d), transposed(&protos.psi, m, da));
     let mut c = vec![0.0f32; means2d.len() * m];
-    c.par_chunks_mut(m.max(1)).enumerate().with_min_len(256).for_each(|(i, row)| {
-        let si = &s[i * d..(i + 1) * d];
-        let pi = &phi[i * da..(i + 1) * da];
-        for (j, cij) in row.iter_mut().enumerate() {
-            let du = [means2d[i][0] - protos.u[j][0], means2d[i][1] - protos.u[j][1]];
-            let mut v = cfg.lambda_geo * (du[0] * du[0] + du[1] * du[1]) * inv;
+    c.par_chunks_mut(m.max(1)).enumerate().with_min_len(256).for_each_init(
+        || vec![0.0f32; m],
+        |dot, (i, row)| {
+            for (cij, u) in row.iter_mut().zip(&protos.u) {
+                let du = [means2d[i][0] - u[0], means2d[i][1] - u[1]];
+                *cij = cfg.lambda_geo * (du[0] * du[0] + du[1] * du[1]) * inv;
+            }
             if cfg.lambda_sem != 0.0 {
-                v += cfg.lambda_sem * cosine_distance(si, &protos.e[j * d..(j + 1) * d]);
+                add_cosine_distances(row, cfg.lambda_sem, &s[i * d..(i + 1) * d], &et, dot);
             }
             if cfg.lambda_app != 0.0 {
-                v += cfg.lambda_app * cosine_distance(pi, &protos.psi[j * da..(j + 1) * da]);
+                add_cosine_distances(row, cfg.lambda_app, &phi[i * da..(i + 1) * da], &psit, dot);
             }
             // NaN stays NaN so the transport crate reports it; rounding below 0 is clipped.
-            *cij = if v.is_nan() { v } else { v.max(0.0) };
-        }
-    });
+            for cij in row.iter_mut() {
+                if !cij.is_nan() {
+                    *cij = cij.max(0.0);
+                }
+            }
+        },
+    );
     c
 }
 

@@ -119,14 +119,22 @@ impl TransSplat {
                 prototypes: p,
             })
             .collect();
+        let t = Instant::now();
         if !geometry_frozen(&self.cfg) || self.sources.len() != views.len() {
             self.sources = round::view_sources(&tr.model.gaussians, &views);
         }
+        let sources_s = t.elapsed().as_secs_f64();
         let cams: Vec<usize> = ctx.views.iter().map(|v| v.cam).collect();
         let d = tr.model.num_features;
         let plans =
             round::solve_views(&tr.model.features, d, &views, &cams, &self.sources, &self.cfg.transport)?;
-        Ok(self.transport.update(plans, &tr.model.features, d, &self.cfg))
+        let solve_s = t.elapsed().as_secs_f64() - sources_s;
+        let stats = self.transport.update(plans, &tr.model.features, d, &self.cfg);
+        tracing::debug!(
+            "transport round: source sides {sources_s:.2} s, view plans {solve_s:.2} s, fusion and gate {:.2} s",
+            t.elapsed().as_secs_f64() - sources_s - solve_s
+        );
+        Ok(stats)
     }
 }
 
