@@ -42,6 +42,7 @@ pub struct ImageLoss {
     /// `(1 − λ) l1 + λ (1 − ssim)`.
     pub loss: f32,
     pub l1: f32,
+    /// Mean SSIM; NaN when λ = 0 (not measured: the loss does not need it, see [`ssim`]).
     pub ssim: f32,
     /// `H × W × 3`, ∂loss/∂render.
     pub grad: Vec<f32>,
@@ -103,11 +104,7 @@ pub fn image_loss(
             }
         }
     } else {
-        for c in 0..3 {
-            let x: Vec<f32> = (0..px).map(|p| render[p * 3 + c]).collect();
-            let y: Vec<f32> = (0..px).map(|p| target[p * 3 + c]).collect();
-            ssim_sum += ssim_channel(&x, &y, width, height, None, weights).0;
-        }
+        return ImageLoss { loss: l1, l1, ssim: f32::NAN, grad };
     }
     let ssim = (ssim_sum * norm as f64) as f32;
     ImageLoss { loss: wl1 * l1 + lambda_dssim * (1.0 - ssim), l1, ssim, grad }
@@ -116,7 +113,20 @@ pub fn image_loss(
 /// INRIA's `ssim(img1, img2)`: the mean SSIM over pixels and channels of two
 /// `H × W × 3` images.
 pub fn ssim(a: &[f32], b: &[f32], width: usize, height: usize) -> f32 {
-    image_loss(a, b, width, height, None, 0.0).ssim
+    let px = width * height;
+    assert!(a.len() == px * 3 && b.len() == px * 3, "image sizes differ from {width}x{height}");
+    if px == 0 {
+        return f32::NAN;
+    }
+    let sum: f64 = (0..3)
+        .map(|c| {
+            let x: Vec<f32> = (0..px).map(|p| a[p * 3 + c]).collect();
+            let y: Vec<f32> = (0..px).map(|p| b[p * 3 + c]).collect();
+            ssim_channel(&x, &y, width, height, None, None).0
+        })
+        .sum();
+    let norm = (1.0 / (3.0 * px as f64)) as f32;
+    (sum * norm as f64) as f32
 }
 
 /// Peak signal-to-noise ratio (peak 1) of `render` clamped to [0, 1] against

@@ -126,6 +126,9 @@ impl TransSplat {
         let sources_s = t.elapsed().as_secs_f64();
         let cams: Vec<usize> = ctx.views.iter().map(|v| v.cam).collect();
         let d = tr.model.num_features;
+        // The last round's plans are not read by this one: free them first (a plan per
+        // view and visible Gaussian; at a million Gaussians about a gigabyte).
+        self.transport.cached = Vec::new();
         let plans =
             round::solve_views(&tr.model.features, d, &views, &cams, &self.sources, &self.cfg.transport)?;
         let solve_s = t.elapsed().as_secs_f64() - sources_s;
