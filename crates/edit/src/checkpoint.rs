@@ -29,8 +29,10 @@ pub const EDITOR_FILE: &str = "editor.ckpt";
 /// The loop state's file in the checkpoint folder.
 pub const STATE_FILE: &str = "edit.ckpt";
 /// The format of both files: 2 since editors return no features (earlier files held
-/// E_v and Φ_v) and methods store their own state.
-const FORMAT: u64 = 2;
+/// E_v and Φ_v) and methods store their own state; 3 since TransSplat steps the
+/// semantic latents itself (their Adam moments moved from the trainer's state to the
+/// method's).
+const FORMAT: u64 = 3;
 
 fn err(e: TrainError) -> EditError {
     EditError::Checkpoint(e.to_string())

@@ -93,9 +93,9 @@ pub fn run_with(
         ls.step = step;
         ls.elapsed_s = before + clock.elapsed().as_secs_f64();
         let io = Instant::now();
-        checkpoint_or_stop(control, start, &edited, &mut editor_sum, &tr, &ls, method.as_ref())?;
+        checkpoint_or_stop(control, start, &edited, &mut editor_sum, &mut tr, &mut ls, method.as_mut())?;
         ls.stages.checkpoint += io.elapsed().as_secs_f64();
-        if let Some(mut r) = method.before_step(step, &tr, &ctx)? {
+        if let Some(mut r) = method.before_step(step, &mut tr, &mut ls.losses, &ctx)? {
             r.round = ls.rounds.len();
             progress(Progress::Round(&r));
             ls.rounds.push(r);
@@ -104,16 +104,18 @@ pub fn run_with(
         renderer.follow(method.colour_mask(), &tr, job.gaussians, &view_cams);
         ls.stages.weights += t.elapsed().as_secs_f64();
         let k = ls.order.next(views.len());
-        let rec = optimise_step(step, &mut tr, method.as_mut(), &mut renderer, k, &ctx, cfg, &mut ls.stages)?;
+        let stages = &mut ls.stages;
+        optimise_step(step, &mut tr, method.as_mut(), &mut renderer, k, &ctx, cfg, &mut ls.losses, stages)?;
+        let rec = ls.losses.last().expect("the step's record");
         progress(Progress::Step {
             step: step + 1,
             steps: cfg.schedule.steps,
             loss: rec.img + rec.sem + rec.leak,
         });
-        ls.losses.push(rec);
     }
 
     // 6. The edited scene and the run's records.
+    method.sync(&mut tr, &mut ls.losses)?;
     ls.elapsed_s = before + clock.elapsed().as_secs_f64();
     Ok(finish(tr, method, ls, edited, prototypes))
 }
@@ -158,14 +160,15 @@ fn checkpoint_or_stop(
     start: usize,
     edited: &[Option<EditedView>],
     editor_sum: &mut Option<u64>,
-    tr: &Trainer,
-    ls: &LoopState,
-    method: &dyn EditMethod,
+    tr: &mut Trainer,
+    ls: &mut LoopState,
+    method: &mut dyn EditMethod,
 ) -> Result<(), EditError> {
     let step = ls.step;
     let stop = control.should_stop(step as u64);
     if let Some(ck) = control.checkpoint.as_mut() {
         if ck.due(step as u64, start as u64) || (stop && ck.last != Some(step as u64)) {
+            method.sync(tr, &mut ls.losses)?;
             let sum = match *editor_sum {
                 Some(s) => s,
                 None => *editor_sum.insert(ckpt::save_edited(ck, edited, step)?),
@@ -181,7 +184,8 @@ fn checkpoint_or_stop(
 
 /// One optimisation step on usable view `k`: L_img (colour gradients inside the
 /// method's colour mask) and the method's terms, the NaN checks, Adam and
-/// densification (only where the method allows).
+/// densification (only where the method allows); the step's record is pushed onto
+/// `losses`.
 #[allow(clippy::too_many_arguments)]
 fn optimise_step(
     step: usize,
@@ -191,8 +195,9 @@ fn optimise_step(
     k: usize,
     ctx: &Context,
     cfg: &EditConfig,
+    losses: &mut Vec<StepLosses>,
     times: &mut StageTimes,
-) -> Result<StepLosses, EditError> {
+) -> Result<(), EditError> {
     tr.begin_step();
     let vd = &ctx.views[k];
     let cam = &ctx.cameras[vd.cam];
@@ -201,10 +206,16 @@ fn optimise_step(
     let mut rec = StepLosses { step, img, ..Default::default() };
     let mut clock = Instant::now();
     method.add_gradients(tr, vd, &mut grads, &mut rec);
-    times.method_terms += optimise::lap(&mut clock);
     optimise::check_losses(&rec, tr.step)?;
-    // The mask is read only at densification steps: built only then.
-    let mask = if tr.config.densify.densifies(tr.step) { method.densify_mask() } else { None };
+    losses.push(rec);
+    // The mask is read only at densification steps: built only then, after the
+    // method's deferred updates are in (the model is about to be rearranged).
+    let densifies = tr.config.densify.densifies(tr.step);
+    if densifies {
+        method.sync(tr, losses)?;
+    }
+    times.method_terms += optimise::lap(&mut clock);
+    let mask = if densifies { method.densify_mask() } else { None };
     let report = tr
         .finish_step(&grads, frame.as_ref(), mask.as_deref())
         .map_err(|e| EditError::Train(e.to_string()))?;
@@ -213,7 +224,7 @@ fn optimise_step(
     if let Some(r) = &report.reindex {
         method.reindex(r);
     }
-    Ok(rec)
+    Ok(())
 }
 
 /// The result: the edited scene with its semantic latents, the method's gate, the

@@ -30,6 +30,7 @@ pub mod error;
 pub mod fusion;
 pub mod gate;
 pub mod job;
+pub mod latents;
 pub mod lift;
 pub mod losses;
 pub mod methods;

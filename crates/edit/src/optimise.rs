@@ -25,8 +25,9 @@ pub struct StepLosses {
     pub leak: f64,
 }
 
-/// The trainer of an edit: the source scene with semantic latents `s` (`N × d`), the
-/// edit's learning rates (position decaying to 1 %), and densification every
+/// The trainer of an edit: the source scene with semantic latents `s` (`N × d`, which
+/// it carries but does not step: the method does), the edit's learning rates
+/// (position decaying to 1 %), and densification every
 /// `schedule.densify_every` steps without opacity resets (or none).
 pub fn trainer(
     g: &Gaussians,
@@ -54,7 +55,8 @@ pub fn trainer(
             opacity: lr.opacity,
             scaling: lr.scale,
             rotation: lr.rotation,
-            features: lr.semantic,
+            // The semantic latents are the method's: it steps them (crate::latents).
+            features: 0.0,
         },
         densify,
         background,

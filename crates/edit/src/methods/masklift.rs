@@ -66,7 +66,7 @@ impl EditMethod for Masklift {
 
     /// Nothing of its own: the colour gradients are masked outside the lifted mask by
     /// the loop ([`EditMethod::colour_mask`]).
-    fn add_gradients(&self, _tr: &Trainer, _view: &ViewData, _grads: &mut Grads, _rec: &mut StepLosses) {}
+    fn add_gradients(&mut self, _tr: &Trainer, _view: &ViewData, _grads: &mut Grads, _rec: &mut StepLosses) {}
 
     fn densify_mask(&self) -> Option<Vec<bool>> {
         Some(self.inside.clone())

@@ -49,9 +49,10 @@ pub struct Context<'a> {
 
 /// A method's part in the edit loop. The loop calls, in order: [`add_view`] for
 /// each usable edit view, [`start`] once, then per step [`before_step`],
-/// [`colour_mask`] and [`add_gradients`] after the image gradient, [`densify_mask`] when densification
-/// is on and [`reindex`] after the model was rearranged; [`save`] / [`load`] at
-/// checkpoints, and [`gate`] at the end.
+/// [`colour_mask`] and [`add_gradients`] after the image gradient, [`sync`] and
+/// [`densify_mask`] when densification is due and [`reindex`] after the model was
+/// rearranged; [`sync`] then [`save`] / [`load`] at checkpoints, and [`sync`] then
+/// [`gate`] at the end.
 ///
 /// [`add_view`]: EditMethod::add_view
 /// [`start`]: EditMethod::start
@@ -60,6 +61,7 @@ pub struct Context<'a> {
 /// [`colour_mask`]: EditMethod::colour_mask
 /// [`densify_mask`]: EditMethod::densify_mask
 /// [`reindex`]: EditMethod::reindex
+/// [`sync`]: EditMethod::sync
 /// [`save`]: EditMethod::save
 /// [`load`]: EditMethod::load
 /// [`gate`]: EditMethod::gate
@@ -75,19 +77,30 @@ pub trait EditMethod {
     fn start(&mut self, g: &Gaussians, ctx: &Context) -> Result<(), EditError>;
 
     /// Runs at the top of step `step`, before its view is rendered (e.g. a transport
-    /// round, whose statistics it returns).
+    /// round, whose statistics it returns); `losses` are the records of the steps so
+    /// far, for [`EditMethod::sync`].
     fn before_step(
         &mut self,
         _step: usize,
-        _tr: &Trainer,
+        _tr: &mut Trainer,
+        _losses: &mut [StepLosses],
         _ctx: &Context,
     ) -> Result<Option<RoundStats>, EditError> {
         Ok(None)
     }
 
     /// Adds the method's terms to the gradients of the step's view and records their
-    /// losses.
-    fn add_gradients(&self, tr: &Trainer, view: &ViewData, grads: &mut Grads, rec: &mut StepLosses);
+    /// losses (a term the method defers is recorded by [`EditMethod::sync`]).
+    fn add_gradients(&mut self, tr: &Trainer, view: &ViewData, grads: &mut Grads, rec: &mut StepLosses);
+
+    /// Brings what the method defers into the model and into the loss records of the
+    /// steps so far: TransSplat advances the semantic latents through the steps since
+    /// the last sync ([`crate::latents`]). The loop calls it before the model is read
+    /// or rearranged: before a checkpoint, before densification and at the end
+    /// (TransSplat syncs itself before a round).
+    fn sync(&mut self, _tr: &mut Trainer, _losses: &mut [StepLosses]) -> Result<(), EditError> {
+        Ok(())
+    }
 
     /// The Gaussians that densification may touch (`None`: all).
     fn densify_mask(&self) -> Option<Vec<bool>> {

@@ -17,5 +17,5 @@ impl EditMethod for Naive {
         Ok(())
     }
 
-    fn add_gradients(&self, _tr: &Trainer, _view: &ViewData, _grads: &mut Grads, _rec: &mut StepLosses) {}
+    fn add_gradients(&mut self, _tr: &Trainer, _view: &ViewData, _grads: &mut Grads, _rec: &mut StepLosses) {}
 }

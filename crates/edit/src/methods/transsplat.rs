@@ -11,6 +11,7 @@ use super::{archive_error, Context, EditMethod};
 use crate::config::EditConfig;
 use crate::edits::ViewData;
 use crate::error::EditError;
+use crate::latents::{Latents, Terms};
 use crate::losses;
 use crate::optimise::{geometry_frozen, StepLosses};
 use crate::prototypes::{self, Prototypes, ViewEvidence};
@@ -50,6 +51,9 @@ pub struct TransSplat {
     force_round: bool,
     /// Source sides of the last round, reused while the geometry cannot change.
     sources: Vec<ViewSources>,
+    /// The semantic latents' optimiser, which steps record into (they move only
+    /// under L_sem and L_uot; the trainer does not step them).
+    latents: Latents,
     /// With the colour gate: the gated region {γ ≥ `loss.colour_gate`}, where L_img
     /// may recolour ([`EditMethod::colour_mask`]); empty without the gate.
     open: Vec<bool>,
@@ -73,6 +77,7 @@ impl TransSplat {
             sources: Vec::new(),
             open: Vec::new(),
             leak_rows: None,
+            latents: Latents::default(),
         }
     }
 
@@ -171,12 +176,15 @@ impl EditMethod for TransSplat {
     fn before_step(
         &mut self,
         step: usize,
-        tr: &Trainer,
+        tr: &mut Trainer,
+        losses: &mut [StepLosses],
         ctx: &Context,
     ) -> Result<Option<RoundStats>, EditError> {
         if !self.round_due(step) {
             return Ok(None);
         }
+        // The round reads the latents and replaces what their steps used.
+        self.sync(tr, losses)?;
         self.force_round = false;
         let t = Instant::now();
         let mut stats = self.round(tr, ctx)?;
@@ -188,21 +196,19 @@ impl EditMethod for TransSplat {
 
     /// (The colour gradients of L_img are kept only in the gated region γ ≥
     /// `loss.colour_gate` by the loop, through [`EditMethod::colour_mask`].)
-    /// L_sem towards z̄ (after the first round),
-    /// L_uot through the step view's plan (one view per step like L_img: an unbiased
-    /// estimate of the mean over views), and L_leak towards the source colours.
-    fn add_gradients(&self, tr: &Trainer, view: &ViewData, grads: &mut Grads, rec: &mut StepLosses) {
-        let (s, d) = (&tr.model.features, tr.model.num_features);
+    /// L_sem towards z̄ (after the first round) and L_uot through the step view's plan
+    /// (one view per step like L_img: an unbiased estimate of the mean over views)
+    /// move only the semantic latents: the step is recorded and the latents advanced
+    /// at the next [`EditMethod::sync`] ([`crate::latents`]). L_leak pulls the colours
+    /// towards the source colours.
+    fn add_gradients(&mut self, tr: &Trainer, view: &ViewData, grads: &mut Grads, rec: &mut StepLosses) {
         let (t, l) = (&self.transport, &self.cfg.loss);
         let n = t.gamma.len();
-        if let Some(z) = &t.zbar {
-            rec.sem = losses::semantic(s, z, &t.gamma, d, l.sem, &mut grads.features);
+        let plan = t.cached.iter().position(|t| t.view == view.cam);
+        if let Some(p) = plan {
+            rec.uot = l.uot as f64 * t.cached[p].objective;
         }
-        if let Some(v) = t.cached.iter().find(|t| t.view == view.cam) {
-            let lambda_sem = self.cfg.transport.lambda_sem;
-            losses::transport_semantic(s, &v.idx, &v.plan_e, d, lambda_sem, l.uot, &mut grads.features);
-            rec.uot = l.uot as f64 * v.objective;
-        }
+        self.latents.record(rec.step, plan);
         if l.leak > 0.0 {
             // With the colour gate, L_leak anchors only the Gaussians outside the gated region.
             let open = if l.colour_gate > 0.0 { l.colour_gate } else { f32::INFINITY };
@@ -218,6 +224,38 @@ impl EditMethod for TransSplat {
         }
     }
 
+    /// Advances the semantic latents through the recorded steps and fills in their
+    /// λ L_sem; a latent that became NaN or infinite stops the edit naming the step.
+    fn sync(&mut self, tr: &mut Trainer, losses: &mut [StepLosses]) -> Result<(), EditError> {
+        if self.latents.pending() == 0 {
+            return Ok(());
+        }
+        let (t, l) = (&self.transport, &self.cfg.loss);
+        let terms = Terms {
+            zbar: t.zbar.as_deref(),
+            gamma: &t.gamma,
+            plans: &t.cached,
+            l_sem: l.sem,
+            l_uot: l.uot,
+            cost_sem: self.cfg.transport.lambda_sem,
+        };
+        let (d, adam) = (tr.model.num_features, (tr.adam.betas.0, tr.adam.betas.1, tr.adam.eps));
+        let sem = self.latents.advance(&mut tr.model.features, d, &terms, self.cfg.lr.semantic, adam);
+        let sem = sem.map_err(|step| {
+            EditError::Train(format!(
+                "step {}: the features (semantic latents) became NaN or infinite; lower the learning rates or check the inputs",
+                step + 1
+            ))
+        })?;
+        for (step, v) in sem {
+            if let Some(r) = losses.iter_mut().rev().find(|r| r.step == step) {
+                r.sem = v;
+                crate::optimise::check_losses(r, step as u64 + 1)?;
+            }
+        }
+        Ok(())
+    }
+
     fn densify_mask(&self) -> Option<Vec<bool>> {
         let gate = self.cfg.schedule.densify_gate;
         self.gated_densify.then(|| self.transport.gamma.iter().map(|&g| g >= gate).collect())
@@ -230,13 +268,22 @@ impl EditMethod for TransSplat {
         t.zbar = t.zbar.take().map(|z| r.gather(&z, self.cfg.semantic_dim));
         t.cached.clear();
         self.sources.clear();
+        assert_eq!(self.latents.pending(), 0, "the latents are synced before a rearrangement");
+        let d = self.cfg.semantic_dim;
+        if !self.latents.m.is_empty() {
+            self.latents.m = r.gather_fresh_zero(&self.latents.m, d, 0.0);
+            self.latents.v = r.gather_fresh_zero(&self.latents.v, d, 0.0);
+        }
         self.gate_changed(None);
         self.force_round = true;
     }
 
     fn save<'a>(&'a self, w: &mut Writer<'a>) {
         let t = &self.transport;
+        assert_eq!(self.latents.pending(), 0, "the latents are synced before a checkpoint");
         w.f32("sh0", &self.sh0[..]).f32("gamma", &t.gamma[..]).scalar("force_round", self.force_round as u64);
+        w.f32("latents.m", &self.latents.m[..]).f32("latents.v", &self.latents.v[..]);
+        w.scalar("latents.step", self.latents.step);
         if let Some(z) = &t.zbar {
             w.f32("zbar", &z[..]);
         }
@@ -259,6 +306,13 @@ impl EditMethod for TransSplat {
         let f = |name: &str, len: usize| a.f32_len(name, len).map(<[f32]>::to_vec).map_err(archive_error);
         self.sh0 = f("sh0", n * self.kc)?;
         self.transport.gamma = f("gamma", n)?;
+        let (m, v) = (a.f32("latents.m").map_err(archive_error)?, a.f32("latents.v").map_err(archive_error)?);
+        if m.len() != v.len() || !(m.is_empty() || m.len() == n * d) {
+            return Err(archive_error(a.err(format!("latent moments do not match {n} Gaussians"))));
+        }
+        self.latents.m = m.to_vec();
+        self.latents.v = v.to_vec();
+        self.latents.step = a.scalar("latents.step").map_err(archive_error)?;
         self.transport.zbar = if a.has("zbar") { Some(f("zbar", n * d)?) } else { None };
         self.force_round = a.scalar("force_round").map_err(archive_error)? != 0;
         let count = a.scalar("cached").map_err(archive_error)? as usize;

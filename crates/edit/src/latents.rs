@@ -1,0 +1,254 @@
+//! The semantic latents' optimisation, advanced in batches (docs/method.md#m10-speed).
+//!
+//! The latents s_i move only under L_sem and L_uot (the steps render colour only), and
+//! given what a round fixes (z̄, γ, the view plans) the gradient of Gaussian i at a
+//! step depends on s_i alone: λ_sem 2γ_i (s_i − z̄_i) plus, when the step's view plan
+//! holds i, L_uot's term ([`crate::losses`]). Each step therefore only records which
+//! view it used; when the latents are read (a round, a checkpoint, the end of the
+//! run) every row is taken through the recorded steps at once, while it sits in
+//! cache, with the trainer's Adam arithmetic (`transsplat_train::adam`, one step
+//! counter for the group): the same latents, bit for bit, as stepping them with the
+//! colours, for one pass over memory instead of one per step.
+
+use crate::view::ViewTransport;
+use rayon::prelude::*;
+
+/// What the steps since the last round share: the round's fixed quantities and the
+/// loss weights.
+pub struct Terms<'a> {
+    /// z̄ (`N × d`), `None` before the first round (then no L_sem).
+    pub zbar: Option<&'a [f32]>,
+    pub gamma: &'a [f32],
+    /// The round's view plans (for L_uot).
+    pub plans: &'a [ViewTransport],
+    /// λ_sem of the loss, λ_uot, and the cost's λ_sem (inside L_uot's gradient).
+    pub l_sem: f32,
+    pub l_uot: f32,
+    pub cost_sem: f32,
+}
+
+/// Adam state of the latents and the steps recorded since the last advance.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Latents {
+    pub m: Vec<f32>,
+    pub v: Vec<f32>,
+    /// Adam steps taken (the bias corrections' t).
+    pub step: u64,
+    /// (step of the loop, position of that step's view plan in [`Terms::plans`]).
+    pending: Vec<(usize, Option<usize>)>,
+}
+
+/// One recorded step's Adam constants.
+#[derive(Clone, Copy)]
+struct Hyper {
+    b1: f32,
+    b2: f32,
+    eps: f32,
+    step_size: f32,
+    sqrt_bc2: f32,
+}
+
+/// Rows per batch: s, z̄, m and v of 1024 rows of 16 channels fit in L2.
+const ROWS: usize = 1024;
+
+impl Latents {
+    /// Records a step on the view whose plan is `plan` (a position in the round's
+    /// plans; `None` when the view has none).
+    pub fn record(&mut self, step: usize, plan: Option<usize>) {
+        self.pending.push((step, plan));
+    }
+
+    /// Steps recorded and not yet applied.
+    pub fn pending(&self) -> usize {
+        self.pending.len()
+    }
+
+    /// Applies the recorded steps to the latents `s` (`N × d`) with learning rate `lr`
+    /// and Adam's (β₁, β₂, eps); returns each step's λ L_sem, or the first step at
+    /// which a latent became NaN or infinite.
+    pub fn advance(
+        &mut self,
+        s: &mut [f32],
+        d: usize,
+        terms: &Terms,
+        lr: f32,
+        (b1, b2, eps): (f32, f32, f32),
+    ) -> Result<Vec<(usize, f64)>, usize> {
+        let steps = std::mem::take(&mut self.pending);
+        if steps.is_empty() || d == 0 {
+            return Ok(steps.iter().map(|&(k, _)| (k, 0.0)).collect());
+        }
+        if self.m.len() != s.len() {
+            self.m = vec![0.0; s.len()];
+            self.v = vec![0.0; s.len()];
+        }
+        let hyper: Vec<Hyper> = (1..=steps.len() as u64)
+            .map(|k| {
+                let t = (self.step + k) as i32;
+                Hyper { b1, b2, eps, step_size: lr / (1.0 - b1.powi(t)), sqrt_bc2: (1.0 - b2.powi(t)).sqrt() }
+            })
+            .collect();
+        self.step += steps.len() as u64;
+        for p in terms.plans {
+            assert!(p.idx.windows(2).all(|w| w[0] < w[1]), "view plan rows must ascend");
+        }
+        let chunks: Vec<(Vec<f64>, Option<usize>)> =
+            (s.par_chunks_mut(ROWS * d), self.m.par_chunks_mut(ROWS * d), self.v.par_chunks_mut(ROWS * d))
+                .into_par_iter()
+                .enumerate()
+                .map(|(c, (s, m, v))| batch(c * ROWS, s, m, v, d, terms, &steps, &hyper))
+                .collect();
+        let mut loss = vec![0.0f64; steps.len()];
+        let mut bad: Option<usize> = None;
+        for (l, b) in chunks {
+            loss.iter_mut().zip(&l).for_each(|(a, b)| *a += b);
+            bad = match (bad, b) {
+                (Some(x), Some(y)) => Some(x.min(y)),
+                (x, y) => x.or(y),
+            };
+        }
+        match bad {
+            Some(k) => Err(steps[k].0),
+            None => Ok(steps.iter().zip(loss).map(|(&(k, _), l)| (k, terms.l_sem as f64 * l)).collect()),
+        }
+    }
+}
+
+/// Takes rows `r0..` (the chunk `s`, `m`, `v`) through every recorded step; returns
+/// each step's L_sem sum over the chunk and the first step with a non-finite latent.
+#[allow(clippy::too_many_arguments)]
+fn batch(
+    r0: usize,
+    s: &mut [f32],
+    m: &mut [f32],
+    v: &mut [f32],
+    d: usize,
+    terms: &Terms,
+    steps: &[(usize, Option<usize>)],
+    hyper: &[Hyper],
+) -> (Vec<f64>, Option<usize>) {
+    let rows = s.len() / d;
+    let mut loss = vec![0.0f64; steps.len()];
+    let mut bad = None;
+    let mut g = vec![0.0f32; d];
+    for (k, (&(_, plan), h)) in steps.iter().zip(hyper).enumerate() {
+        // This chunk's entries of the step's plan (its rows ascend).
+        let (idx, plan_e, lo) = match plan.map(|p| &terms.plans[p]) {
+            Some(p) => {
+                let lo = p.idx.partition_point(|&i| (i as usize) < r0);
+                let hi = p.idx.partition_point(|&i| (i as usize) < r0 + rows);
+                (&p.idx[lo..hi], &p.plan_e[..], lo)
+            }
+            None => (&[][..], &[][..], 0),
+        };
+        let mut next = 0;
+        for r in 0..rows {
+            let i = r0 + r;
+            let si = &mut s[r * d..(r + 1) * d];
+            g.fill(0.0);
+            // L_sem = Σ γ ‖s − z̄‖² (losses::semantic, same expressions).
+            if let Some(z) = terms.zbar {
+                let gm = terms.gamma[i];
+                for j in 0..d {
+                    let diff = si[j] - z[i * d + j];
+                    loss[k] += (gm * diff * diff) as f64;
+                    g[j] += terms.l_sem * 2.0 * gm * diff;
+                }
+            }
+            // L_uot through the plan (losses::transport_semantic, same expressions).
+            if next < idx.len() && idx[next] as usize == i {
+                let e = lo + next;
+                let p = &plan_e[e * d..(e + 1) * d];
+                next += 1;
+                let n = si.iter().map(|x| x * x).sum::<f32>().sqrt();
+                if !(n <= 1e-12) {
+                    let sp = si.iter().zip(p).map(|(a, b)| a * b).sum::<f32>() / n;
+                    for j in 0..d {
+                        g[j] += -terms.l_uot * terms.cost_sem * (p[j] - sp * si[j] / n) / n;
+                    }
+                }
+            }
+            // Adam (transsplat_train::adam::update_block, same expressions).
+            let (mr, vr) = (&mut m[r * d..(r + 1) * d], &mut v[r * d..(r + 1) * d]);
+            for j in 0..d {
+                let gk = g[j];
+                let mk = h.b1 * mr[j] + (1.0 - h.b1) * gk;
+                let vk = h.b2 * vr[j] + (1.0 - h.b2) * gk * gk;
+                mr[j] = mk;
+                vr[j] = vk;
+                let pk = si[j] - h.step_size * mk / (vk.sqrt() / h.sqrt_bc2 + h.eps);
+                si[j] = pk;
+                if !pk.is_finite() && bad.is_none() {
+                    bad = Some(k);
+                }
+            }
+        }
+    }
+    (loss, bad)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::losses;
+
+    /// The batch equals stepping: L_sem and L_uot into a gradient, then Adam, step by
+    /// step, over rows that span several batches and plans that hold some of them.
+    #[test]
+    fn advancing_in_a_batch_is_bit_identical_to_stepping() {
+        let (n, d) = (2500, 3);
+        let s0: Vec<f32> = (0..n * d).map(|k| ((k as f32) * 0.37).sin()).collect();
+        let z: Vec<f32> = (0..n * d).map(|k| ((k as f32) * 0.11).cos()).collect();
+        let gamma: Vec<f32> = (0..n).map(|i| (i % 7) as f32 / 7.0).collect();
+        let plan = |step: usize| {
+            let idx: Vec<u32> = (0..n as u32).filter(|i| (i + step as u32) % 5 == 0).collect();
+            let plan_e = (0..idx.len() * d).map(|k| ((k + step) as f32 * 0.7).sin() * 0.2).collect();
+            ViewTransport { idx, plan_e, ..Default::default() }
+        };
+        let plans = [plan(0), plan(1)];
+        let terms =
+            Terms { zbar: Some(&z), gamma: &gamma, plans: &plans, l_sem: 1.0, l_uot: 0.1, cost_sem: 1.5 };
+        let (lr, b1, b2, eps) = (0.01f32, 0.9f32, 0.999f32, 1e-15f32);
+        let views = [Some(0), None, Some(1), Some(0), Some(1)];
+
+        let mut batched = s0.clone();
+        let mut lat = Latents::default();
+        for (k, &p) in views.iter().enumerate() {
+            lat.record(k, p);
+        }
+        let loss = lat.advance(&mut batched, d, &terms, lr, (b1, b2, eps)).unwrap();
+
+        let (mut s, mut m, mut v) = (s0, vec![0.0f32; n * d], vec![0.0f32; n * d]);
+        for (k, &p) in views.iter().enumerate() {
+            let mut g = vec![0.0f32; n * d];
+            let l = losses::semantic(&s, &z, &gamma, d, 1.0, &mut g);
+            assert!((l - loss[k].1).abs() <= 1e-9 * l.abs(), "step {k}: {l} vs {}", loss[k].1);
+            if let Some(p) = p {
+                losses::transport_semantic(&s, &plans[p].idx, &plans[p].plan_e, d, 1.5, 0.1, &mut g);
+            }
+            let t = k as i32 + 1;
+            let (step_size, bc2) = (lr / (1.0 - b1.powi(t)), (1.0 - b2.powi(t)).sqrt());
+            for j in 0..n * d {
+                m[j] = b1 * m[j] + (1.0 - b1) * g[j];
+                v[j] = b2 * v[j] + (1.0 - b2) * g[j] * g[j];
+                s[j] -= step_size * m[j] / (v[j].sqrt() / bc2 + eps);
+            }
+        }
+        let bits = |x: &[f32]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&batched), bits(&s));
+        assert_eq!((bits(&lat.m), bits(&lat.v), lat.step), (bits(&m), bits(&v), 5));
+        assert_eq!(lat.pending(), 0);
+    }
+
+    #[test]
+    fn a_non_finite_latent_names_its_step() {
+        let z = vec![f32::INFINITY; 4];
+        let terms =
+            Terms { zbar: Some(&z), gamma: &[1.0, 1.0], plans: &[], l_sem: 1.0, l_uot: 0.0, cost_sem: 1.0 };
+        let mut lat = Latents::default();
+        lat.record(7, None);
+        lat.record(8, None);
+        let mut s = vec![0.5f32; 4];
+        assert_eq!(lat.advance(&mut s, 2, &terms, 0.01, (0.9, 0.999, 1e-15)), Err(7));
+    }
+}
