@@ -79,8 +79,11 @@ pub fn run_with(
     });
     drop(sources);
 
+    tracing::debug!("semantic space and evidence: {:.2} s", clock.elapsed().as_secs_f64() - editor_s);
+
     // 4. The optimiser, from the source scene with its initial semantic latents.
     let latents = space.initial_latents(job.gaussians, &cams);
+    tracing::debug!("initial latents and trainer: {:.2} s", clock.elapsed().as_secs_f64() - editor_s);
     let mut tr = optimise::trainer(job.gaussians, latents, cfg, job.cameras, job.background)?;
     let mut ls = LoopState::new(cfg.seed, editor_s);
     if let (true, Some(ck), Some(sum)) = (control.resume, control.checkpoint.as_mut(), editor_sum) {

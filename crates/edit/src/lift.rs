@@ -3,6 +3,7 @@
 //! over views by blend weight, x_i = Σ_v W_i^v x̄_i^v / Σ_v W_i^v. It gives the
 //! initial semantic latents (docs/method.md#m8-semantic-space) and masklift's mask.
 
+use rayon::prelude::*;
 use transsplat_raster::{gaussian_stats, Splats};
 use transsplat_scene::{Camera, Gaussians};
 
@@ -13,17 +14,21 @@ pub fn lift(g: &Gaussians, cams: &[&Camera], planes: &[&[f32]], channels: usize)
     let mut num = vec![0.0f64; n * channels];
     let mut den = vec![0.0f64; n];
     let s = Splats::new(g);
+    let c = channels.max(1);
     for (cam, plane) in cams.iter().zip(planes) {
         let st = gaussian_stats(&s, cam, Some((plane, channels)));
-        for i in 0..n {
-            let w = st.weight_sum[i] as f64;
-            if w > 0.0 {
-                den[i] += w;
-                for k in 0..channels {
-                    num[i * channels + k] += w * st.splat[i * channels + k] as f64;
+        (num.par_chunks_mut(c), den.par_iter_mut(), st.splat.par_chunks(c), st.weight_sum.par_iter())
+            .into_par_iter()
+            .with_min_len(4096)
+            .for_each(|(num, den, splat, &w)| {
+                let w = w as f64;
+                if w > 0.0 {
+                    *den += w;
+                    for (a, &x) in num.iter_mut().zip(splat) {
+                        *a += w * x as f64;
+                    }
                 }
-            }
-        }
+            });
     }
     (0..n * channels)
         .map(|j| if den[j / channels] > 0.0 { (num[j] / den[j / channels]) as f32 } else { 0.0 })

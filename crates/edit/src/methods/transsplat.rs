@@ -184,9 +184,10 @@ impl EditMethod for TransSplat {
             return Ok(None);
         }
         // The round reads the latents and replaces what their steps used.
-        self.sync(tr, losses)?;
-        self.force_round = false;
         let t = Instant::now();
+        self.sync(tr, losses)?;
+        tracing::debug!("semantic latents advanced in {:.2} s", t.elapsed().as_secs_f64());
+        self.force_round = false;
         let mut stats = self.round(tr, ctx)?;
         self.gate_changed(Some(tr));
         stats.step = step;
