@@ -210,7 +210,8 @@ fn batch(
                 let p = &plan_e[e * d..(e + 1) * d];
                 next += 1;
                 let n = si.iter().map(|x| x * x).sum::<f32>().sqrt();
-                if !(n <= 1e-12) {
+                // NaN takes this branch, as in losses::transport_semantic.
+                if n.is_nan() || n > 1e-12 {
                     let sp = si.iter().zip(p).map(|(a, b)| a * b).sum::<f32>() / n;
                     for j in 0..d {
                         g[j] += -terms.l_uot * terms.cost_sem * (p[j] - sp * si[j] / n) / n;
@@ -250,7 +251,7 @@ mod tests {
         let z: Vec<f32> = (0..n * d).map(|k| ((k as f32) * 0.11).cos()).collect();
         let gamma: Vec<f32> = (0..n).map(|i| (i % 7) as f32 / 7.0).collect();
         let plan = |step: usize| {
-            let idx: Vec<u32> = (0..n as u32).filter(|i| (i + step as u32) % 5 == 0).collect();
+            let idx: Vec<u32> = (0..n as u32).filter(|i| (i + step as u32).is_multiple_of(5)).collect();
             let plan_e = (0..idx.len() * d).map(|k| ((k + step) as f32 * 0.7).sin() * 0.2).collect();
             ViewTransport { idx, plan_e, ..Default::default() }
         };

@@ -118,7 +118,7 @@ pub enum Renderer {
     Pending(Vec<Vec<f32>>),
     /// The colour change of the covered Gaussians alone, with the gradient buffer
     /// reused from step to step (zero outside the covered rows between steps).
-    Delta(Delta, Grads),
+    Delta(Delta, Box<Grads>),
 }
 
 impl Renderer {
@@ -146,7 +146,7 @@ impl Renderer {
             Renderer::Pending(bases) => {
                 let bases = std::mem::take(bases);
                 *self = match Delta::new(source, &tr.model.gaussians.sh, mask, cams, bases) {
-                    Some(d) => Renderer::Delta(d, tr.zero_grads()),
+                    Some(d) => Renderer::Delta(d, Box::new(tr.zero_grads())),
                     None => Renderer::Full,
                 };
             }
@@ -192,7 +192,7 @@ impl Renderer {
         times.image_loss += lap(&mut clock);
         let grads = match (self, &frame) {
             (Renderer::Delta(d, buf), _) => {
-                let mut grads = std::mem::take(buf);
+                let mut grads = std::mem::take(buf.as_mut());
                 let mask = mask.expect("a delta render follows a colour mask");
                 d.backward(k, &splats, cam, &il.grad, mask, &mut grads.sh);
                 grads
@@ -218,7 +218,7 @@ impl Renderer {
         if let Renderer::Delta(d, buf) = self {
             d.zero_rows(&mut grads.sh);
             grads.features.par_iter_mut().for_each(|g| *g = 0.0);
-            *buf = grads;
+            **buf = grads;
         }
     }
 }

@@ -87,7 +87,7 @@ pub fn source_masses(visibility: &[f32], opacity: &[f32]) -> (Vec<u32>, Vec<f32>
 /// `dot` (`m` long) so they vectorise over the prototypes; 1 − cos is 1 for x = 0.
 fn add_cosine_distances(row: &mut [f32], lambda: f32, x: &[f32], yt: &[f32], dot: &mut [f32]) {
     let n = x.iter().map(|v| v * v).sum::<f32>().sqrt();
-    if !(n > 0.0) {
+    if n.is_nan() || n <= 0.0 {
         row.iter_mut().for_each(|c| *c += lambda * if n.is_nan() { n } else { 1.0 });
         return;
     }

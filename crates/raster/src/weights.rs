@@ -225,8 +225,7 @@ mod tests {
 
     /// A few overlapping Gaussians in front of a camera at the origin looking down +z.
     fn scene() -> (Gaussians, Camera) {
-        let mut g = Gaussians::default();
-        g.sh_degree = 1;
+        let mut g = Gaussians { sh_degree: 1, ..Default::default() };
         for k in 0..40 {
             let f = k as f32;
             g.means.push([(f * 0.37).sin() * 0.6, (f * 0.53).cos() * 0.5, 3.0 + (f * 0.29).sin()]);
