@@ -131,29 +131,43 @@ mod tests {
         let mut config = EditConfig::default();
         config.schedule.steps = 12;
         config.schedule.transport_every = 6;
-        let r =
-            run(&size("quick").unwrap(), &config, "make the ball blue", 0.0, dir.path(), None, &mut |_| {})
-                .unwrap();
-        assert_eq!((r.steps, r.edit_views), (12, 14));
-        let st = &r.timing.stages;
-        for (name, v) in [
-            ("binning", st.binning),
-            ("tiles", st.tiles),
-            ("image_loss", st.image_loss),
-            ("backward", st.backward),
-            ("method_terms", st.method_terms),
-            ("optimiser", st.optimiser),
-        ] {
-            assert!(v > 0.0 && v < r.timing.optimise, "{name}: {v} of {}", r.timing.optimise);
+        let mut full = config.clone();
+        full.schedule.delta_render = false;
+        let bench = |c: &EditConfig| {
+            run(&size("quick").unwrap(), c, "make the ball blue", 0.0, dir.path(), None, &mut |_| {}).unwrap()
+        };
+        // Full renders bin every step; rendering the colour change alone builds blend
+        // weights instead and never bins in a step.
+        for (r, delta) in [(bench(&full), false), (bench(&config), true)] {
+            assert_eq!((r.steps, r.edit_views), (12, 14));
+            let st = &r.timing.stages;
+            let (binning, weights) = if delta { (st.weights, st.binning) } else { (st.binning, st.weights) };
+            assert!(weights < 1e-3 * r.timing.optimise, "delta {delta}: {weights}");
+            for (name, v) in [
+                ("binning or weights", binning),
+                ("tiles", st.tiles),
+                ("image_loss", st.image_loss),
+                ("backward", st.backward),
+                ("method_terms", st.method_terms),
+                ("optimiser", st.optimiser),
+            ] {
+                assert!(v > 0.0 && v < r.timing.optimise, "{name}: {v} of {}", r.timing.optimise);
+            }
+            let staged = st.binning
+                + st.weights
+                + st.tiles
+                + st.image_loss
+                + st.backward
+                + st.method_terms
+                + st.optimiser;
+            assert!(
+                staged <= r.timing.optimise * 1.001,
+                "stages {staged} exceed the optimisation {}",
+                r.timing.optimise
+            );
+            assert!(r.timing.transport > 0.0 && r.write_s > 0.0);
+            assert!(r.metrics.target_psnr.is_finite() && r.metrics.background_psnr.is_finite());
         }
-        let staged = st.binning + st.tiles + st.image_loss + st.backward + st.method_terms + st.optimiser;
-        assert!(
-            staged <= r.timing.optimise * 1.001,
-            "stages {staged} exceed the optimisation {}",
-            r.timing.optimise
-        );
-        assert!(r.timing.transport > 0.0 && r.write_s > 0.0);
-        assert!(r.metrics.target_psnr.is_finite() && r.metrics.background_psnr.is_finite());
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "the scratch PLY is removed");
         assert!(size("huge").unwrap_err().contains("a, b, quick"));
     }
