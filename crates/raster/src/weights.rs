@@ -52,7 +52,7 @@ impl BlendWeights {
         assert_eq!(values.len(), self.ids.len(), "one value per chosen Gaussian");
         assert_eq!(rgb.len(), self.width * self.height * 3, "image does not match the weights");
         let out = crate::par::SharedMut(rgb.as_mut_ptr());
-        (0..self.tiles.len() - 1).into_par_iter().for_each(|t| {
+        (0..self.tiles.len().saturating_sub(1)).into_par_iter().for_each(|t| {
             for &(q, k, w) in &self.entries[self.tiles[t] as usize..self.tiles[t + 1] as usize] {
                 let v = values[k as usize];
                 for c in 0..3 {
@@ -69,7 +69,7 @@ impl BlendWeights {
         assert_eq!(g.len(), self.width * self.height * 3, "image does not match the weights");
         let m = self.ids.len();
         let bufs = crate::par::for_each_with_buffers(
-            self.tiles.len() - 1,
+            self.tiles.len().saturating_sub(1),
             || vec![0.0f32; m * 3],
             |t, buf| {
                 for &(q, k, w) in &self.entries[self.tiles[t] as usize..self.tiles[t + 1] as usize] {
