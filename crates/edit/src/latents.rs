@@ -6,12 +6,13 @@
 //! holds i, L_uot's term ([`crate::losses`]). Each step therefore only records which
 //! view it used; when the latents are read (a round, a checkpoint, the end of the
 //! run) every row is taken through the recorded steps at once, while it sits in
-//! cache, with the trainer's Adam arithmetic (`transsplat_train::adam`, one step
+//! cache, with the trainer's Adam arithmetic (`transsplat_train::adam::Hyper`, one step
 //! counter for the group): the same latents, bit for bit, as stepping them with the
 //! colours, for one pass over memory instead of one per step.
 
 use crate::view::ViewTransport;
 use rayon::prelude::*;
+use transsplat_train::adam::Hyper;
 
 /// What the steps since the last round share: the round's fixed quantities and the
 /// loss weights.
@@ -36,16 +37,6 @@ pub struct Latents {
     pub step: u64,
     /// (step of the loop, position of that step's view plan in [`Terms::plans`]).
     pending: Vec<(usize, Option<usize>)>,
-}
-
-/// One recorded step's Adam constants.
-#[derive(Clone, Copy)]
-struct Hyper {
-    b1: f32,
-    b2: f32,
-    eps: f32,
-    step_size: f32,
-    sqrt_bc2: f32,
 }
 
 /// Rows per batch: s, z̄, m and v of 1024 rows of 16 channels fit in L2.
@@ -82,12 +73,8 @@ impl Latents {
             self.m = vec![0.0; s.len()];
             self.v = vec![0.0; s.len()];
         }
-        let hyper: Vec<Hyper> = (1..=steps.len() as u64)
-            .map(|k| {
-                let t = (self.step + k) as i32;
-                Hyper { b1, b2, eps, step_size: lr / (1.0 - b1.powi(t)), sqrt_bc2: (1.0 - b2.powi(t)).sqrt() }
-            })
-            .collect();
+        let hyper: Vec<Hyper> =
+            (1..=steps.len() as u64).map(|k| Hyper::at(lr, (b1, b2), eps, self.step + k)).collect();
         self.step += steps.len() as u64;
         for p in terms.plans {
             assert!(p.idx.windows(2).all(|w| w[0] < w[1]), "view plan rows must ascend");
@@ -96,7 +83,7 @@ impl Latents {
             (s.par_chunks_mut(ROWS * d), self.m.par_chunks_mut(ROWS * d), self.v.par_chunks_mut(ROWS * d))
                 .into_par_iter()
                 .enumerate()
-                .map(|(c, (s, m, v))| batch_dispatch(c * ROWS, s, m, v, d, terms, &steps, &hyper))
+                .map(|(c, (s, m, v))| batch(c * ROWS, s, m, v, d, terms, &steps, &hyper))
                 .collect();
         let mut loss = vec![0.0f64; steps.len()];
         let mut bad: Option<usize> = None;
@@ -114,45 +101,9 @@ impl Latents {
     }
 }
 
-/// [`batch`], compiled for AVX2 when the CPU has it (same results: Rust forms no
-/// fused multiply-adds, only the vector width changes).
-#[allow(clippy::too_many_arguments)]
-fn batch_dispatch(
-    r0: usize,
-    s: &mut [f32],
-    m: &mut [f32],
-    v: &mut [f32],
-    d: usize,
-    terms: &Terms,
-    steps: &[(usize, Option<usize>)],
-    hyper: &[Hyper],
-) -> (Vec<f64>, Option<usize>) {
-    #[cfg(target_arch = "x86_64")]
-    if transsplat_scene::cpu::has_avx2() {
-        #[target_feature(enable = "avx2")]
-        #[allow(clippy::too_many_arguments)]
-        fn batch_avx2(
-            r0: usize,
-            s: &mut [f32],
-            m: &mut [f32],
-            v: &mut [f32],
-            d: usize,
-            terms: &Terms,
-            steps: &[(usize, Option<usize>)],
-            hyper: &[Hyper],
-        ) -> (Vec<f64>, Option<usize>) {
-            batch(r0, s, m, v, d, terms, steps, hyper)
-        }
-        // SAFETY: the CPU has AVX2 (checked at run time).
-        return unsafe { batch_avx2(r0, s, m, v, d, terms, steps, hyper) };
-    }
-    batch(r0, s, m, v, d, terms, steps, hyper)
-}
-
 /// Takes rows `r0..` (the chunk `s`, `m`, `v`) through every recorded step; returns
 /// each step's L_sem sum over the chunk and the first step with a non-finite latent.
 #[allow(clippy::too_many_arguments)]
-#[inline(always)]
 fn batch(
     r0: usize,
     s: &mut [f32],
@@ -218,16 +169,11 @@ fn batch(
                     }
                 }
             }
-            // Adam (transsplat_train::adam::update_block, same expressions).
+            // The trainer's Adam update, element by element.
             let (mr, vr) = (&mut m[r * d..(r + 1) * d], &mut v[r * d..(r + 1) * d]);
             for (((pj, mj), vj), &gk) in si.iter_mut().zip(mr.iter_mut()).zip(vr.iter_mut()).zip(&g) {
-                let mk = h.b1 * *mj + (1.0 - h.b1) * gk;
-                let vk = h.b2 * *vj + (1.0 - h.b2) * gk * gk;
-                *mj = mk;
-                *vj = vk;
-                let pk = *pj - h.step_size * mk / (vk.sqrt() / h.sqrt_bc2 + h.eps);
-                *pj = pk;
-                nonfinite |= !pk.is_finite();
+                h.update(pj, mj, vj, gk);
+                nonfinite |= !pj.is_finite();
             }
         }
         if nonfinite && bad.is_none() {

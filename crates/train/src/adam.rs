@@ -272,14 +272,7 @@ impl Adam {
                 st.rebuild_live(n);
             }
             st.step += 1;
-            let t = st.step as i32;
-            let h = Hyper {
-                b1,
-                b2,
-                eps,
-                step_size: rate / (1.0 - b1.powi(t)),
-                sqrt_bc2: (1.0 - b2.powi(t)).sqrt(),
-            };
+            let h = Hyper::at(rate, (b1, b2), eps, st.step);
             let gs = &mut model.gaussians;
             let (params, grad, row, off): (&mut [f32], &[f32], usize, usize) = match group {
                 Group::Position => (gs.means.as_flattened_mut(), grads.means.as_flattened(), 3, 0),
@@ -300,13 +293,33 @@ impl Adam {
     }
 }
 
-#[derive(Clone, Copy)]
-struct Hyper {
+/// Adam's constants at one step: β₁, β₂, eps and the bias corrections folded into
+/// `step_size = lr / (1 − β₁ᵗ)` and `sqrt_bc2 = √(1 − β₂ᵗ)`.
+#[derive(Clone, Copy, Debug)]
+pub struct Hyper {
     b1: f32,
     b2: f32,
     eps: f32,
     step_size: f32,
     sqrt_bc2: f32,
+}
+
+impl Hyper {
+    /// The constants of Adam step `t` (1-based) at learning rate `lr`.
+    pub fn at(lr: f32, (b1, b2): (f32, f32), eps: f32, t: u64) -> Self {
+        let t = t as i32;
+        Hyper { b1, b2, eps, step_size: lr / (1.0 - b1.powi(t)), sqrt_bc2: (1.0 - b2.powi(t)).sqrt() }
+    }
+
+    /// One element's update (the module doc's formulas): moves `p`, `m`, `v` for
+    /// gradient `g`. The one place the arithmetic lives, so every caller gets the
+    /// same bits.
+    #[inline(always)]
+    pub fn update(&self, p: &mut f32, m: &mut f32, v: &mut f32, g: f32) {
+        *m = self.b1 * *m + (1.0 - self.b1) * g;
+        *v = self.b2 * *v + (1.0 - self.b2) * g * g;
+        *p -= self.step_size * *m / (v.sqrt() / self.sqrt_bc2 + self.eps);
+    }
 }
 
 /// One group's moments and their live rows.
@@ -338,15 +351,10 @@ fn update_block(p: &mut [f32], g: &[f32], mo: Moments, row: usize, off: usize, w
                 }
                 let mut nonzero = false;
                 for k in 0..w {
-                    let gk = gr[off + k];
-                    let mk = h.b1 * mr[k] + (1.0 - h.b1) * gk;
-                    let vk = h.b2 * vr[k] + (1.0 - h.b2) * gk * gk;
-                    mr[k] = mk;
-                    vr[k] = vk;
-                    let pk = pr[off + k] - h.step_size * mk / (vk.sqrt() / h.sqrt_bc2 + h.eps);
-                    pr[off + k] = pk;
+                    let pk = &mut pr[off + k];
+                    h.update(pk, &mut mr[k], &mut vr[k], gr[off + k]);
                     bad |= !pk.is_finite();
-                    nonzero |= (mk != 0.0) | (vk != 0.0);
+                    nonzero |= (mr[k] != 0.0) | (vr[k] != 0.0);
                 }
                 *lv = nonzero;
             }
