@@ -126,12 +126,9 @@ impl Delta {
         grad_sh: &mut [f32],
     ) {
         let v = &self.views[k];
-        let mut vcol = v.weights.transpose(grad_rgb);
-        for (g, &i) in vcol.iter_mut().zip(&v.weights.ids) {
-            if !mask[i as usize] {
-                *g = [0.0; 3];
-            }
-        }
-        colour_sh_backward(splats, cam, &v.weights.ids, &vcol, grad_sh);
+        let vcol = v.weights.transpose(grad_rgb);
+        let (ids, vcol): (Vec<u32>, Vec<[f32; 3]>) =
+            v.weights.ids.iter().zip(vcol).filter(|(&i, _)| mask[i as usize]).unzip();
+        colour_sh_backward(splats, cam, &ids, &vcol, grad_sh);
     }
 }

@@ -74,10 +74,10 @@ pub fn run_with(
     method.start(job.gaussians, &ctx)?;
     let view_cams: Vec<&Camera> = views.iter().map(|v| &job.cameras[v.cam]).collect();
     let mut renderer = Renderer::new(cfg.schedule.delta_render && optimise::geometry_frozen(cfg), || {
+        let mut sources: Vec<Option<Vec<f32>>> = sources.into_iter().map(Some).collect();
         let at = |cam| job.edit_views.iter().position(|&c| c == cam).expect("a usable view is an edit view");
-        views.iter().map(|v| sources[at(v.cam)].clone()).collect()
+        views.iter().map(|v| sources[at(v.cam)].take().expect("one usable view per edit view")).collect()
     });
-    drop(sources);
 
     tracing::debug!("semantic space and evidence: {:.2} s", clock.elapsed().as_secs_f64() - editor_s);
 

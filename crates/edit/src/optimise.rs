@@ -173,42 +173,31 @@ impl Renderer {
         cfg: &EditConfig,
         times: &mut StageTimes,
     ) -> (Option<Frame>, Grads, f64) {
-        let (w, h) = (cam.width as usize, cam.height as usize);
         let mut clock = Instant::now();
-        let splats = tr.splats();
-        let (rgb, frame) = match self {
-            Renderer::Delta(d, _) => (d.render(k, &splats, cam), None),
-            _ => {
-                let (img, frame) = tr.render(cam);
-                times.binning += frame.binning_s;
-                (img.rgb, Some(frame))
-            }
-        };
-        times.tiles += lap(&mut clock) - frame.as_ref().map_or(0.0, |f| f.binning_s);
-        let mut il = transsplat_train::loss::image_loss(&rgb, target, w, h, None, cfg.loss.dssim);
-        if cfg.loss.img != 1.0 {
-            il.grad.iter_mut().for_each(|g| *g *= cfg.loss.img);
+        if let Renderer::Delta(d, buf) = self {
+            let splats = tr.splats();
+            let rgb = d.render(k, &splats, cam);
+            times.tiles += lap(&mut clock);
+            let (grad_rgb, loss) = image_term(&rgb, target, cam, cfg);
+            times.image_loss += lap(&mut clock);
+            let mut grads = std::mem::take(buf.as_mut());
+            let mask = mask.expect("a delta render follows a colour mask");
+            d.backward(k, &splats, cam, &grad_rgb, mask, &mut grads.sh);
+            times.backward += lap(&mut clock);
+            return (None, grads, loss);
         }
+        let (img, frame) = tr.render(cam);
+        times.binning += frame.binning_s;
+        times.tiles += lap(&mut clock) - frame.binning_s;
+        let (grad_rgb, loss) = image_term(&img.rgb, target, cam, cfg);
         times.image_loss += lap(&mut clock);
-        let grads = match (self, &frame) {
-            (Renderer::Delta(d, buf), _) => {
-                let mut grads = std::mem::take(buf.as_mut());
-                let mask = mask.expect("a delta render follows a colour mask");
-                d.backward(k, &splats, cam, &il.grad, mask, &mut grads.sh);
-                grads
-            }
-            (_, Some(frame)) => {
-                let mut grads = tr.zero_grads();
-                tr.backward(cam, frame, &ImageGrads { rgb: &il.grad, ..Default::default() }, &mut grads);
-                if let Some(m) = mask {
-                    mask_colour_gradients(&mut grads.sh, m, tr.model.gaussians.sh_coeffs() * 3);
-                }
-                grads
-            }
-            (_, None) => unreachable!("a full render has a frame"),
-        };
+        let mut grads = tr.zero_grads();
+        tr.backward(cam, &frame, &ImageGrads { rgb: &grad_rgb, ..Default::default() }, &mut grads);
+        if let Some(m) = mask {
+            mask_colour_gradients(&mut grads.sh, m, tr.model.gaussians.sh_coeffs() * 3);
+        }
         times.backward += lap(&mut clock);
-        (frame, grads, (il.loss * cfg.loss.img) as f64)
+        (Some(frame), grads, loss)
     }
 
     /// Takes back the step's gradients: with [`Renderer::Delta`] they are zeroed where
@@ -221,6 +210,16 @@ impl Renderer {
             **buf = grads;
         }
     }
+}
+
+/// λ_img L_img of a render `rgb` of `cam` against `target`: its image gradient and value.
+fn image_term(rgb: &[f32], target: &[f32], cam: &Camera, cfg: &EditConfig) -> (Vec<f32>, f64) {
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let mut il = transsplat_train::loss::image_loss(rgb, target, w, h, None, cfg.loss.dssim);
+    if cfg.loss.img != 1.0 {
+        il.grad.iter_mut().for_each(|g| *g *= cfg.loss.img);
+    }
+    (il.grad, (il.loss * cfg.loss.img) as f64)
 }
 
 /// Zeroes the colour (SH) gradients outside `mask` (`k` values per Gaussian): the

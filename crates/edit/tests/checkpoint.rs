@@ -142,6 +142,9 @@ fn with_frozen_geometry_rendering_the_colour_change_alone_gives_the_full_render_
         full_cfg.schedule.delta_render = false;
         let delta = edit(&scene, &cfg, PROMPT, &mut Control::default(), &calls).unwrap();
         let full = edit(&scene, &full_cfg, PROMPT, &mut Control::default(), &calls).unwrap();
+        // The delta path rendered every step (no step binned), the full one did not.
+        let (bd, bf) = (delta.timing.stages.binning, full.timing.stages.binning);
+        assert!(bd == 0.0 && bf > 0.0, "{method:?}: binning {bd} s with the delta render, {bf} s without");
         let (a, b) = (&delta.gaussians.sh, &full.gaussians.sh);
         let src = &scene.gaussians.sh;
         let moved = b.iter().zip(src).filter(|(x, y)| (*x - *y).abs() > 1e-3).count();
