@@ -17,8 +17,9 @@ use transsplat_raster::weights::{blend_weights, colour_sh_backward, colours, Ble
 use transsplat_raster::Splats;
 use transsplat_scene::{Camera, Gaussians};
 
-/// The largest share of the Gaussians worth covering: past it, most pairs of a view
-/// are covered anyway and a full render is as cheap.
+/// The largest share of the Gaussians covered: past it the loop renders in full. A
+/// chosen bound (a view's pairs then approach a full render's, and their memory grows
+/// with them), not a measured crossover.
 pub const MAX_SHARE: f64 = 0.25;
 
 /// One usable view: its source render I⁰ and the weights and source colours c⁰ of the
