@@ -220,7 +220,7 @@ fn optimise_step(
     times.method_terms += optimise::lap(&mut clock);
     let mask = if densifies { method.densify_mask() } else { None };
     let report = tr
-        .finish_step(&grads, frame.as_ref(), mask.as_deref())
+        .finish_step(&grads, None, frame.as_ref(), mask.as_deref())
         .map_err(|e| EditError::Train(e.to_string()))?;
     renderer.recycle(grads);
     times.optimiser += optimise::lap(&mut clock);

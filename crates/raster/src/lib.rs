@@ -254,6 +254,23 @@ pub struct Grads {
 }
 
 impl Grads {
+    /// Sets the rows `rows` (as returned by [`backward`]) back to zero.
+    pub fn clear_rows(&mut self, rows: &[u32]) {
+        let n = self.means.len();
+        let kc = self.sh.len().checked_div(n).unwrap_or(0);
+        let f = self.features.len().checked_div(n).unwrap_or(0);
+        for &i in rows {
+            let i = i as usize;
+            self.means[i] = [0.0; 3];
+            self.log_scales[i] = [0.0; 3];
+            self.rotations[i] = [0.0; 4];
+            self.opacity_logits[i] = 0.0;
+            self.sh[i * kc..(i + 1) * kc].fill(0.0);
+            self.features[i * f..(i + 1) * f].fill(0.0);
+            self.means2d[i] = [0.0; 2];
+        }
+    }
+
     /// All-zero gradients for `n` Gaussians.
     pub fn zeros(n: usize, sh_degree: u32, num_features: usize) -> Self {
         Grads {
@@ -271,7 +288,12 @@ impl Grads {
 /// Backward pass of [`render`]: gradients of the loss with respect to the Gaussian
 /// parameters, given its gradients with respect to the rendered images. Gradients
 /// are added into `grads` (so several views can be accumulated).
-pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, grads: &mut Grads) {
+///
+/// Returns the Gaussians whose rows it added to, ascending: those some pixel's
+/// gradient reached. Every other row is left exactly as it was, so a caller that
+/// keeps `grads` zero between steps can clear just these rows ([`Grads::clear_rows`])
+/// and step the optimiser over just these.
+pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, grads: &mut Grads) -> Vec<u32> {
     validate(splats, cam);
     let b = &frame.binned;
     let (w, h, f) = (b.width, b.height, b.num_features);
@@ -299,15 +321,32 @@ pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, gr
     let pg = PixelGrads { rgb: g.rgb, alpha: g.alpha, depth: g.depth, features: g.features };
     let m = b.splats.len();
     let num_tiles = b.tiles_x * b.tiles_y;
+    let prof = bin::Profile::start();
     let bufs = par::for_each_with_buffers(
         num_tiles,
         || vec![0.0f32; m * stride],
         |tile, buf| kernel::backward_tile(b, tile, &st, &pg, buf),
     );
+    prof.lap("backward tiles");
     let acc = par::sum_into_first(bufs);
     if acc.is_empty() {
-        return;
+        return Vec::new();
     }
+    // The projection backward is linear in the splat gradients: a splat that no pixel
+    // reached (occluded behind saturated pixels) contributes exactly zero. Found here in
+    // depth order, where the accumulator streams, not by a random read per Gaussian.
+    let reached: Vec<u32> = acc
+        .par_chunks(stride)
+        .zip(b.ids.par_iter())
+        .filter(|(a, _)| a.iter().any(|&v| v != 0.0))
+        .map(|(_, &id)| id)
+        .collect();
+    let mut written = vec![false; n];
+    for &i in &reached {
+        written[i as usize] = true;
+    }
+    drop(reached);
+    prof.lap("backward reached");
     let view = View::new(cam);
     let kc = sh_coeffs(splats.sh_degree) * 3;
     let active = splats.active_sh_degree.min(splats.sh_degree);
@@ -320,46 +359,42 @@ pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, gr
         _ => Either::Left(grads.features[..n * f].par_chunks_mut(f)),
     };
     let rows = (
-        &mut grads.means,
-        &mut grads.log_scales,
-        &mut grads.rotations,
-        &mut grads.opacity_logits,
+        (&mut grads.means, &mut grads.log_scales, &mut grads.rotations, &mut grads.opacity_logits),
         grads.sh.par_chunks_mut(kc),
         features,
         &mut grads.means2d,
+        &written,
     );
-    rows.into_par_iter().enumerate().with_min_len(2048).for_each(|(i, (mean, ls, quat, op, sh, ft, m2))| {
-        let j = pos[i];
-        if j == u32::MAX {
-            return;
-        }
-        let j = j as usize;
-        let a = &acc[j * stride..(j + 1) * stride];
-        // The projection backward is linear in the splat gradients: a splat that no
-        // pixel reached (occluded behind saturated pixels) contributes exactly zero.
-        if a.iter().all(|&v| v == 0.0) {
-            return;
-        }
-        let sg = kernel::splat_grads(a);
-        let mut vsh = [0.0f32; 48];
-        let gg = project::project_backward(&view, &splats.params(i), &sg, &mut vsh[..nsh]);
-        for k in 0..3 {
-            mean[k] += gg.mean[k];
-            ls[k] += gg.log_scale[k];
-        }
-        for (r, g) in quat.iter_mut().zip(gg.quat) {
-            *r += g;
-        }
-        *op += gg.opacity_logit;
-        for (s, v) in sh.iter_mut().zip(&vsh[..nsh]) {
-            *s += v;
-        }
-        for (d, g) in ft.iter_mut().zip(&a[kernel::slot::FEATURES..]) {
-            *d += g;
-        }
-        m2[0] += sg.xy[0];
-        m2[1] += sg.xy[1];
-    });
+    rows.into_par_iter().enumerate().with_min_len(2048).for_each(
+        |(i, ((mean, ls, quat, op), sh, ft, m2, &wr))| {
+            if !wr {
+                return;
+            }
+            let j = pos[i] as usize;
+            let a = &acc[j * stride..(j + 1) * stride];
+            let sg = kernel::splat_grads(a);
+            let mut vsh = [0.0f32; 48];
+            let gg = project::project_backward(&view, &splats.params(i), &sg, &mut vsh[..nsh]);
+            for k in 0..3 {
+                mean[k] += gg.mean[k];
+                ls[k] += gg.log_scale[k];
+            }
+            for (r, g) in quat.iter_mut().zip(gg.quat) {
+                *r += g;
+            }
+            *op += gg.opacity_logit;
+            for (s, v) in sh.iter_mut().zip(&vsh[..nsh]) {
+                *s += v;
+            }
+            for (d, g) in ft.iter_mut().zip(&a[kernel::slot::FEATURES..]) {
+                *d += g;
+            }
+            m2[0] += sg.xy[0];
+            m2[1] += sg.xy[1];
+        },
+    );
+    prof.lap("backward per-Gaussian");
+    written.par_iter().enumerate().filter(|(_, &w)| w).map(|(i, _)| i as u32).collect()
 }
 
 /// Per-Gaussian statistics of one view (docs/method.md#m1-visibility-and-source-masses), and the splat-back.

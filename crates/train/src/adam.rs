@@ -3,10 +3,19 @@
 //! The update is PyTorch's `torch.optim.Adam` (which INRIA uses, with eps 1e-15):
 //! `m ← β₁m + (1−β₁)g`, `v ← β₂v + (1−β₂)g²`,
 //! `p ← p − lr/(1−β₁ᵗ) · m / (√v/√(1−β₂ᵗ) + eps)`, with one step counter per group.
-//! Every Gaussian is updated every step (dense Adam, as INRIA: a Gaussian unseen
-//! this step still moves by its decaying momentum). A group whose learning rate is 0
-//! is skipped entirely — parameters, moments and step counter stay as they are — so
-//! the edit stage can freeze geometry.
+//! Two update rules ([`Update`]):
+//! - **dense** (INRIA): every Gaussian is updated every step; a Gaussian unseen this
+//!   step still moves by its decaying momentum.
+//! - **selective** (the "visible Adam" of gsplat's `SelectiveAdam` and of Taming 3DGS):
+//!   a Gaussian's row of a group is updated only in steps where its gradient is
+//!   non-zero; otherwise its parameters *and moments* stay as they are, so momentum
+//!   does not carry a Gaussian the view cannot see, and its moments decay in "steps
+//!   it was seen" rather than in wall steps. The bias correction still uses the group's
+//!   step counter. The cost of a step is then proportional to the Gaussians the view
+//!   reached, not to the model (docs/method.md M10).
+//!
+//! A group whose learning rate is 0 is skipped entirely — parameters, moments and step
+//! counter stay as they are — so the edit stage can freeze geometry.
 //!
 //! The position learning rate follows INRIA's `get_expon_lr_func` (without the
 //! delay, which INRIA's defaults disable): log-linear from `1.6e-4 · extent` to
@@ -174,6 +183,39 @@ impl GroupState {
     }
 }
 
+/// Which rows an [`Adam::step`] moves (module doc).
+#[derive(Clone, Copy, Debug)]
+pub enum Update<'a> {
+    /// Every row, as INRIA (rows with zero gradient and zero moments are skipped, an
+    /// exact shortcut).
+    Dense,
+    /// Only rows with a non-zero gradient. `Some(rows)` lists, ascending, every row
+    /// whose gradient may be non-zero (what [`transsplat_raster::backward`] returns), so
+    /// the step visits only those; `None` scans every row's gradient. Both give the
+    /// same result.
+    Selective(Option<&'a [u32]>),
+}
+
+/// Which update rule a training run uses ([`Update`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum AdamRule {
+    /// INRIA's dense Adam.
+    #[default]
+    Dense,
+    /// Selective ("visible") Adam: only the rows the step's view reached.
+    Selective,
+}
+
+impl AdamRule {
+    /// The rule's name in options and summaries (`dense`, `selective`).
+    pub fn name(self) -> &'static str {
+        match self {
+            AdamRule::Dense => "dense",
+            AdamRule::Selective => "selective",
+        }
+    }
+}
+
 /// Adam over the seven groups.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Adam {
@@ -231,18 +273,20 @@ impl Adam {
     }
 
     /// One Adam step of every group with a non-zero learning rate. `lr` is indexed by
-    /// [`Group::index`]. Panics if `grads` does not match the model (a programming error).
+    /// [`Group::index`]; `update` chooses dense or selective Adam (module doc). Panics if
+    /// `grads` does not match the model (a programming error).
     ///
-    /// A row whose gradient is zero and whose moments are zero is skipped: dense Adam
-    /// would leave it exactly as it is (m and v stay 0, the update is lr · 0 / eps = 0),
-    /// so the result is bit-identical to updating every row, and a step in which few
-    /// Gaussians can change (an edit with frozen geometry) touches only those.
+    /// In the dense rule a row whose gradient is zero and whose moments are zero is
+    /// skipped: updating it would leave it exactly as it is (m and v stay 0, the update
+    /// is lr · 0 / eps = 0), so the result is bit-identical to updating every row, and a
+    /// step in which few Gaussians can change (an edit with frozen geometry) touches
+    /// only those.
     ///
     /// Returns the first group in which an updated parameter is NaN or infinite (checked
     /// in the same pass as the update, so the numerical-health check costs no extra pass
     /// over the parameters); the update is still applied in full.
     #[must_use]
-    pub fn step(&mut self, model: &mut Model, grads: &Grads, lr: &[f32; 7]) -> Option<Group> {
+    pub fn step(&mut self, model: &mut Model, grads: &Grads, lr: &[f32; 7], update: Update) -> Option<Group> {
         let n = model.len();
         let kc = model.gaussians.sh_coeffs() * 3;
         let f = model.num_features;
@@ -284,7 +328,12 @@ impl Adam {
                 Group::Features => (&mut model.features, &grads.features, f, 0),
             };
             let moments = Moments { m: &mut st.m, v: &mut st.v, live: &mut st.live };
-            let bad = update_block(params, grad, moments, row, off, st.width, &h);
+            let block = Block { row, off, w: st.width };
+            let bad = match update {
+                Update::Dense => update_block(params, grad, moments, block, false, &h),
+                Update::Selective(None) => update_block(params, grad, moments, block, true, &h),
+                Update::Selective(Some(rows)) => update_rows(params, grad, moments, block, rows, &h),
+            };
             if bad && first_bad.is_none() {
                 first_bad = Some(group);
             }
@@ -329,11 +378,41 @@ struct Moments<'a> {
     live: &'a mut [bool],
 }
 
-/// Updates columns `off..off + w` of a row-major array with rows of `row` values,
-/// skipping rows with zero gradient and zero moments ([`Adam::step`]); true if any
-/// updated value is NaN or infinite.
-fn update_block(p: &mut [f32], g: &[f32], mo: Moments, row: usize, off: usize, w: usize, h: &Hyper) -> bool {
+/// Columns `off..off + w` of a row-major array with rows of `row` values: one group's
+/// share of a parameter array.
+#[derive(Clone, Copy)]
+struct Block {
+    row: usize,
+    off: usize,
+    w: usize,
+}
+
+/// Updates one row (`p`, `g`: the Gaussian's whole parameter and gradient rows; `mo`:
+/// its moments, one live flag) unless its gradient is zero and either the rule is
+/// selective or its moments are zero ([`Adam::step`]). Returns whether an updated value
+/// is NaN or infinite.
+#[inline(always)]
+fn update_row(p: &mut [f32], g: &[f32], mo: Moments, b: Block, selective: bool, h: &Hyper) -> bool {
+    let Moments { m, v, live: [live] } = mo else { unreachable!("one row has one live flag") };
+    if (selective || !*live) && g[b.off..b.off + b.w].iter().all(|&x| x == 0.0) {
+        return false;
+    }
+    let (mut bad, mut nonzero) = (false, false);
+    for k in 0..b.w {
+        let pk = &mut p[b.off + k];
+        h.update(pk, &mut m[k], &mut v[k], g[b.off + k]);
+        bad |= !pk.is_finite();
+        nonzero |= (m[k] != 0.0) | (v[k] != 0.0);
+    }
+    *live = nonzero;
+    bad
+}
+
+/// [`update_row`] over every row, in parallel; true if any updated value is NaN or
+/// infinite.
+fn update_block(p: &mut [f32], g: &[f32], mo: Moments, b: Block, selective: bool, h: &Hyper) -> bool {
     const ROWS: usize = 2048;
+    let (row, w) = (b.row, b.w);
     p.par_chunks_mut(row * ROWS)
         .zip(g.par_chunks(row * ROWS))
         .zip(mo.m.par_chunks_mut(w * ROWS).zip(mo.v.par_chunks_mut(w * ROWS)))
@@ -346,21 +425,62 @@ fn update_block(p: &mut [f32], g: &[f32], mo: Moments, row: usize, off: usize, w
                 .zip(m.chunks_exact_mut(w).zip(v.chunks_exact_mut(w)))
                 .zip(live.iter_mut())
             {
-                if !*lv && gr[off..off + w].iter().all(|&x| x == 0.0) {
-                    continue;
-                }
-                let mut nonzero = false;
-                for k in 0..w {
-                    let pk = &mut pr[off + k];
-                    h.update(pk, &mut mr[k], &mut vr[k], gr[off + k]);
-                    bad |= !pk.is_finite();
-                    nonzero |= (mr[k] != 0.0) | (vr[k] != 0.0);
-                }
-                *lv = nonzero;
+                let mo = Moments { m: mr, v: vr, live: std::slice::from_mut(lv) };
+                bad |= update_row(pr, gr, mo, b, selective, h);
             }
             bad
         })
         .reduce(|| false, |a, b| a || b)
+}
+
+/// Selective [`update_row`] over the listed rows only (ascending), in parallel: the
+/// arrays are cut at row boundaries into one piece per run of listed rows.
+fn update_rows(p: &mut [f32], g: &[f32], mo: Moments, b: Block, rows: &[u32], h: &Hyper) -> bool {
+    const ROWS: usize = 2048;
+    let n = mo.live.len();
+    let runs: Vec<&[u32]> = rows.chunks(ROWS).collect();
+    // Piece k holds Gaussians [starts[k], starts[k + 1]) and run k lies inside it.
+    let mut starts: Vec<usize> = runs.iter().map(|r| r[0] as usize).collect();
+    if let Some(s) = starts.first_mut() {
+        *s = 0;
+    }
+    starts.push(n);
+    assert!(
+        rows.windows(2).all(|r| r[0] < r[1]) && rows.last().is_none_or(|&r| (r as usize) < n),
+        "rows must be ascending and in range"
+    );
+    let pieces =
+        (cut(p, b.row, &starts), cut(mo.m, b.w, &starts), cut(mo.v, b.w, &starts), cut(mo.live, 1, &starts));
+    pieces
+        .into_par_iter()
+        .zip(runs.into_par_iter().zip(starts.par_iter()))
+        .map(|((p, m, v, live), (run, &start))| {
+            let mut bad = false;
+            for &i in run {
+                let (i, k) = (i as usize, i as usize - start);
+                let (pr, gr) = (&mut p[k * b.row..(k + 1) * b.row], &g[i * b.row..(i + 1) * b.row]);
+                let mo = Moments {
+                    m: &mut m[k * b.w..(k + 1) * b.w],
+                    v: &mut v[k * b.w..(k + 1) * b.w],
+                    live: &mut live[k..k + 1],
+                };
+                bad |= update_row(pr, gr, mo, b, true, h);
+            }
+            bad
+        })
+        .reduce(|| false, |a, b| a || b)
+}
+
+/// Cuts a row-major array (`width` values a row) into the pieces of rows
+/// `[starts[k], starts[k + 1])`.
+fn cut<'a, T>(mut data: &'a mut [T], width: usize, starts: &[usize]) -> Vec<&'a mut [T]> {
+    let mut out = Vec::with_capacity(starts.len().saturating_sub(1));
+    for s in starts.windows(2) {
+        let (piece, rest) = data.split_at_mut((s[1] - s[0]) * width);
+        out.push(piece);
+        data = rest;
+    }
+    out
 }
 
 #[cfg(test)]
@@ -392,7 +512,7 @@ mod tests {
         grads.sh[3] = -1.0; // first rest coefficient, red
         grads.features[1] = 3.0;
         let lr = [0.1, 0.01, 0.001, 0.05, 0.0, 0.0, 0.2];
-        assert!(adam.step(&mut model, &grads, &lr).is_none());
+        assert!(adam.step(&mut model, &grads, &lr, Update::Dense).is_none());
         // Step 1: m = 0.1 g, v = 0.001 g², m̂ = g, v̂ = g² -> p -= lr · sign(g) (eps negligible).
         let g = &model.gaussians;
         assert!((g.means[0][0] - (1.0 - 0.1)).abs() < 1e-6);
@@ -406,7 +526,7 @@ mod tests {
         assert!(adam.groups[Group::Scaling.index()].m.is_empty());
         // Step 2 with gradient g2 = -1 on x: hand computation.
         grads.means[0] = [-1.0, 0.0, 0.0];
-        assert!(adam.step(&mut model, &grads, &lr).is_none());
+        assert!(adam.step(&mut model, &grads, &lr, Update::Dense).is_none());
         let (b1, b2) = (0.9f64, 0.999f64);
         let m = b1 * (0.1 * 0.5) - 0.1;
         let v = b2 * (0.001 * 0.25) + 0.001 * 1.0;
@@ -451,7 +571,7 @@ mod tests {
                 grads.features[r * 2] = 0.3 * step as f32 - 0.5;
                 grads.features[r * 2 + 1] = -0.2;
             }
-            assert!(adam.step(&mut model, &grads, &lr).is_none());
+            assert!(adam.step(&mut model, &grads, &lr, Update::Dense).is_none());
             let (b1, b2) = (0.9f32, 0.999f32);
             let step_size = 0.05 / (1.0 - b1.powi(step));
             let bc2 = (1.0 - b2.powi(step)).sqrt();
@@ -468,6 +588,83 @@ mod tests {
         }
         let live = &adam.groups[Group::Features.index()].live;
         assert_eq!(live, &[false, true, false, false, false, true, true, false]);
+    }
+
+    /// A model of `n` Gaussians (SH degree 1, two features) with varied parameters.
+    fn varied_model(n: usize) -> Model {
+        let wave = |k: usize, a: f32| (k as f32 * a).sin();
+        let g = Gaussians {
+            means: (0..n).map(|i| [wave(i, 0.3), wave(i, 0.7), wave(i, 1.1)]).collect(),
+            log_scales: (0..n).map(|i| [wave(i, 0.2), wave(i, 0.5), wave(i, 0.9)]).collect(),
+            rotations: (0..n).map(|i| [1.0, wave(i, 0.4), wave(i, 0.8), wave(i, 1.3)]).collect(),
+            opacity_logits: (0..n).map(|i| wave(i, 0.6)).collect(),
+            sh_degree: 1,
+            sh: (0..n * 12).map(|k| wave(k, 0.17)).collect(),
+            ..Default::default()
+        };
+        Model::with_features(g, (0..n * 2).map(|k| wave(k, 0.23)).collect(), 2).unwrap()
+    }
+
+    /// Gradients that are non-zero on `rows` only, different per step.
+    fn grads_on(n: usize, rows: &[u32], step: u64) -> Grads {
+        let mut g = Grads::zeros(n, 1, 2);
+        for &r in rows {
+            let (r, s) = (r as usize, step as f32);
+            let x = |k: usize| ((r * 31 + k) as f32 * 0.13 + s).sin();
+            g.means[r] = [x(0), x(1), x(2)];
+            g.log_scales[r] = [x(3), x(4), x(5)];
+            g.rotations[r] = [x(6), x(7), x(8), x(9)];
+            g.opacity_logits[r] = x(10);
+            g.sh[r * 12..(r + 1) * 12].iter_mut().enumerate().for_each(|(k, v)| *v = x(11 + k));
+            g.features[r * 2..(r + 1) * 2].iter_mut().enumerate().for_each(|(k, v)| *v = x(23 + k));
+        }
+        g
+    }
+
+    #[test]
+    fn selective_adam_moves_only_reached_rows_and_agrees_with_dense_on_them() {
+        // Every row is reached at step 1 (all moments live); from step 2 on, only some.
+        let n = 5000;
+        let lr = [1e-3, 2e-3, 1e-4, 0.05, 5e-3, 1e-3, 2e-3];
+        let all: Vec<u32> = (0..n as u32).collect();
+        let some: Vec<u32> = (0..n as u32).filter(|i| i % 3 != 1).collect();
+        let (mut dense, mut sel, mut listed) = (varied_model(n), varied_model(n), varied_model(n));
+        let (mut ad, mut asel, mut alisted) = (Adam::new(&dense), Adam::new(&sel), Adam::new(&listed));
+        for step in 1..=3u64 {
+            let rows = if step == 1 { &all } else { &some };
+            let g = grads_on(n, rows, step);
+            let (before, abefore) = (sel.clone(), asel.clone());
+            assert!(ad.step(&mut dense, &g, &lr, Update::Dense).is_none());
+            assert!(asel.step(&mut sel, &g, &lr, Update::Selective(None)).is_none());
+            assert!(alisted.step(&mut listed, &g, &lr, Update::Selective(Some(rows))).is_none());
+            // Listing the rows is only a shortcut: bit-identical to scanning them.
+            assert_eq!((&sel, &asel), (&listed, &alisted), "step {step}");
+            for i in 0..n {
+                let reached = rows.binary_search(&(i as u32)).is_ok();
+                let moved = sel.gaussians.means[i] != before.gaussians.means[i];
+                assert_eq!(moved, reached, "step {step}, row {i}");
+                if step == 2 && !reached {
+                    // Dense Adam carries an unreached row on by its momentum; selective does not.
+                    assert_ne!(dense.gaussians.means[i], before.gaussians.means[i]);
+                    for (now, was) in asel.groups.iter().zip(&abefore.groups) {
+                        let w = now.width;
+                        assert_eq!(now.m[i * w..(i + 1) * w], was.m[i * w..(i + 1) * w]);
+                        assert_eq!(now.v[i * w..(i + 1) * w], was.v[i * w..(i + 1) * w]);
+                    }
+                }
+            }
+            if step <= 2 {
+                // Until a row is skipped once, both rules agree exactly on the rows reached.
+                for &i in &some {
+                    let i = i as usize;
+                    assert_eq!(
+                        dense.gaussians.sh[i * 12..(i + 1) * 12],
+                        sel.gaussians.sh[i * 12..(i + 1) * 12]
+                    );
+                    assert_eq!(dense.features[i * 2..(i + 1) * 2], sel.features[i * 2..(i + 1) * 2]);
+                }
+            }
+        }
     }
 
     #[test]

@@ -2,7 +2,7 @@
 //! (`transsplat_raster::bench`), against forward + backward alone, so the cost of the
 //! loss, the optimiser and the densification bookkeeping is a ratio.
 
-use crate::adam::Adam;
+use crate::adam::{Adam, AdamRule, Update};
 use crate::densify::{DensifyConfig, DensifyStats};
 use crate::loss::image_loss;
 use crate::model::Model;
@@ -18,8 +18,10 @@ pub struct TrainBench {
     pub height: u32,
     /// Baseline: render + backward with a fixed image gradient.
     pub forward_backward: f64,
-    /// A full [`Trainer::step`]: render, loss, backward, statistics, Adam.
+    /// A full [`Trainer::step`]: render, loss, backward, statistics, Adam (dense, as INRIA).
     pub step: f64,
+    /// The same step with selective Adam ([`AdamRule::Selective`]).
+    pub step_selective: f64,
     /// The loss and its gradient alone (L1 + D-SSIM).
     pub loss: f64,
     /// The Adam update alone (every group, the gradients of one backward, every row's
@@ -55,10 +57,13 @@ pub fn run(n: usize, width: u32, height: u32, reps: usize) -> TrainBench {
     };
     let mut trainer = Trainer::new(model, 5.0, config).expect("valid benchmark scene");
     settle_moments(&mut trainer.adam, trainer.model.len());
+    let mut selective = trainer.clone();
+    selective.config.adam = AdamRule::Selective;
     let opts = RenderOptions::default();
 
     let mut forward_backward = f64::INFINITY;
     let mut step = f64::INFINITY;
+    let mut step_selective = f64::INFINITY;
     // Interleaved, best of `reps`: the machine may be shared, and the minimum is the
     // least disturbed measurement of each.
     for _ in 0..reps.max(1) + 1 {
@@ -74,7 +79,12 @@ pub fn run(n: usize, width: u32, height: u32, reps: usize) -> TrainBench {
             trainer.step(&cam, &target, None).expect("finite benchmark step");
         });
         step = step.min(t);
+        let (t, ()) = best_of(0, 1, || {
+            selective.step(&cam, &target, None).expect("finite benchmark step");
+        });
+        step_selective = step_selective.min(t);
     }
+    drop(selective);
     let (img, frame) = trainer.render(&cam);
     let (loss, ()) = best_of(1, reps, || {
         let _ = image_loss(&img.rgb, &target, img.width, img.height, None, 0.2);
@@ -88,7 +98,7 @@ pub fn run(n: usize, width: u32, height: u32, reps: usize) -> TrainBench {
     settle_moments(&mut adam, adam_model.len());
     let lr = trainer.learning_rates();
     let (adam_t, ()) = best_of(1, reps, || {
-        let _ = adam.step(&mut adam_model, &grads, &lr);
+        let _ = adam.step(&mut adam_model, &grads, &lr, Update::Dense);
     });
     drop(adam_model);
     // One densification pass with realistic statistics: about 5 % above threshold.
@@ -107,5 +117,15 @@ pub fn run(n: usize, width: u32, height: u32, reps: usize) -> TrainBench {
     let (densify, ()) = best_of(0, 1, || {
         let _ = t.densify_and_prune(None);
     });
-    TrainBench { gaussians: n, width, height, forward_backward, step, loss, adam: adam_t, densify }
+    TrainBench {
+        gaussians: n,
+        width,
+        height,
+        forward_backward,
+        step,
+        step_selective,
+        loss,
+        adam: adam_t,
+        densify,
+    }
 }

@@ -38,7 +38,7 @@ pub mod model;
 pub mod points;
 pub mod trainer;
 
-pub use adam::{Adam, Group, LearningRates};
+pub use adam::{Adam, AdamRule, Group, LearningRates, Update};
 pub use checkpoint::{Checkpointer, Control, RunId};
 pub use dataset::{Dataset, LoadOptions, View};
 pub use densify::{DensifyConfig, DensifyCounts, DensifyStats};

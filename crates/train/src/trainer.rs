@@ -10,7 +10,7 @@
 //! let mut pass = trainer.forward_backward(&cam, &target, weights);  // image loss + grads
 //! // ... add their own terms into pass.grads (sh, features, ...), or render and
 //! // call trainer.backward(...) with their own image gradients ...
-//! let report = trainer.finish_step(&pass.grads, Some(&pass.frame), densify_mask)?;
+//! let report = trainer.finish_step(&pass.grads, Some(&pass.rows), Some(&pass.frame), densify_mask)?;
 //! // report.reindex: apply it to any per-Gaussian array kept outside the model
 //! ```
 //!
@@ -20,7 +20,7 @@
 //! are applied to the model, the Adam moments and the statistics by
 //! [`apply_reindex`].
 
-use crate::adam::{Adam, Group, LearningRates};
+use crate::adam::{Adam, AdamRule, Group, LearningRates, Update};
 use crate::densify::{self, DensifyConfig, DensifyCounts, DensifyStats};
 use crate::loss::{image_loss, ImageLoss};
 use crate::model::{Model, Reindex};
@@ -44,6 +44,8 @@ pub struct TrainConfig {
     pub background: [f32; 3],
     /// Seed of every random choice (split samples, view order).
     pub seed: u64,
+    /// Adam's update rule (dense as INRIA, or selective: only the rows a step reached).
+    pub adam: AdamRule,
 }
 
 impl Default for TrainConfig {
@@ -55,6 +57,7 @@ impl Default for TrainConfig {
             lambda_dssim: 0.2,
             background: [0.0; 3],
             seed: 0,
+            adam: AdamRule::Dense,
         }
     }
 }
@@ -88,6 +91,9 @@ pub struct ViewPass {
     pub loss: ImageLoss,
     /// Gradients of the image loss with respect to every parameter.
     pub grads: Grads,
+    /// The rows of `grads` the backward pass wrote (ascending; see
+    /// [`transsplat_raster::backward`]).
+    pub rows: Vec<u32>,
 }
 
 /// What a step did.
@@ -119,6 +125,10 @@ pub struct Trainer {
     pub step: u64,
     pub active_sh_degree: u32,
     pub rng: ChaCha8Rng,
+    /// Gradient buffer reused by [`Trainer::step`], all zero between steps (only the
+    /// rows a step wrote are cleared after it, so a step's cost does not grow with
+    /// the Gaussians its view did not reach). Empty until the first step.
+    scratch: Grads,
 }
 
 /// Applies `r` to every per-Gaussian array: the model's ([`Model::reindex`]), the
@@ -163,7 +173,8 @@ impl Trainer {
         let active_sh_degree =
             if config.densify.sh_degree_interval == 0 { model.gaussians.sh_degree } else { 0 };
         let rng = ChaCha8Rng::seed_from_u64(config.seed);
-        Ok(Trainer { model, adam, stats, config, extent, step: 0, active_sh_degree, rng })
+        let scratch = Grads::default();
+        Ok(Trainer { model, adam, stats, config, extent, step: 0, active_sh_degree, rng, scratch })
     }
 
     /// The rasterizer's view of the model at the active SH degree.
@@ -210,6 +221,19 @@ impl Trainer {
         target: &[f32],
         weights: Option<&[f32]>,
     ) -> Result<ViewPass, TrainError> {
+        let mut grads = self.zero_grads();
+        let (image, frame, loss, rows) = self.pass_into(cam, target, weights, &mut grads)?;
+        Ok(ViewPass { image, frame, loss, grads, rows })
+    }
+
+    /// [`Trainer::forward_backward`] adding into `grads`; returns the rows written.
+    fn pass_into(
+        &self,
+        cam: &Camera,
+        target: &[f32],
+        weights: Option<&[f32]>,
+        grads: &mut Grads,
+    ) -> Result<(Image, Frame, ImageLoss, Vec<u32>), TrainError> {
         let px = cam.width as usize * cam.height as usize;
         if target.len() != px * 3 || weights.is_some_and(|w| w.len() != px) {
             return Err(TrainError::Mismatch(format!(
@@ -220,15 +244,21 @@ impl Trainer {
         let (image, frame) = self.render(cam);
         let loss =
             image_loss(&image.rgb, target, image.width, image.height, weights, self.config.lambda_dssim);
-        let mut grads = self.zero_grads();
-        self.backward(cam, &frame, &ImageGrads { rgb: &loss.grad, ..Default::default() }, &mut grads);
-        Ok(ViewPass { image, frame, loss, grads })
+        let rows = self.backward(cam, &frame, &ImageGrads { rgb: &loss.grad, ..Default::default() }, grads);
+        Ok((image, frame, loss, rows))
     }
 
     /// Backward pass of a render of `cam` with caller-supplied image gradients
-    /// (RGB, alpha, depth, features), accumulated into `grads`.
-    pub fn backward(&self, cam: &Camera, frame: &Frame, image_grads: &ImageGrads, grads: &mut Grads) {
-        backward(&self.splats(), cam, frame, image_grads, grads);
+    /// (RGB, alpha, depth, features), accumulated into `grads`; returns the rows it
+    /// wrote (ascending).
+    pub fn backward(
+        &self,
+        cam: &Camera,
+        frame: &Frame,
+        image_grads: &ImageGrads,
+        grads: &mut Grads,
+    ) -> Vec<u32> {
+        backward(&self.splats(), cam, frame, image_grads, grads)
     }
 
     /// Finishes a step begun with [`Trainer::begin_step`]: records densification
@@ -239,9 +269,14 @@ impl Trainer {
     /// which Gaussians may be cloned, split, pruned or reset. A NaN or infinite
     /// gradient (before the update) or parameter (after it) is a
     /// [`TrainError::NonFinite`] naming the step and the parameter group.
+    ///
+    /// `rows`, when known, lists (ascending) every row where `grads` may be non-zero (what
+    /// the backward passes returned): the gradient check and selective Adam then visit
+    /// only those.
     pub fn finish_step(
         &mut self,
         grads: &Grads,
+        rows: Option<&[u32]>,
         frame: Option<&Frame>,
         densify_mask: Option<&[bool]>,
     ) -> Result<StepReport, TrainError> {
@@ -256,7 +291,7 @@ impl Trainer {
         }
         let step = self.step;
         let lr = self.learning_rates();
-        if let Some(group) = first_non_finite(grads, &lr) {
+        if let Some(group) = first_non_finite(grads, rows, &lr) {
             return Err(TrainError::NonFinite {
                 step,
                 what: format!("the gradient of the {}", group.name()),
@@ -276,7 +311,11 @@ impl Trainer {
         }
         // Densification and the opacity reset copy or set finite values, so the update is
         // the only place a finite model can turn NaN or infinite.
-        if let Some(group) = self.adam.step(&mut self.model, grads, &lr) {
+        let update = match self.config.adam {
+            AdamRule::Dense => Update::Dense,
+            AdamRule::Selective => Update::Selective(rows),
+        };
+        if let Some(group) = self.adam.step(&mut self.model, grads, &lr, update) {
             return Err(TrainError::NonFinite { step, what: format!("the {}", group.name()) });
         }
         let mut report = StepReport { step, ..Default::default() };
@@ -306,13 +345,18 @@ impl Trainer {
         weights: Option<&[f32]>,
     ) -> Result<StepReport, TrainError> {
         self.begin_step();
-        let pass = self.forward_backward(cam, target, weights)?;
-        if !pass.loss.loss.is_finite() {
+        let mut grads = std::mem::take(&mut self.scratch);
+        if grads.means.len() != self.model.len() {
+            grads = self.zero_grads(); // first step, or the model was densified or pruned
+        }
+        let (_, frame, loss, rows) = self.pass_into(cam, target, weights, &mut grads)?;
+        if !loss.loss.is_finite() {
             return Err(TrainError::NonFinite { step: self.step, what: "the image loss".into() });
         }
-        let mut report = self.finish_step(&pass.grads, Some(&pass.frame), None)?;
-        report.loss = pass.loss.loss;
-        Ok(report)
+        let report = self.finish_step(&grads, Some(&rows), Some(&frame), None);
+        grads.clear_rows(&rows);
+        self.scratch = grads;
+        Ok(StepReport { loss: loss.loss, ..report? })
     }
 
     /// Applies a rearrangement to the model, Adam moments and statistics.
@@ -387,9 +431,18 @@ impl Trainer {
 }
 
 /// The first parameter group (with a non-zero learning rate) whose gradient has a
-/// NaN or infinite value.
-fn first_non_finite(grads: &Grads, lr: &[f32; 7]) -> Option<Group> {
-    let bad = |v: &[f32]| v.par_iter().with_min_len(1 << 14).any(|x| !x.is_finite());
+/// NaN or infinite value, looking only at `rows` when given.
+fn first_non_finite(grads: &Grads, rows: Option<&[u32]>, lr: &[f32; 7]) -> Option<Group> {
+    let n = grads.means.len().max(1);
+    let bad = |v: &[f32]| match rows {
+        None => v.par_iter().with_min_len(1 << 14).any(|x| !x.is_finite()),
+        Some(rows) => {
+            let w = v.len() / n;
+            rows.par_iter()
+                .with_min_len(1 << 12)
+                .any(|&i| v[i as usize * w..][..w].iter().any(|x| !x.is_finite()))
+        }
+    };
     let checks: [(Group, &[f32]); 6] = [
         (Group::Position, grads.means.as_flattened()),
         (Group::ShDc, &grads.sh),

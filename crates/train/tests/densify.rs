@@ -5,7 +5,7 @@
 
 use transsplat_raster::Grads;
 use transsplat_scene::{Extra, Gaussians};
-use transsplat_train::{DensifyConfig, Group, LearningRates, Model, TrainConfig, Trainer};
+use transsplat_train::{DensifyConfig, Group, LearningRates, Model, TrainConfig, Trainer, Update};
 
 const N: usize = 12;
 const EXTENT: f32 = 10.0;
@@ -41,7 +41,7 @@ fn trainer() -> Trainer {
         grads.sh[i * 12] = i as f32 + 1.0;
         grads.sh[i * 12 + 5] = i as f32 + 1.0;
     }
-    assert!(t.adam.step(&mut t.model, &grads, &t.config.lr.at(1, 100, EXTENT)).is_none());
+    assert!(t.adam.step(&mut t.model, &grads, &t.config.lr.at(1, 100, EXTENT), Update::Dense).is_none());
     // Densification statistics: rows 0..6 above the threshold 2e-4.
     for i in 0..N {
         t.stats.grad_accum[i] = if i < 6 { 3e-3 } else { 1e-4 };

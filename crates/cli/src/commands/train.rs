@@ -10,8 +10,8 @@ use transsplat_train::dataset::Masks;
 use transsplat_train::fit::{train_run_id, SUMMARY_FILE, TRAIN_FILE};
 use transsplat_train::init::MAX_RANDOM_POINTS;
 use transsplat_train::{
-    dataset, fit_with, initial_model, scene_extent, write_output, DensifyConfig, FitOptions, FitState,
-    InitSource, LearningRates, LoadOptions, TrainConfig, TrainError, Trainer,
+    dataset, fit_with, initial_model, scene_extent, write_output, AdamRule, DensifyConfig, FitOptions,
+    FitState, InitSource, LearningRates, LoadOptions, TrainConfig, TrainError, Trainer,
 };
 
 /// Arguments of `transsplat train`.
@@ -60,6 +60,11 @@ pub struct TrainArgs {
     /// Densify until this step (INRIA: 15000).
     #[arg(long, default_value_t = 15_000)]
     pub densify_until: u64,
+    /// Adam's update rule: `dense` updates every Gaussian every step (INRIA); `selective`
+    /// only those the step's view reached, so a step costs what the view sees, not the
+    /// whole model (docs/method.md M10).
+    #[arg(long, value_parser = ["dense", "selective"], default_value = "dense")]
+    pub adam: String,
     #[command(flatten)]
     pub checkpoints: CheckpointArgs,
 }
@@ -114,6 +119,7 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
             densify: DensifyConfig { until_step: args.densify_until, ..Default::default() },
             background: args.background,
             seed: args.seed,
+            adam: if args.adam == "selective" { AdamRule::Selective } else { AdamRule::Dense },
             ..Default::default()
         },
         max_sh_degree: args.sh_degree,
@@ -190,7 +196,7 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
         "test_psnr": (eval.views > 0).then_some(eval.psnr), "test_ssim": (eval.views > 0).then_some(eval.ssim),
         "test_psnr_masked": eval.masked_psnr, "test_views": eval.views, "worst_test_view": worst,
         "train_psnr_sample": train_psnr, "per_test_view": per_view,
-        "seconds": started.elapsed().as_secs_f64(), "scene": ply,
+        "seconds": started.elapsed().as_secs_f64(), "scene": ply, "adam": trainer.config.adam.name(),
     });
     atomic::write_bytes(&staged.path().join(SUMMARY_FILE), format!("{summary:#}\n").as_bytes())?;
     staged.commit()?;
@@ -281,19 +287,20 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
         bail!("--sizes and --gaussians must be positive");
     }
     println!(
-        "{:>10} {:>9} {:>12} {:>10} {:>7} {:>9} {:>9} {:>10}",
-        "gaussians", "size", "fwd+bwd s", "step s", "ratio", "loss s", "adam s", "densify s"
+        "{:>10} {:>9} {:>12} {:>10} {:>7} {:>11} {:>9} {:>9} {:>10}",
+        "gaussians", "size", "fwd+bwd s", "step s", "ratio", "selective s", "loss s", "adam s", "densify s"
     );
     for &n in &args.gaussians {
         for &s in &args.sizes {
             let r = transsplat_train::bench::run(n, s, s, args.reps);
             println!(
-                "{:>10} {:>9} {:>12.4} {:>10.4} {:>7.2} {:>9.4} {:>9.4} {:>10.4}",
+                "{:>10} {:>9} {:>12.4} {:>10.4} {:>7.2} {:>11.4} {:>9.4} {:>9.4} {:>10.4}",
                 n,
                 format!("{s}x{s}"),
                 r.forward_backward,
                 r.step,
                 r.step / r.forward_backward,
+                r.step_selective,
                 r.loss,
                 r.adam,
                 r.densify
@@ -304,6 +311,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
                     "gaussians": n, "width": s, "height": s,
                     "forward_backward_s": r.forward_backward, "step_s": r.step,
                     "step_over_forward_backward": r.step / r.forward_backward,
+                    "step_selective_s": r.step_selective,
                     "loss_s": r.loss, "adam_s": r.adam, "densify_s": r.densify,
                     "threads": rayon::current_num_threads(),
                 })
