@@ -33,6 +33,7 @@ use kernel::{Accum, ForwardState, PixelGrads, TileOut};
 use project::{GaussianParams, View};
 use rayon::iter::Either;
 use rayon::prelude::*;
+use transsplat_scene::cpu::prefetch_bytes;
 pub use transsplat_scene::sh_coeffs;
 use transsplat_scene::{Camera, Gaussians};
 
@@ -358,6 +359,7 @@ pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, gr
         0 => Either::Right((0..n).into_par_iter().map(|_| <&mut [f32]>::default())),
         _ => Either::Left(grads.features[..n * f].par_chunks_mut(f)),
     };
+    let (sh_at, gsh_at) = (splats.sh.as_ptr() as usize, grads.sh.as_ptr() as usize);
     let rows = (
         (&mut grads.means, &mut grads.log_scales, &mut grads.rotations, &mut grads.opacity_logits),
         grads.sh.par_chunks_mut(kc),
@@ -365,8 +367,21 @@ pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, gr
         &mut grads.means2d,
         &written,
     );
+    // The reached rows are scattered (a third of them at 1M Gaussians, 256²), so the
+    // hardware cannot guess the next one: fetch the SH rows (read and written) and the
+    // accumulator row of a reached Gaussian a few reached rows ahead.
+    const AHEAD: usize = 24;
+    let ahead = |i: usize| {
+        if written.get(i + AHEAD) == Some(&true) {
+            let a = i + AHEAD;
+            prefetch_bytes(sh_at + a * kc * 4, kc * 4);
+            prefetch_bytes(gsh_at + a * kc * 4, kc * 4);
+            prefetch_bytes(acc.as_ptr() as usize + pos[a] as usize * stride * 4, stride * 4);
+        }
+    };
     rows.into_par_iter().enumerate().with_min_len(2048).for_each(
         |(i, ((mean, ls, quat, op), sh, ft, m2, &wr))| {
+            ahead(i);
             if !wr {
                 return;
             }

@@ -24,6 +24,7 @@
 use crate::model::{Model, Reindex};
 use rayon::prelude::*;
 use transsplat_raster::Grads;
+use transsplat_scene::cpu::prefetch_bytes;
 
 /// The parameter groups, one learning rate and one Adam state each.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -456,7 +457,17 @@ fn update_rows(p: &mut [f32], g: &[f32], mo: Moments, b: Block, rows: &[u32], h:
         .zip(runs.into_par_iter().zip(starts.par_iter()))
         .map(|((p, m, v, live), (run, &start))| {
             let mut bad = false;
-            for &i in run {
+            // The rows are scattered: fetch each a few rows ahead (raster::backward does too).
+            const AHEAD: usize = 8;
+            let addr = |s: &[f32], row: usize, i: usize| s.as_ptr() as usize + i * row * 4;
+            for (r, &i) in run.iter().enumerate() {
+                if let Some(&a) = run.get(r + AHEAD) {
+                    let (a, k) = (a as usize, a as usize - start);
+                    prefetch_bytes(addr(p, b.row, k), b.row * 4);
+                    prefetch_bytes(addr(g, b.row, a), b.row * 4);
+                    prefetch_bytes(addr(m, b.w, k), b.w * 4);
+                    prefetch_bytes(addr(v, b.w, k), b.w * 4);
+                }
                 let (i, k) = (i as usize, i as usize - start);
                 let (pr, gr) = (&mut p[k * b.row..(k + 1) * b.row], &g[i * b.row..(i + 1) * b.row]);
                 let mo = Moments {
