@@ -82,6 +82,7 @@ pub fn run(
         width: size.width,
         height: size.height,
         views: size.views,
+        open: false,
     };
     let scene = build(size.scene, &cfg)?;
     let mut editor = SimulatedEditor::new(&scene, severity, config.seed);

@@ -207,11 +207,12 @@ pub fn builtin_scene(py: Python<'_>, name: &str, out: PathBuf, quick: bool, seed
     let mut cfg = if quick { SceneConfig::quick() } else { SceneConfig::default() };
     cfg.seed = seed;
     let scene = build(name, &cfg).map_err(|e| value_error(e.to_string()))?;
-    py.allow_threads(|| write_dataset(&scene, &out, &WriteOptions { force: false }, &mut |_, _| {}))
-        .map_err(|e| match e {
+    py.allow_threads(|| write_dataset(&scene, &out, &WriteOptions::default(), &mut |_, _| {})).map_err(
+        |e| match e {
             transsplat_scenes::Error::Io(e) => scene_error(e),
             e => value_error(e.to_string()),
-        })?;
+        },
+    )?;
     Ok(out)
 }
 

@@ -13,6 +13,12 @@
 //!   the thin structures are one to two pixels wide, and the target has a look-alike.
 //!   Suggested target: the apple.
 //!
+//! Open surroundings ([`SceneConfig::open`], tabletop and occluded): the floor and
+//! walls around the table give way to a checkerboard floor reaching 20 m, sampled more
+//! coarsely with distance, under a sky dome 30 m away, and the cameras orbit the full
+//! 360° at 6–26° elevation: a large, far background that covers most of every view, as an outdoor or
+//! big-room capture gives a trainer (the floater study of the trainer issue).
+//!
 //! World frame: z up, metres, label 0 is the background, objects are 1.... Tabletop
 //! scenes: the table top at z = 0, the floor at z = −0.75, the backdrop at y = +1.3
 //! (label 0: floor, wall, table). Garden: the lawn at z = 0, the backdrop walls at
@@ -42,18 +48,20 @@ pub struct SceneConfig {
     pub height: u32,
     /// Number of cameras.
     pub views: usize,
+    /// Open surroundings instead of the enclosing floor and walls (module doc).
+    pub open: bool,
 }
 
 impl Default for SceneConfig {
     fn default() -> Self {
-        SceneConfig { seed: 0, detail: 1.0, width: 256, height: 192, views: 32 }
+        SceneConfig { seed: 0, detail: 1.0, width: 256, height: 192, views: 32, open: false }
     }
 }
 
 impl SceneConfig {
     /// A small variant for tests and `--quick`: ~5k Gaussians, 16 views of 128×96.
     pub fn quick() -> Self {
-        SceneConfig { seed: 0, detail: 0.12, width: 128, height: 96, views: 16 }
+        SceneConfig { seed: 0, detail: 0.12, width: 128, height: 96, views: 16, open: false }
     }
 
     fn check(&self) -> Result<(), Error> {
@@ -206,6 +214,9 @@ pub fn build(name: &str, config: &SceneConfig) -> Result<Scene, Error> {
     match name.trim().to_ascii_lowercase().as_str() {
         "tabletop" => Ok(tabletop(config)),
         "occluded" => Ok(occluded(config)),
+        "garden" if config.open => Err(Error::Invalid(
+            "open surroundings are built for tabletop and occluded; garden has its own far backdrop".into(),
+        )),
         "garden" => Ok(garden(config)),
         _ => Err(Error::UnknownScene {
             name: name.to_string(),
@@ -233,20 +244,27 @@ const TABLE_THICK: f32 = 0.04;
 const FLOOR_Z: f32 = -0.75;
 const WALL_Y: f32 = 1.3;
 
-/// Floor, backdrop wall and table (label 0).
-fn background(b: &mut Builder, sp: &Spacing, seed: u64) {
+/// How far the open floor reaches (metres from the table) and the sky dome's radius.
+const FLOOR_REACH: f32 = 20.0;
+const SKY_RADIUS: f32 = 30.0;
+
+/// Floor, backdrop walls (or open surroundings, [`SceneConfig::open`]) and table (label 0).
+fn background(b: &mut Builder, sp: &Spacing, seed: u64, open: bool) {
     let floor = move |p: [f32; 3]| {
         let tile = checker([p[0], p[1], 0.0], 0.5);
         let base = mix_rgb([0.36, 0.36, 0.38], [0.5, 0.49, 0.47], tile);
         shade(base, 0.85 + 0.3 * fbm(seed ^ 1, [p[0] * 4.0, p[1] * 4.0, 0.0], 3))
     };
+    if open {
+        open_surroundings(b, sp, &floor);
+        table(b, sp, seed);
+        return;
+    }
     let wall = move |p: [f32; 3]| {
         let band = stripes([0.0, 0.0, p[0]], 0.3);
         let base = mix_rgb([0.78, 0.72, 0.6], [0.62, 0.68, 0.72], band);
         shade(base, 0.88 + 0.2 * fbm(seed ^ 2, [p[0] * 3.0, 0.0, p[2] * 3.0], 4))
     };
-    let top = move |p: [f32; 3]| shade([0.58, 0.37, 0.2], wood_grain(seed ^ 3, p, 0.05));
-    let leg = move |p: [f32; 3]| shade([0.4, 0.25, 0.13], wood_grain(seed ^ 4, [p[2], p[1], p[0]], 0.03));
     let old_opacity = b.opacity;
     b.view_dependence = 0.015;
     b.rect([-2.6, -2.4, FLOOR_Z], [5.2, 0.0, 0.0], [0.0, 2.4 + WALL_Y, 0.0], sp.background, &floor, 0);
@@ -255,6 +273,46 @@ fn background(b: &mut Builder, sp: &Spacing, seed: u64) {
     let side = 1.2 + WALL_Y;
     b.rect([2.6, WALL_Y - side, FLOOR_Z], [0.0, 0.0, 3.0], [0.0, side, 0.0], sp.background, &wall, 0);
     b.rect([-2.6, WALL_Y - side, FLOOR_Z], [0.0, side, 0.0], [0.0, 0.0, 3.0], sp.background, &wall, 0);
+    b.opacity = old_opacity;
+    table(b, sp, seed);
+}
+
+/// The checkerboard floor out to [`FLOOR_REACH`] (a square, then square rings each
+/// twice as wide and twice as coarsely sampled: the sampling follows what a pixel
+/// covers at that distance) and a sky dome of radius [`SKY_RADIUS`] (label 0).
+fn open_surroundings(b: &mut Builder, sp: &Spacing, floor: crate::build::Texture) {
+    b.view_dependence = 0.015;
+    let (mut inner, mut spacing) = (2.6f32, sp.background);
+    b.rect([-inner, -inner, FLOOR_Z], [2.0 * inner, 0.0, 0.0], [0.0, 2.0 * inner, 0.0], spacing, floor, 0);
+    while inner < FLOOR_REACH {
+        let (outer, width) = (2.0 * inner, inner);
+        spacing *= 2.0;
+        let along_x = [2.0 * outer, 0.0, 0.0];
+        b.rect([-outer, -outer, FLOOR_Z], along_x, [0.0, width, 0.0], spacing, floor, 0);
+        b.rect([-outer, inner, FLOOR_Z], along_x, [0.0, width, 0.0], spacing, floor, 0);
+        let along_y = [0.0, 2.0 * inner, 0.0];
+        b.rect([-outer, -inner, FLOOR_Z], [width, 0.0, 0.0], along_y, spacing, floor, 0);
+        b.rect([inner, -inner, FLOOR_Z], [width, 0.0, 0.0], along_y, spacing, floor, 0);
+        inner = outer;
+    }
+    // Pale at the horizon, deeper blue overhead; a grey haze below the floor's edge.
+    let sky = |p: [f32; 3]| {
+        let up = (p[2] - FLOOR_Z) / SKY_RADIUS;
+        if up < 0.0 {
+            [0.62, 0.63, 0.6]
+        } else {
+            mix_rgb([0.8, 0.86, 0.92], [0.33, 0.52, 0.84], up.sqrt())
+        }
+    };
+    b.view_dependence = 0.0;
+    b.sphere([0.0, 0.0, FLOOR_Z], SKY_RADIUS, 20.0 * sp.background, &sky, 0);
+}
+
+/// The table on its four legs (label 0).
+fn table(b: &mut Builder, sp: &Spacing, seed: u64) {
+    let top = move |p: [f32; 3]| shade([0.58, 0.37, 0.2], wood_grain(seed ^ 3, p, 0.05));
+    let leg = move |p: [f32; 3]| shade([0.4, 0.25, 0.13], wood_grain(seed ^ 4, [p[2], p[1], p[0]], 0.03));
+    let old_opacity = b.opacity;
     b.view_dependence = 0.03;
     let [hx, hy] = TABLE_HALF;
     b.cuboid([0.0, 0.0, -TABLE_THICK / 2.0], [hx, hy, TABLE_THICK / 2.0], sp.table, &top, 0, false);
@@ -308,7 +366,13 @@ fn finish(
         gaussians: b.g,
         labels: b.labels,
         objects,
-        cameras: rig.cameras(config.views, config.width, config.height),
+        // Open surroundings: a full orbit, lower, so the far floor and the sky fill the views.
+        cameras: if config.open {
+            Rig { azimuth_span_deg: 360.0, elevations_deg: vec![6.0, 15.0, 26.0], ..rig }
+        } else {
+            rig
+        }
+        .cameras(config.views, config.width, config.height),
         target: target.into(),
         background: [0.0; 3],
         config: config.clone(),
@@ -374,7 +438,7 @@ fn tabletop(config: &SceneConfig) -> Scene {
     let seed = config.seed;
     let sp = Spacing::new(config.detail);
     let mut b = Builder::new(seed);
-    background(&mut b, &sp, seed);
+    background(&mut b, &sp, seed, config.open);
 
     let ball_c = [-0.42, 0.05, 0.15];
     let ball_rgb = [0.85, 0.16, 0.12];
@@ -429,7 +493,7 @@ fn occluded(config: &SceneConfig) -> Scene {
     let seed = config.seed.wrapping_add(0x0CC1);
     let sp = Spacing::new(config.detail);
     let mut b = Builder::new(seed);
-    background(&mut b, &sp, seed);
+    background(&mut b, &sp, seed, config.open);
 
     let crate_half = 0.14;
     let crate_c = [-0.05, -0.08, crate_half];

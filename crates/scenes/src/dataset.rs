@@ -12,7 +12,7 @@
 //!                                          (0 = background / nothing), see masks module
 //! sparse/0/{cameras,images,points3D}.txt   the same cameras as a COLMAP text model
 //!                                          (PINHOLE), points3D = every k-th Gaussian
-//!                                          centre (≤ 5000) with its colour
+//!                                          centre (≤ 5000, or `points`) with its colour
 //! labels.json                              objects, label ids, test views, metadata
 //! ```
 //!
@@ -38,6 +38,9 @@ use transsplat_scene::{atomic, cameras, image, ply};
 pub struct WriteOptions {
     /// Write into a non-empty existing folder (overwriting the dataset's files).
     pub force: bool,
+    /// Most points in `sparse/0/points3D.txt` (None: 5000): a sparser initial cloud
+    /// for a trainer.
+    pub points: Option<usize>,
 }
 
 /// What [`write_dataset`] wrote.
@@ -54,7 +57,7 @@ pub struct DatasetSummary {
 /// Relative path of the scene PLY inside a dataset.
 pub const PLY_PATH: &str = "point_cloud/iteration_0/point_cloud.ply";
 
-/// Most points written to `sparse/0/points3D.txt`.
+/// Points written to `sparse/0/points3D.txt` unless [`WriteOptions::points`] says.
 const MAX_SPARSE_POINTS: usize = 5000;
 
 fn out_err(path: &Path, msg: impl std::fmt::Display) -> Error {
@@ -78,7 +81,7 @@ pub fn write_dataset(
     }
     let non_empty = exists && std::fs::read_dir(dir).map_err(|e| out_err(dir, e))?.next().is_some();
     if non_empty && opts.force {
-        return write_into(scene, dir, progress);
+        return write_into(scene, dir, opts, progress);
     }
     if non_empty && !dir.join("labels.json").is_file() {
         return Err(out_err(dir, "output folder exists and is not empty (use --force to write into it)"));
@@ -86,7 +89,7 @@ pub fn write_dataset(
     // Staged beside `dir` and moved into place when complete (an earlier dataset, marked
     // by its labels.json, is replaced): an interrupted run leaves `dir` as it was.
     let staged = atomic::StagedDir::begin(dir, "labels.json")?;
-    let mut summary = write_into(scene, staged.path(), progress)?;
+    let mut summary = write_into(scene, staged.path(), opts, progress)?;
     summary.dir = staged.commit()?;
     Ok(summary)
 }
@@ -118,6 +121,7 @@ pub fn write_grey_png(path: &Path, width: usize, height: usize, values: &[u8]) -
 fn write_into(
     scene: &Scene,
     dir: &Path,
+    opts: &WriteOptions,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<DatasetSummary, Error> {
     let ply_path = dir.join(PLY_PATH);
@@ -127,7 +131,7 @@ fn write_into(
     mkdir(&dir.join("sparse/0"))?;
     ply::write(&ply_path, &scene.gaussians_with_labels())?;
     cameras::inria::write(&dir.join("cameras.json"), &scene.cameras)?;
-    write_colmap(scene, &dir.join("sparse/0"))?;
+    write_colmap(scene, &dir.join("sparse/0"), opts.points.unwrap_or(MAX_SPARSE_POINTS).max(1))?;
 
     let names = scene.label_names();
     let mut views_visible = vec![0usize; scene.objects.len()];
@@ -186,6 +190,7 @@ fn write_into(
         "target": scene.target,
         "seed": scene.config.seed,
         "detail": scene.config.detail,
+        "open": scene.config.open,
         "width": scene.config.width,
         "height": scene.config.height,
         "num_gaussians": scene.gaussians.len(),
@@ -216,7 +221,7 @@ fn write_into(
 
 /// The cameras as a COLMAP text model (one PINHOLE camera per view; image names
 /// `view_NNN.png` inside `images/`) and a subsample of the Gaussian centres as points.
-fn write_colmap(scene: &Scene, dir: &Path) -> Result<(), Error> {
+fn write_colmap(scene: &Scene, dir: &Path, points: usize) -> Result<(), Error> {
     let mut cams = String::from(
         "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n",
     );
@@ -244,7 +249,7 @@ fn write_colmap(scene: &Scene, dir: &Path) -> Result<(), Error> {
         ));
     }
     let g = &scene.gaussians;
-    let step = g.len().div_ceil(MAX_SPARSE_POINTS).max(1);
+    let step = g.len().div_ceil(points).max(1);
     let mut pts = String::from("# 3D point list with one line of data per point:\n#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n");
     for (k, i) in (0..g.len()).step_by(step).enumerate() {
         let p = g.means[i];

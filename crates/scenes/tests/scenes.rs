@@ -424,7 +424,7 @@ fn dataset_round_trips_through_the_scene_readers() {
     assert_eq!(std::fs::read_dir(&foreign).unwrap().count(), 1);
     std::fs::write(dir.join("keep.txt"), b"mine").unwrap();
     std::fs::remove_file(dir.join("images/view_003.png")).unwrap();
-    write_dataset(&s, &dir, &WriteOptions { force: true }, &mut |_, _| {}).unwrap();
+    write_dataset(&s, &dir, &WriteOptions { force: true, ..Default::default() }, &mut |_, _| {}).unwrap();
     assert!(dir.join("images/view_003.png").is_file());
     assert_eq!(std::fs::read(dir.join("keep.txt")).unwrap(), b"mine");
     // an existing empty folder is fine
@@ -435,5 +435,6 @@ fn dataset_round_trips_through_the_scene_readers() {
     // a file in the way is an error
     let file = tmp.path().join("file");
     std::fs::write(&file, b"x").unwrap();
-    assert!(write_dataset(&s, &file, &WriteOptions { force: true }, &mut |_, _| {}).is_err());
+    assert!(write_dataset(&s, &file, &WriteOptions { force: true, ..Default::default() }, &mut |_, _| {})
+        .is_err());
 }

@@ -218,6 +218,9 @@ pub fn put_trainer<'a>(w: &mut Writer<'a>, p: &str, t: &'a Trainer) {
         .f32(format!("{p}.extent"), vec![t.extent])
         .scalar(format!("{p}.step"), t.step)
         .scalar(format!("{p}.active_sh_degree"), t.active_sh_degree as u64);
+    if let Some(c) = t.centre {
+        w.f32(format!("{p}.centre"), c.to_vec());
+    }
     put_rng(w, &format!("{p}.rng"), &t.rng);
 }
 
@@ -298,6 +301,11 @@ pub fn get_trainer(a: &Archive, p: &str, config: TrainConfig) -> Result<Trainer,
     }
     let extent = a.f32_len(&k("extent"), 1)?[0];
     let mut t = Trainer::new(model, extent, config)?;
+    // Absent in checkpoints of trainers made without cameras (and before it was saved).
+    if a.has(&k("centre")) {
+        let c = a.f32_len(&k("centre"), 3)?;
+        t.centre = Some([c[0], c[1], c[2]]);
+    }
     t.adam = adam;
     t.stats = stats;
     t.step = a.scalar(&k("step"))?;

@@ -41,7 +41,7 @@ pub mod trainer;
 pub use adam::{Adam, AdamRule, Group, LearningRates, Update};
 pub use checkpoint::{Checkpointer, Control, RunId};
 pub use dataset::{Dataset, LoadOptions, View};
-pub use densify::{DensifyConfig, DensifyCounts, DensifyStats};
+pub use densify::{Bounds, DensifyConfig, DensifyCounts, DensifyStats};
 pub use fit::{
     evaluate, fit, fit_with, initial_model, write_output, Eval, FitOptions, FitState, InitSource, Progress,
     ViewScore,
@@ -49,4 +49,6 @@ pub use fit::{
 pub use loss::{image_loss, psnr, ssim, ImageLoss};
 pub use model::{Model, Reindex};
 pub use points::PointCloud;
-pub use trainer::{apply_reindex, scene_extent, StepReport, TrainConfig, TrainError, Trainer, ViewPass};
+pub use trainer::{
+    apply_reindex, camera_centre, scene_extent, StepReport, TrainConfig, TrainError, Trainer, ViewPass,
+};

@@ -21,7 +21,7 @@
 //! [`apply_reindex`].
 
 use crate::adam::{Adam, AdamRule, Group, LearningRates, Update};
-use crate::densify::{self, DensifyConfig, DensifyCounts, DensifyStats};
+use crate::densify::{self, Bounds, DensifyConfig, DensifyCounts, DensifyStats};
 use crate::loss::{image_loss, ImageLoss};
 use crate::model::{Model, Reindex};
 use rand::SeedableRng;
@@ -125,6 +125,10 @@ pub struct Trainer {
     pub step: u64,
     pub active_sh_degree: u32,
     pub rng: ChaCha8Rng,
+    /// Mean of the camera centres, when the trainer was made from cameras
+    /// ([`Trainer::for_cameras`]): scales the world-size prune rule with distance
+    /// (`densify` module doc).
+    pub centre: Option<[f32; 3]>,
     /// Gradient buffer reused by [`Trainer::step`], all zero between steps (only the
     /// rows a step wrote are cleared after it, so a step's cost does not grow with
     /// the Gaussians its view did not reach). Empty until the first step.
@@ -140,15 +144,20 @@ pub fn apply_reindex(model: &mut Model, adam: &mut Adam, stats: &mut DensifyStat
     stats.reindex(r);
 }
 
+/// The mean of the camera centres (None without cameras).
+pub fn camera_centre(cameras: &[Camera]) -> Option<[f32; 3]> {
+    let n = cameras.len() as f32;
+    (!cameras.is_empty())
+        .then(|| std::array::from_fn(|k| cameras.iter().map(|c| c.centre()[k]).sum::<f32>() / n))
+}
+
 /// INRIA's `getNerfppNorm` radius: 1.1 × the largest distance of a camera centre
 /// from their mean (1 when degenerate).
 pub fn scene_extent(cameras: &[Camera]) -> f32 {
-    if cameras.is_empty() {
+    let Some(mean) = camera_centre(cameras) else {
         return 1.0;
-    }
-    let n = cameras.len() as f32;
+    };
     let centres: Vec<[f32; 3]> = cameras.iter().map(Camera::centre).collect();
-    let mean: [f32; 3] = std::array::from_fn(|k| centres.iter().map(|c| c[k]).sum::<f32>() / n);
     let diag = centres
         .iter()
         .map(|c| ((c[0] - mean[0]).powi(2) + (c[1] - mean[1]).powi(2) + (c[2] - mean[2]).powi(2)).sqrt())
@@ -174,7 +183,21 @@ impl Trainer {
             if config.densify.sh_degree_interval == 0 { model.gaussians.sh_degree } else { 0 };
         let rng = ChaCha8Rng::seed_from_u64(config.seed);
         let scratch = Grads::default();
-        Ok(Trainer { model, adam, stats, config, extent, step: 0, active_sh_degree, rng, scratch })
+        let centre = None;
+        Ok(Trainer { model, adam, stats, config, extent, step: 0, active_sh_degree, rng, centre, scratch })
+    }
+
+    /// Starts training `model` for a scene seen by `cameras`: the extent is INRIA's
+    /// ([`scene_extent`]) and the cameras' centre scales the world-size prune rule.
+    pub fn for_cameras(model: Model, cameras: &[Camera], config: TrainConfig) -> Result<Self, TrainError> {
+        let mut t = Trainer::new(model, scene_extent(cameras), config)?;
+        t.centre = camera_centre(cameras);
+        Ok(t)
+    }
+
+    /// The scene's size for densification.
+    pub fn bounds(&self) -> Bounds {
+        Bounds { extent: self.extent, centre: self.centre }
     }
 
     /// The rasterizer's view of the model at the active SH degree.
@@ -371,7 +394,7 @@ impl Trainer {
             &self.model.gaussians,
             &self.stats,
             &self.config.densify,
-            self.extent,
+            &self.bounds(),
             self.step,
             mask,
             &mut self.rng,
@@ -400,7 +423,7 @@ impl Trainer {
             &self.model.gaussians,
             &self.stats,
             &self.config.densify,
-            self.extent,
+            &self.bounds(),
             self.step,
             mask,
         );

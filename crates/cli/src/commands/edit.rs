@@ -123,6 +123,7 @@ fn builtin_scene(scene_arg: &Path) -> Result<transsplat_scenes::Scene> {
         width: v["width"].as_u64().unwrap_or(256) as u32,
         height: v["height"].as_u64().unwrap_or(192) as u32,
         views: v["views"].as_array().map_or(32, |a| a.len()),
+        open: v["open"].as_bool().unwrap_or(false),
     };
     Ok(transsplat_scenes::build(name, &cfg)?)
 }

@@ -33,6 +33,14 @@ pub struct BuiltinSceneArgs {
     /// Small variant for tests: ~5k Gaussians, 16 views of 128x96.
     #[arg(long)]
     pub quick: bool,
+    /// Open surroundings (tabletop, occluded): a checkerboard floor reaching 20 m under a
+    /// sky dome instead of the floor and walls around the table, and a 360° orbit; a
+    /// large, far background like an outdoor capture's.
+    #[arg(long)]
+    pub open: bool,
+    /// Points in the initial cloud (sparse/0/points3D.txt; default 5000, at most 1,000,000).
+    #[arg(long)]
+    pub points: Option<usize>,
     /// Write into an existing non-empty folder (overwrites the dataset's files, deletes nothing).
     #[arg(long)]
     pub force: bool,
@@ -54,6 +62,10 @@ pub fn run(args: &BuiltinSceneArgs) -> Result<()> {
     if let Some(d) = args.detail {
         cfg.detail = d;
     }
+    cfg.open = args.open;
+    if args.points.is_some_and(|p| !(1..=1_000_000).contains(&p)) {
+        anyhow::bail!("--points must be between 1 and 1000000");
+    }
     let scene = build(&args.name, &cfg)?;
     tracing::info!(
         "scene {}: {} Gaussians, {} objects ({}), {} views of {}x{}",
@@ -66,9 +78,12 @@ pub fn run(args: &BuiltinSceneArgs) -> Result<()> {
         cfg.height
     );
     let pb = progress(scene.cameras.len() as u64, "scene");
-    let summary = write_dataset(&scene, &args.out, &WriteOptions { force: args.force }, &mut |done, _| {
-        pb.set_position(done as u64)
-    })?;
+    let summary = write_dataset(
+        &scene,
+        &args.out,
+        &WriteOptions { force: args.force, points: args.points },
+        &mut |done, _| pb.set_position(done as u64),
+    )?;
     pb.finish_and_clear();
     for (o, &n) in scene.objects.iter().zip(&summary.views_visible) {
         if n * 2 < summary.views {

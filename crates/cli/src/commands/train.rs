@@ -10,8 +10,8 @@ use transsplat_train::dataset::Masks;
 use transsplat_train::fit::{train_run_id, SUMMARY_FILE, TRAIN_FILE};
 use transsplat_train::init::MAX_RANDOM_POINTS;
 use transsplat_train::{
-    dataset, fit_with, initial_model, scene_extent, write_output, AdamRule, DensifyConfig, FitOptions,
-    FitState, InitSource, LearningRates, LoadOptions, TrainConfig, TrainError, Trainer,
+    dataset, fit_with, initial_model, write_output, AdamRule, DensifyConfig, FitOptions, FitState,
+    InitSource, LearningRates, LoadOptions, TrainConfig, TrainError, Trainer,
 };
 
 /// Arguments of `transsplat train`.
@@ -152,8 +152,8 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
                     args.data.display()
                 );
             }
-            let extent = scene_extent(&ds.cameras);
-            let t = Trainer::new(model, extent, opts.config.clone()).context("cannot start training")?;
+            let t = Trainer::for_cameras(model, &ds.cameras, opts.config.clone())
+                .context("cannot start training")?;
             (t, FitState::new(opts.config.seed))
         }
     };

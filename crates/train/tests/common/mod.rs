@@ -1,4 +1,5 @@
 //! Shared by the integration tests that train on the built-in tabletop scene.
+#![allow(dead_code)] // each test file uses some of these helpers
 
 use transsplat_raster::{render, RenderOptions, Splats};
 use transsplat_scenes::{build, is_test, Scene, SceneConfig};
@@ -7,7 +8,13 @@ use transsplat_train::dataset::{scale_camera, Dataset, DatasetKind, View};
 /// The quick tabletop scene and a dataset of its renders at `width × height`, every
 /// 8th view held out for testing; no point cloud.
 pub fn tabletop(width: usize, height: usize) -> (Scene, Dataset) {
-    let scene = build("tabletop", &SceneConfig::quick()).unwrap();
+    scene_dataset(&SceneConfig::quick(), width, height)
+}
+
+/// The tabletop built with `config` and a dataset of its renders at `width × height`,
+/// every 8th view held out for testing; no point cloud.
+pub fn scene_dataset(config: &SceneConfig, width: usize, height: usize) -> (Scene, Dataset) {
+    let scene = build("tabletop", config).unwrap();
     let splats = Splats::new(&scene.gaussians);
     let mut ds = Dataset {
         kind: DatasetKind::Inria,
