@@ -3,6 +3,12 @@
 //! 360° orbit at low elevation) is trained briefly from a sparse cloud (every 12th true
 //! centre with its true colour, as `scene` writes `points3D.txt`), and no held-out view
 //! may fall far below the others: haze in front of one camera shows as exactly that.
+//!
+//! Measured (test PSNR, worst view below the mean), seeds 4 / 5 / 6 / 7: with the
+//! distance-scaled world-size prune rule 25.94 (1.98) / 25.47 (5.05) / 26.65 (2.09) /
+//! 25.64 (1.56) dB; with INRIA's fixed rule 18.03 (3.22) / 24.41 (1.65) / 19.66 (3.08) /
+//! 22.64 (1.78) dB. The rule removes most of the loss, not every uneven view (seed 5),
+//! so this fixed-seed test checks one run, not the distribution.
 
 mod common;
 
@@ -13,8 +19,9 @@ use transsplat_train::{
 
 /// The bound: no test view more than 3 dB below the mean.
 const MAX_BELOW_MEAN_DB: f32 = 3.0;
-/// A floor on the mean, so a run that learns nothing cannot pass by being uniformly bad.
-const MIN_TEST_PSNR: f32 = 20.0;
+/// A floor on the mean: above every seed measured with INRIA's rule (at most 24.41 dB),
+/// below every seed with ours (at least 25.47 dB).
+const MIN_TEST_PSNR: f32 = 25.0;
 
 #[test]
 fn open_surroundings_train_without_a_hazy_view() {
