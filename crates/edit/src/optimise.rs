@@ -63,9 +63,8 @@ pub fn trainer(
         seed: cfg.seed,
         ..TrainConfig::default()
     };
-    let extent = transsplat_train::trainer::scene_extent(cameras);
     let model = Model::with_features(g.clone(), s, cfg.semantic_dim).map_err(EditError::Train)?;
-    Trainer::new(model, extent, config).map_err(|e| EditError::Train(e.to_string()))
+    Trainer::for_cameras(model, cameras, config).map_err(|e| EditError::Train(e.to_string()))
 }
 
 /// True when geometry and opacity cannot change during the edit (their learning rates

@@ -13,7 +13,7 @@ use std::sync::atomic::AtomicBool;
 use transsplat_scene::Gaussians;
 use transsplat_scenes::{write_dataset, Scene, WriteOptions};
 use transsplat_train::dataset::{self, LoadOptions};
-use transsplat_train::{fit_with, initial_model, Control, FitOptions, FitState, TrainConfig, Trainer};
+use transsplat_train::{fit_with, start, Control, FitOptions, FitState, TrainConfig};
 
 /// Why a scene could not be trained from its renders.
 #[derive(Debug, thiserror::Error)]
@@ -46,8 +46,7 @@ pub fn train_from_renders(
         random_points: 100_000,
         eval_every: 0,
     };
-    let (model, _) = initial_model(&ds, &opts);
-    let mut trainer = Trainer::for_cameras(model, &ds.cameras, opts.config.clone())?;
+    let (mut trainer, _) = start(&ds, &opts)?;
     let mut control = Control { cancel, ..Default::default() };
     let eval =
         fit_with(&ds, &mut trainer, &mut FitState::new(seed), 0, &mut control, |p| on_step(p.step, steps))?;

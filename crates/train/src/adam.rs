@@ -208,12 +208,20 @@ pub enum AdamRule {
 }
 
 impl AdamRule {
+    /// Every rule.
+    pub const ALL: [AdamRule; 2] = [AdamRule::Dense, AdamRule::Selective];
+
     /// The rule's name in options and summaries (`dense`, `selective`).
     pub fn name(self) -> &'static str {
         match self {
             AdamRule::Dense => "dense",
             AdamRule::Selective => "selective",
         }
+    }
+
+    /// The rule named `name` ([`AdamRule::name`]).
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|r| r.name() == name)
     }
 }
 

@@ -66,6 +66,13 @@ pub fn initial_model(ds: &Dataset, opts: &FitOptions) -> (Model, InitSource) {
     (Model::new(g, 0), source)
 }
 
+/// A trainer for a fresh run on `ds`: the initial model ([`initial_model`]) and the
+/// scene's bounds from its cameras ([`Trainer::for_cameras`]).
+pub fn start(ds: &Dataset, opts: &FitOptions) -> Result<(Trainer, InitSource), TrainError> {
+    let (model, source) = initial_model(ds, opts);
+    Ok((Trainer::for_cameras(model, &ds.cameras, opts.config.clone())?, source))
+}
+
 /// Test metrics of one view.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ViewScore {

@@ -43,8 +43,8 @@ pub use checkpoint::{Checkpointer, Control, RunId};
 pub use dataset::{Dataset, LoadOptions, View};
 pub use densify::{Bounds, DensifyConfig, DensifyCounts, DensifyStats};
 pub use fit::{
-    evaluate, fit, fit_with, initial_model, write_output, Eval, FitOptions, FitState, InitSource, Progress,
-    ViewScore,
+    evaluate, fit, fit_with, initial_model, start, write_output, Eval, FitOptions, FitState, InitSource,
+    Progress, ViewScore,
 };
 pub use loss::{image_loss, psnr, ssim, ImageLoss};
 pub use model::{Model, Reindex};

@@ -10,8 +10,8 @@ mod common;
 use transsplat_train::dataset::Dataset;
 use transsplat_train::fit::{train_run_id, TRAIN_FILE};
 use transsplat_train::{
-    fit_with, initial_model, scene_extent, Checkpointer, Control, DensifyConfig, FitOptions, FitState,
-    LoadOptions, PointCloud, TrainConfig, TrainError, Trainer,
+    fit_with, start, Checkpointer, Control, DensifyConfig, FitOptions, FitState, LoadOptions, PointCloud,
+    TrainConfig, TrainError, Trainer,
 };
 
 const ITERS: u64 = 48;
@@ -50,8 +50,7 @@ fn options() -> FitOptions {
 }
 
 fn fresh(ds: &Dataset, opts: &FitOptions) -> (Trainer, FitState) {
-    let (model, _) = initial_model(ds, opts);
-    let t = Trainer::new(model, scene_extent(&ds.cameras), opts.config.clone()).unwrap();
+    let (t, _) = start(ds, opts).unwrap();
     (t, FitState::new(opts.config.seed))
 }
 

@@ -13,9 +13,7 @@
 mod common;
 
 use transsplat_scenes::SceneConfig;
-use transsplat_train::{
-    evaluate, fit, initial_model, DensifyConfig, FitOptions, PointCloud, TrainConfig, Trainer,
-};
+use transsplat_train::{evaluate, fit, start, DensifyConfig, FitOptions, PointCloud, TrainConfig};
 
 /// The bound: no test view more than 3 dB below the mean.
 const MAX_BELOW_MEAN_DB: f32 = 3.0;
@@ -33,7 +31,7 @@ fn open_surroundings_train_without_a_hazy_view() {
         cloud.positions.push(*m);
         cloud.colors.push(transsplat_scenes::edit::dc_colour(&scene.gaussians, i));
     }
-    let start = cloud.len();
+    let points = cloud.len();
     ds.points = Some(cloud);
     let iterations = 1500;
     let opts = FitOptions {
@@ -55,13 +53,12 @@ fn open_surroundings_train_without_a_hazy_view() {
         random_points: 0,
         eval_every: 0,
     };
-    let (model, _) = initial_model(&ds, &opts);
-    let mut trainer = Trainer::for_cameras(model, &ds.cameras, opts.config.clone()).unwrap();
+    let (mut trainer, _) = start(&ds, &opts).unwrap();
     fit(&ds, &mut trainer, 0, |_| {}).unwrap();
     let eval = evaluate(&trainer, &ds.test);
     let views: Vec<String> = eval.per_view.iter().map(|v| format!("{} {:.2}", v.name, v.psnr)).collect();
     eprintln!(
-        "open tabletop: {start} -> {} Gaussians, test PSNR {:.2} dB ({})",
+        "open tabletop: {points} -> {} Gaussians, test PSNR {:.2} dB ({})",
         trainer.model.len(),
         eval.psnr,
         views.join(", ")

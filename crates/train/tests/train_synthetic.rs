@@ -11,7 +11,7 @@ use std::path::Path;
 use transsplat_raster::{render, RenderOptions, Splats};
 use transsplat_scene::{image, Camera, Gaussians};
 use transsplat_train::{
-    dataset, evaluate, fit, initial_model, write_output, AdamRule, DensifyConfig, FitOptions, InitSource,
+    dataset, evaluate, fit, start, write_output, AdamRule, DensifyConfig, FitOptions, InitSource,
     LoadOptions, TrainConfig, Trainer,
 };
 
@@ -189,10 +189,8 @@ fn training_from_a_sparse_noisy_cloud_reaches_the_test_psnr() {
         random_points: 0,
         eval_every: 0,
     };
-    let (model, source) = initial_model(&ds, &opts);
+    let (mut trainer, source) = start(&ds, &opts).unwrap();
     assert_eq!(source, InitSource::Points { count: g.len().div_ceil(4) });
-    let extent = transsplat_train::scene_extent(&ds.cameras);
-    let mut trainer = Trainer::new(model, extent, opts.config.clone()).unwrap();
     let before = evaluate(&trainer, &ds.test).psnr;
     let mut densified = 0;
     let after = fit(&ds, &mut trainer, 0, |p| densified += p.last.densified.is_some() as usize).unwrap().psnr;
@@ -245,12 +243,10 @@ fn the_reused_gradient_buffer_changes_nothing_and_selective_adam_still_learns() 
         ..Default::default()
     };
     let opts = FitOptions { config: config.clone(), max_sh_degree: 1, random_points: 0, eval_every: 0 };
-    let (model, _) = initial_model(&ds, &opts);
-    let extent = transsplat_train::scene_extent(&ds.cameras);
-    let mut reused = Trainer::new(model.clone(), extent, config.clone()).unwrap();
-    let mut split = Trainer::new(model.clone(), extent, config.clone()).unwrap();
-    let selective_config = TrainConfig { adam: AdamRule::Selective, ..config };
-    let mut selective = Trainer::new(model, extent, selective_config).unwrap();
+    let (mut reused, _) = start(&ds, &opts).unwrap();
+    let mut split = reused.clone();
+    let mut selective = reused.clone();
+    selective.config.adam = AdamRule::Selective;
     let before = evaluate(&selective, &ds.test).psnr;
     let mut densified = 0;
     for step in 0..300 {

@@ -8,9 +8,7 @@ mod common;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use transsplat_train::{
-    evaluate, fit, initial_model, scene_extent, DensifyConfig, FitOptions, PointCloud, TrainConfig, Trainer,
-};
+use transsplat_train::{evaluate, fit, start, DensifyConfig, FitOptions, PointCloud, TrainConfig};
 
 /// The quality bar on the held-out views. Measured: 9.1 dB at initialisation,
 /// 26.8 dB after the 1000 steps (683 -> ~6200 Gaussians), about 7 s in release.
@@ -52,8 +50,7 @@ fn tabletop_training_reaches_the_test_psnr() {
         random_points: 0,
         eval_every: 0,
     };
-    let (model, _) = initial_model(&ds, &opts);
-    let mut trainer = Trainer::new(model, scene_extent(&ds.cameras), opts.config.clone()).unwrap();
+    let (mut trainer, _) = start(&ds, &opts).unwrap();
     let before = evaluate(&trainer, &ds.test).psnr;
     let after = fit(&ds, &mut trainer, 0, |_| {}).unwrap().psnr;
     eprintln!(

@@ -10,8 +10,8 @@ use transsplat_train::dataset::Masks;
 use transsplat_train::fit::{train_run_id, SUMMARY_FILE, TRAIN_FILE};
 use transsplat_train::init::MAX_RANDOM_POINTS;
 use transsplat_train::{
-    dataset, fit_with, initial_model, write_output, AdamRule, DensifyConfig, FitOptions, FitState,
-    InitSource, LearningRates, LoadOptions, TrainConfig, TrainError, Trainer,
+    dataset, fit_with, start, write_output, AdamRule, DensifyConfig, FitOptions, FitState, InitSource,
+    LearningRates, LoadOptions, TrainConfig, TrainError, Trainer,
 };
 
 /// Arguments of `transsplat train`.
@@ -63,10 +63,16 @@ pub struct TrainArgs {
     /// Adam's update rule: `dense` updates every Gaussian every step (INRIA); `selective`
     /// only those the step's view reached, so a step costs what the view sees, not the
     /// whole model (docs/method.md M10).
-    #[arg(long, value_parser = ["dense", "selective"], default_value = "dense")]
-    pub adam: String,
+    #[arg(long, value_parser = parse_adam, default_value = "dense")]
+    pub adam: AdamRule,
     #[command(flatten)]
     pub checkpoints: CheckpointArgs,
+}
+
+/// An Adam rule by name (`dense`, `selective`).
+fn parse_adam(s: &str) -> Result<AdamRule, String> {
+    let names: Vec<&str> = AdamRule::ALL.iter().map(|r| r.name()).collect();
+    AdamRule::from_name(s).ok_or_else(|| format!("unknown Adam rule {s:?}; one of: {}", names.join(", ")))
 }
 
 /// Runs `transsplat train`.
@@ -119,7 +125,7 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
             densify: DensifyConfig { until_step: args.densify_until, ..Default::default() },
             background: args.background,
             seed: args.seed,
-            adam: if args.adam == "selective" { AdamRule::Selective } else { AdamRule::Dense },
+            adam: args.adam,
             ..Default::default()
         },
         max_sh_degree: args.sh_degree,
@@ -137,7 +143,7 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
             (t, s)
         }
         None => {
-            let (model, source) = initial_model(&ds, &opts);
+            let (t, source) = start(&ds, &opts).context("cannot start training")?;
             match source {
                 InitSource::Points { count } => {
                     tracing::info!("initialised {count} Gaussians from the point cloud")
@@ -146,14 +152,12 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
                     "no point cloud in the dataset: initialised {count} Gaussians at random in the cameras' view"
                 ),
             }
-            if model.is_empty() {
+            if t.model.is_empty() {
                 bail!(
                     "{}: no initial Gaussians (empty point cloud and --random-points 0)",
                     args.data.display()
                 );
             }
-            let t = Trainer::for_cameras(model, &ds.cameras, opts.config.clone())
-                .context("cannot start training")?;
             (t, FitState::new(opts.config.seed))
         }
     };
