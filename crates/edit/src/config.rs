@@ -70,7 +70,9 @@ impl Method {
             Method::Paper => {
                 cfg.transport.evidence_mass = false;
                 cfg.fusion.agreement = crate::gate::Agreement::Transport;
+                cfg.fusion.coverage = false;
                 cfg.loss.colour_gate = 0.0;
+                cfg.semantic_init = SemanticInit::Source;
             }
             Method::Geometric => {
                 cfg.transport.lambda_sem = 0.0;
@@ -79,6 +81,19 @@ impl Method {
             _ => {}
         }
     }
+}
+
+/// What the semantic latents s_i start from (docs/method.md#m8-semantic-space): the
+/// semantic features of the edit views, projected and lifted onto the Gaussians.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SemanticInit {
+    /// The edited images' features (the source render's where the editor gave
+    /// nothing): the space the prototypes' e_m are taken from.
+    #[default]
+    Edited,
+    /// The source renders' features (the paper leaves this open; `paper` keeps it).
+    Source,
 }
 
 /// Canonical fusion settings (Theorem 1 and the EMA across rounds).
@@ -95,11 +110,22 @@ pub struct FusionConfig {
     pub tau_r: f32,
     /// How per-view residuals are combined across views ([`crate::gate::Agreement`]).
     pub agreement: crate::gate::Agreement,
+    /// A view's support of a Gaussian is bounded by how much of its footprint lies in
+    /// the view's evidence: √(σ ω) ([`crate::view::ViewTransport::view_support`]); off:
+    /// the plan's relative support σ alone.
+    pub coverage: bool,
 }
 
 impl Default for FusionConfig {
     fn default() -> Self {
-        FusionConfig { rho: 0.1, ema: 0.5, min_support: 1e-3, tau_r: 0.25, agreement: Default::default() }
+        FusionConfig {
+            rho: 0.1,
+            ema: 0.5,
+            min_support: 1e-3,
+            tau_r: 0.25,
+            agreement: Default::default(),
+            coverage: true,
+        }
     }
 }
 
@@ -117,9 +143,10 @@ pub struct LossConfig {
     pub uot: f32,
     /// λ_leak.
     pub leak: f32,
-    /// The image loss's colour gradients are kept only where γ ≥ this (the gated
-    /// region, TransSplat's colour mask; `optimise::mask_colour_gradients`); 0 = off
-    /// (the paper).
+    /// The image loss's colour gradients are kept only where the aggregated support
+    /// 1 − r_i is at least this (the gated region, TransSplat's colour mask; 0.5: a
+    /// majority of the views that see the Gaussian, by source mass), and L_leak acts
+    /// only outside it ([`EditConfig::colour_gate_gamma`]); 0 = off (the paper).
     pub colour_gate: f32,
 }
 
@@ -194,6 +221,8 @@ pub struct EditConfig {
     pub method: Method,
     /// Semantic latent size d.
     pub semantic_dim: usize,
+    /// What the semantic latents start from (docs/method.md#m8-semantic-space).
+    pub semantic_init: SemanticInit,
     pub prototypes: PrototypeConfig,
     pub transport: TransportConfig,
     pub fusion: FusionConfig,
@@ -212,6 +241,7 @@ impl Default for EditConfig {
         EditConfig {
             method: Method::Transsplat,
             semantic_dim: 16,
+            semantic_init: SemanticInit::default(),
             prototypes: PrototypeConfig::default(),
             transport: TransportConfig::default(),
             fusion: FusionConfig::default(),
@@ -226,6 +256,14 @@ impl Default for EditConfig {
 }
 
 impl EditConfig {
+    /// The gate value at which the colour gate opens: support 1 − r ≥ `loss.colour_gate`
+    /// is γ = exp(−r / τ_r) ≥ exp(−(1 − colour_gate) / τ_r); `None` when the colour
+    /// gate is off.
+    pub fn colour_gate_gamma(&self) -> Option<f32> {
+        let c = self.loss.colour_gate;
+        (c > 0.0).then(|| (-(1.0 - c) / self.fusion.tau_r).exp())
+    }
+
     /// Reads a TOML file of overrides (unknown keys are errors naming the file).
     pub fn from_toml_file(path: &Path) -> Result<Self, String> {
         let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;

@@ -63,8 +63,10 @@ pub fn run_with(
     let editor_s = clock.elapsed().as_secs_f64();
     progress(Progress::Edited { views: edited.iter().flatten().count(), seconds: editor_s });
 
-    // 2. The semantic space of the source and edited views.
+    // 2. The semantic space of the source and edited views, and the initial latents
+    //    (before step 3 takes the edited features).
     let mut space = SemanticSpace::fit(job.semantic, &cams, &sources, &edited, cfg.semantic_dim, cfg.seed)?;
+    let latents = space.initial_latents(job.gaussians, &cams, cfg.semantic_init);
 
     // 3. Each usable view's evidence, taken in by the method.
     let mut method = crate::methods::part(cfg);
@@ -82,7 +84,6 @@ pub fn run_with(
     tracing::debug!("semantic space and evidence: {:.2} s", clock.elapsed().as_secs_f64() - editor_s);
 
     // 4. The optimiser, from the source scene with its initial semantic latents.
-    let latents = space.initial_latents(job.gaussians, &cams);
     tracing::debug!("initial latents and trainer: {:.2} s", clock.elapsed().as_secs_f64() - editor_s);
     let mut tr = optimise::trainer(job.gaussians, latents, cfg, job.cameras, job.background)?;
     let mut ls = LoopState::new(cfg.seed, editor_s);

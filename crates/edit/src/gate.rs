@@ -6,9 +6,9 @@
 //!
 //! - [`Agreement::Visibility`] (default): every view that sees the Gaussian has a say
 //!   in proportion to the source mass it has there,
-//!   r_i = [1 − Σ_{v∈Vis(i)} ŵ_i^v / Σ_{v∈Vis(i)} a_i^v]_+, with ŵ the view's
-//!   evidence shares ([`ViewTransport::evidence_shares`]: w rescaled so that the view
-//!   hands out its evidence mass B_v),
+//!   r_i = 1 − Σ_{v∈Vis(i)} σ̃_i^v a_i^v / Σ_{v∈Vis(i)} a_i^v, with σ̃ the view's
+//!   support ([`ViewTransport::view_support`]: the plan's relative support, bounded
+//!   by the Gaussian's coverage with `fusion.coverage`),
 //!   so support in one view cannot outvote the views that see the Gaussian well and
 //!   leave it unsupported (a 2D editor's spill or blob lands on different Gaussians in
 //!   different views; the target is supported wherever it is seen).
@@ -21,6 +21,7 @@
 //!
 //! γ_i = exp(−r_i / τ_r). Gaussians visible in no view get r = 1.
 
+use crate::config::FusionConfig;
 use crate::fusion::is_supported;
 use crate::view::ViewTransport;
 use serde::{Deserialize, Serialize};
@@ -36,19 +37,21 @@ pub enum Agreement {
     Transport,
 }
 
-/// Per-Gaussian aggregated relative residual r_i ∈ [0, 1].
-pub fn residuals(n: usize, views: &[ViewTransport], min_support: f32, agreement: Agreement) -> Vec<f32> {
-    match agreement {
-        Agreement::Visibility => visibility_residuals(n, views),
-        Agreement::Transport => transport_residuals(n, views, min_support),
+/// Per-Gaussian aggregated relative residual r_i ∈ [0, 1] under the fusion settings
+/// `f` (`agreement`, `coverage`, `min_support`).
+pub fn residuals(n: usize, views: &[ViewTransport], f: &FusionConfig) -> Vec<f32> {
+    match f.agreement {
+        Agreement::Visibility => visibility_residuals(n, views, f.coverage),
+        Agreement::Transport => transport_residuals(n, views, f.min_support),
     }
 }
 
-/// r_i = [1 − Σ_v ŵ_i^v / Σ_v a_i^v]_+ over the views that see i; 1 if none does.
-pub fn visibility_residuals(n: usize, views: &[ViewTransport]) -> Vec<f32> {
+/// r_i = [1 − Σ_v σ̃_i^v a_i^v / Σ_v a_i^v]_+ over the views that see i (σ̃ the view's
+/// support, bounded by coverage when `coverage`); 1 if none does.
+pub fn visibility_residuals(n: usize, views: &[ViewTransport], coverage: bool) -> Vec<f32> {
     let (mut w, mut a) = (vec![0.0f64; n], vec![0.0f64; n]);
     for v in views {
-        for ((&i, &sk), &ak) in v.idx.iter().zip(&v.relative_support()).zip(&v.a) {
+        for ((&i, &sk), &ak) in v.idx.iter().zip(&v.view_support(coverage)).zip(&v.a) {
             if (i as usize) < n {
                 w[i as usize] += (sk * ak) as f64;
                 a[i as usize] += ak as f64;
@@ -116,7 +119,8 @@ mod tests {
         // Gaussian 2: never visible → 1. Gaussian 3: visible, never supported → 1.
         let v1 = view(vec![0, 1, 3, 4], vec![0.2, 0.1, 0.3, 0.3], vec![0.2, 0.3, 0.0, 0.4]);
         let v2 = view(vec![0, 1, 4], vec![0.2, 0.1, 0.1], vec![0.1, 0.0, 0.0]);
-        let r = residuals(5, &[v1.clone(), v2.clone()], 1e-3, Agreement::Transport);
+        let fusion = |agreement, coverage| FusionConfig { agreement, coverage, ..Default::default() };
+        let r = residuals(5, &[v1.clone(), v2.clone()], &fusion(Agreement::Transport, true));
         // Gaussian 4: supported (r = 0) where its mass is 0.3, unsupported where 0.1 → r = 0.25.
         let want = [1.0 / 6.0, 0.5, 1.0, 1.0, 0.25];
         for (a, b) in r.iter().zip(want) {
@@ -130,7 +134,7 @@ mod tests {
         let mut va = view(vec![0, 1, 2], vec![0.5, 0.3, 0.2], vec![1.0, 0.3, 0.05]);
         va.target_mass = 0.5;
         let vb = view(vec![0, 2], vec![0.4, 0.6], vec![0.0, 0.6]);
-        let r = residuals(4, &[va, vb], 1e-3, Agreement::Visibility);
+        let r = residuals(4, &[va.clone(), vb.clone()], &fusion(Agreement::Visibility, false));
         let want = [1.0 - 0.5 / 0.9, 0.5, 1.0 - 0.625 / 0.8, 1.0];
         for (a, b) in r.iter().zip(want) {
             assert!((a - b).abs() < 1e-6, "{r:?}");
@@ -138,8 +142,21 @@ mod tests {
         // A plan that moved less than its target mass: σ depends only on the ranking.
         let mut v3 = view(vec![0, 1], vec![0.4, 0.6], vec![0.1, 0.0]);
         v3.target_mass = 0.2;
-        let r = residuals(2, &[v3], 1e-3, Agreement::Visibility);
+        let r = residuals(2, &[v3], &fusion(Agreement::Visibility, false));
         assert!(r[0].abs() < 1e-6 && (r[1] - 1.0).abs() < 1e-6, "{r:?}");
+        // Coverage: view A's sources cover ω = (1, 0.25, 0.5) of their footprint with
+        // its support, view B's (0.16, 1) → σ̃ = √(σω): A (1, √0.125, √0.0625 = 0.25),
+        // B (0, 1); without ω known (empty) a view keeps σ.
+        va.coverage = vec![1.0, 0.25, 0.5];
+        let mut vb_cov = vb.clone();
+        vb_cov.coverage = vec![0.16, 1.0];
+        let r = residuals(4, &[va.clone(), vb_cov], &fusion(Agreement::Visibility, true));
+        let want = [1.0 - 0.5 / 0.9, 1.0 - 0.125f32.sqrt(), 1.0 - (0.2 * 0.25 + 0.6) / 0.8, 1.0];
+        for (a, b) in r.iter().zip(want) {
+            assert!((a - b).abs() < 1e-6, "{r:?}");
+        }
+        let r = residuals(4, &[va, vb], &fusion(Agreement::Visibility, true));
+        assert!((r[2] - (1.0 - (0.2 * 0.25 + 0.6 * 1.0) / 0.8)).abs() < 1e-6, "{r:?}");
         let g = gate(&[1.0 / 6.0, 0.0, 1.0], 0.5);
         assert!((g[0] - (-1.0f32 / 3.0).exp()).abs() < 1e-6);
         assert!((g[2] - (-2.0f32).exp()).abs() < 1e-6);

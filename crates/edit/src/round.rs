@@ -133,6 +133,7 @@ pub fn solve_views(
                 cfg,
             )?;
             t.view = cam;
+            t.coverage = src.omega.clone();
             Ok(t)
         })
         .collect()
@@ -158,8 +159,9 @@ impl TransportState {
     /// `Σ_v ŵ_i^v / Σ_v a_i^v` in [0, 1] (0 where no view saw it; ŵ the evidence
     /// shares, [`ViewTransport::evidence_shares`]): 1 − the visibility-weighted
     /// residual of [`gate`].
-    pub fn support(&self) -> Vec<f32> {
-        gate::visibility_residuals(self.gamma.len(), &self.cached).iter().map(|r| 1.0 - r).collect()
+    pub fn support(&self, coverage: bool) -> Vec<f32> {
+        let r = gate::visibility_residuals(self.gamma.len(), &self.cached, coverage);
+        r.iter().map(|r| 1.0 - r).collect()
     }
 
     /// Fuses this round's view plans into z̄ and γ (Theorem 1, EMA, gate) for the
@@ -170,7 +172,7 @@ impl TransportState {
         let acc = accumulate(n, d, &plans, f.min_support);
         let z = canonical_targets(&acc, s, f.rho);
         self.zbar = Some(ema(self.zbar.as_deref(), &z, f.ema));
-        self.gamma = gate::gate(&gate::residuals(n, &plans, f.min_support, f.agreement), f.tau_r);
+        self.gamma = gate::gate(&gate::residuals(n, &plans, f), f.tau_r);
         self.cached = plans;
         let v = &self.cached;
         RoundStats {

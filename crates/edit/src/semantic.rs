@@ -6,7 +6,10 @@
 //! the edit with an error naming the view. The appearance features Φ_v of the edited
 //! images are built in. A PCA basis of size d is fitted once on the source and edited
 //! features together and applied to both; the semantic latents s_i start as the
-//! lifted projected source features.
+//! lifted projected features of the edited images (or of the source renders,
+//! [`SemanticInit`]).
+
+use crate::config::SemanticInit;
 
 use crate::error::EditError;
 use crate::lift::lift;
@@ -108,11 +111,27 @@ impl SemanticSpace {
         })
     }
 
-    /// The initial semantic latents s_i: the source features of every edit view
-    /// projected and lifted onto `g` (`N × d`). Drops the source features.
-    pub fn initial_latents(&mut self, g: &Gaussians, views: &[&Camera]) -> Vec<f32> {
-        let projected: Vec<Vec<f32>> =
-            std::mem::take(&mut self.source).iter().map(|p| self.pca.project(p)).collect();
+    /// The initial semantic latents s_i (docs/method.md#m8-semantic-space): the
+    /// features of every edit view projected and lifted onto `g` (`N × d`): with
+    /// [`SemanticInit::Edited`] the edited image's where the editor gave one (the
+    /// source render's otherwise), with [`SemanticInit::Source`] the source render's.
+    /// Drops the source features; call it before the edited features are taken.
+    ///
+    /// *Why edited:* the transport compares s_i with prototypes e_m taken from the
+    /// edited images. Latents lifted from the source renders describe the object as it
+    /// was, so at the first round the semantic cost ranks the object against the edit
+    /// it is to receive (measured: a red apple made cyan is costlier than the green
+    /// grass around it, and the first round's gate closes on the whole apple).
+    pub fn initial_latents(&mut self, g: &Gaussians, views: &[&Camera], init: SemanticInit) -> Vec<f32> {
+        let sources = std::mem::take(&mut self.source);
+        let projected: Vec<Vec<f32>> = sources
+            .iter()
+            .zip(&self.edited)
+            .map(|(src, e)| match (init, e) {
+                (SemanticInit::Edited, Some(e)) => self.pca.project(&e.semantic),
+                _ => self.pca.project(src),
+            })
+            .collect();
         let planes: Vec<&[f32]> = projected.iter().map(|p| p.as_slice()).collect();
         lift(g, views, &planes, self.pca.d)
     }
@@ -139,6 +158,40 @@ pub fn set_semantic_extras(g: &mut Gaussians, s: &[f32], d: usize) {
 mod tests {
     use super::*;
     use crate::edits::tests::camera;
+
+    /// The latents start from the edited image's features where the editor gave one
+    /// and from the source render's elsewhere (`Edited`), or from the source renders
+    /// alone (`Source`): each equals the lift of the chosen projected planes.
+    #[test]
+    fn initial_latents_lift_the_chosen_views_features() {
+        use transsplat_scenes::{build, SceneConfig};
+        let scene =
+            build("tabletop", &SceneConfig { width: 32, height: 24, views: 3, ..SceneConfig::quick() })
+                .unwrap();
+        let (g, views) = (&scene.gaussians, [&scene.cameras[0], &scene.cameras[1]]);
+        let src = crate::edits::render_sources(g, &views, [0.0; 3]);
+        // Per-pixel features (r, g, b, r·g); the edit swaps red and blue in view 1.
+        let model = |img: &[f32], _: usize, _: usize| -> Result<(Vec<f32>, usize), String> {
+            Ok((img.chunks(3).flat_map(|p| [p[0], p[1], p[2], p[0] * p[1]]).collect(), 4))
+        };
+        let swapped: Vec<f32> = src[1].chunks(3).flat_map(|p| [p[2], p[1], p[0]]).collect();
+        let edited = vec![None, Some(EditedView::new(swapped.clone(), 32, 24, vec![1.0; 32 * 24], None))];
+        let latents = |init| {
+            let mut space = SemanticSpace::fit(&model, &views, &src, &edited, 3, 0).unwrap();
+            let pca = space.pca.clone();
+            (space.initial_latents(g, &views, init), pca)
+        };
+        let planes = |pca: &Pca, imgs: [&[f32]; 2]| -> Vec<Vec<f32>> {
+            imgs.iter().map(|img| pca.project(&model(img, 32, 24).unwrap().0)).collect()
+        };
+        for (init, second) in [(SemanticInit::Edited, &swapped), (SemanticInit::Source, &src[1])] {
+            let (got, pca) = latents(init);
+            let p = planes(&pca, [&src[0], second]);
+            let want = lift(g, &views, &[&p[0], &p[1]], 3);
+            assert_eq!(got, want, "{init:?}");
+        }
+        assert_ne!(latents(SemanticInit::Edited).0, latents(SemanticInit::Source).0);
+    }
 
     /// One rule for source renders and edited images: a failing model stops the fit with
     /// a message naming the view and which image it was.

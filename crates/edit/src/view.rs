@@ -175,6 +175,9 @@ pub struct ViewTransport {
     pub transported_mass: f64,
     /// The prototypes' total mass B_v = Σ_m b_m ([`evidence_masses`]).
     pub target_mass: f32,
+    /// Each source's coverage ω_i^v ∈ [0, 1]: the share of its blend weight inside the
+    /// view's support Ω (empty when the support is unknown).
+    pub coverage: Vec<f32>,
 }
 
 impl ViewTransport {
@@ -204,6 +207,27 @@ impl ViewTransport {
             return rho.iter().map(|&r| if r > 0.0 { 1.0 } else { 0.0 }).collect();
         }
         rho.iter().map(|&r| (r / t).min(1.0)).collect()
+    }
+
+    /// The view's support of each source: the relative support σ_i
+    /// ([`Self::relative_support`]), and with `coverage` (and ω known) the geometric
+    /// mean √(σ_i ω_i) with the source's coverage ω_i (`fusion.coverage`;
+    /// docs/method.md#m6-residual-and-gate).
+    ///
+    /// *Why:* σ ranks whole Gaussians, so a Gaussian whose footprint only touches the
+    /// evidence (a table Gaussian half inside a spill ring around the edited object)
+    /// can hold full support; ω says how much of it the view's evidence is about. Each
+    /// alone fails on a kind of 2D error: σ on regions the entropic plan smears into,
+    /// ω on holes a noisy attention map leaves in the target. The geometric mean
+    /// asks for both and lets neither decide alone (σ = 1, ω = 0.25 gives 0.5).
+    pub fn view_support(&self, coverage: bool) -> Vec<f32> {
+        let mut s = self.relative_support();
+        if coverage && self.coverage.len() == s.len() {
+            for (s, &o) in s.iter_mut().zip(&self.coverage) {
+                *s = (*s * o.clamp(0.0, 1.0)).sqrt();
+            }
+        }
+        s
     }
 }
 /// The prototypes' masses under evidence-mass balancing: b_m = Σ_{i→m} a_i^v ω_i^v,
@@ -298,6 +322,7 @@ pub fn transport(
         gap: sol.stats.gap,
         transported_mass: sol.stats.transported_mass,
         target_mass: b.iter().sum(),
+        coverage: Vec::new(),
     })
 }
 

@@ -54,7 +54,7 @@ pub struct TransSplat {
     /// The semantic latents' optimiser, which steps record into (they move only
     /// under L_sem and L_uot; the trainer does not step them).
     latents: Latents,
-    /// With the colour gate: the gated region {γ ≥ `loss.colour_gate`}, where L_img
+    /// With the colour gate: the gated region {support ≥ `loss.colour_gate`}, where L_img
     /// may recolour ([`EditMethod::colour_mask`]); empty without the gate.
     open: Vec<bool>,
     /// With the colour gate: the rows L_leak visits until the next round
@@ -85,18 +85,17 @@ impl TransSplat {
     /// (`tr`: the model now; `None` when it is not at hand, then every row).
     ///
     /// The colour gate (docs/method.md#m7-losses): L_img recolours only the gated
-    /// region {γ ≥ `loss.colour_gate`}, the colour mask the loop applies.
+    /// region, where the aggregated support 1 − r_i is at least `loss.colour_gate` (γ
+    /// at least [`EditConfig::colour_gate_gamma`]), the colour mask the loop applies.
     /// *Why:* a soft L_leak is a penalty the image loss can outweigh: with an L1 image
     /// loss every view that shows the spill pushes with constant force, and Adam rescales
     /// both forces alike, so a Gaussian the gate calls 0.2 still drifts towards the
     /// spilled colour. The paper's γ is meant to make weakly supported Gaussians "more
     /// conservative"; a Gaussian outside the gated region now does not respond to the
-    /// edit at all, and L_leak still anchors the partly supported ones inside it.
+    /// edit at all. The default threshold, support ≥ 1/2, is a majority vote of the
+    /// views that see the Gaussian (by source mass).
     fn gate_changed(&mut self, tr: Option<&Trainer>) {
-        let open = self.cfg.loss.colour_gate;
-        if open <= 0.0 {
-            return;
-        }
+        let Some(open) = self.cfg.colour_gate_gamma() else { return };
         self.open = self.transport.gamma.iter().map(|&g| g >= open).collect();
         self.leak_rows = tr.map(|tr| {
             let c = changeable(&tr.model.gaussians.sh, &self.sh0, &self.open, self.kc);
@@ -195,8 +194,8 @@ impl EditMethod for TransSplat {
         Ok(Some(stats))
     }
 
-    /// (The colour gradients of L_img are kept only in the gated region γ ≥
-    /// `loss.colour_gate` by the loop, through [`EditMethod::colour_mask`].)
+    /// (The colour gradients of L_img are kept only in the gated region by the loop,
+    /// through [`EditMethod::colour_mask`].)
     /// L_sem towards z̄ (after the first round) and L_uot through the step view's plan
     /// (one view per step like L_img: an unbiased estimate of the mean over views)
     /// move only the semantic latents: the step is recorded and the latents advanced
@@ -212,7 +211,7 @@ impl EditMethod for TransSplat {
         self.latents.record(rec.step, plan);
         if l.leak > 0.0 {
             // With the colour gate, L_leak anchors only the Gaussians outside the gated region.
-            let open = if l.colour_gate > 0.0 { l.colour_gate } else { f32::INFINITY };
+            let open = self.cfg.colour_gate_gamma().unwrap_or(f32::INFINITY);
             let sh = &tr.model.gaussians.sh;
             let k = self.kc;
             rec.leak = match &self.leak_rows {
@@ -296,6 +295,7 @@ impl EditMethod for TransSplat {
                 .f32(format!("cached.{k}.w"), &v.w[..])
                 .f32(format!("cached.{k}.y"), &v.y[..])
                 .f32(format!("cached.{k}.plan_e"), &v.plan_e[..])
+                .f32(format!("cached.{k}.coverage"), &v.coverage[..])
                 .f64(
                     format!("cached.{k}.stats"),
                     vec![v.objective, v.dual, v.gap, v.transported_mass, v.target_mass as f64],
@@ -326,7 +326,7 @@ impl EditMethod for TransSplat {
     }
 
     fn support(&self) -> Option<Vec<f32>> {
-        Some(self.transport.support())
+        Some(self.transport.support(self.cfg.fusion.coverage))
     }
 
     fn colour_mask(&self) -> Option<&[bool]> {
@@ -367,6 +367,11 @@ fn load_plan(a: &Archive, k: usize, n: usize, d: usize) -> Result<ViewTransport,
     let &[objective, dual, gap, transported_mass, target_mass] = stats else {
         return Err(e(format!("cached view plan {k}: bad statistics")));
     };
+    // Empty when the view's support was unknown.
+    let coverage = a.f32(&p("coverage")).map_err(archive_error)?.to_vec();
+    if !(coverage.is_empty() || coverage.len() == m) {
+        return Err(e(format!("cached view plan {k}: {} coverage values for {m} sources", coverage.len())));
+    }
     Ok(ViewTransport {
         view: a.scalar(&p("view")).map_err(archive_error)? as usize,
         a: f(&p("a"), m)?,
@@ -379,6 +384,7 @@ fn load_plan(a: &Archive, k: usize, n: usize, d: usize) -> Result<ViewTransport,
         gap,
         transported_mass,
         target_mass: target_mass as f32,
+        coverage,
     })
 }
 
