@@ -202,6 +202,27 @@ pub fn view_support(ev: &ViewEvidence, cfg: &PrototypeConfig) -> (Vec<bool>, Vec
     support(ev, cfg.threshold, min_area)
 }
 
+/// The view's evidence per pixel, in [0, 1] (docs/method.md#m4-the-uot-solver): on the
+/// support Ω, the normalised attention relative to its median over Ω,
+/// min(1, Ā(p) / median_Ω Ā); 0 off Ω. Its splat-back is a Gaussian's coverage ω_i^v
+/// (evidence-mass balancing and the coverage bound of the gate).
+///
+/// *Why not 1_Ω:* Ω is a threshold of the attention, so a pixel where the editor's
+/// attention has faded to a third of its peak (the edge of a spill ring) counts as
+/// much as the edited object. Relative to the typical attention of the support, the
+/// object's pixels count fully and weaker evidence in proportion. The median, not the
+/// maximum Ā is normalised by: one noisy peak does not lower every other pixel.
+pub fn evidence_plane(ev: &ViewEvidence, cfg: &PrototypeConfig) -> Vec<f32> {
+    let (omega, abar) = view_support(ev, cfg);
+    let mut inside: Vec<f32> = omega.iter().zip(&abar).filter(|(&o, _)| o).map(|(_, &a)| a).collect();
+    if inside.is_empty() {
+        return vec![0.0; omega.len()];
+    }
+    let k = inside.len() / 2;
+    let median = *inside.select_nth_unstable_by(k, f32::total_cmp).1;
+    omega.iter().zip(&abar).map(|(&o, &a)| if o { (a / median).min(1.0) } else { 0.0 }).collect()
+}
+
 /// Pixel-level prototypes for the `no_prototype` ablation: a seeded subsample of
 /// `samples` support pixels, each its own prototype with mass ∝ Ā.
 pub fn pixels(ev: &ViewEvidence, cfg: &PrototypeConfig, samples: usize, seed: u64) -> Prototypes {
@@ -344,6 +365,23 @@ mod tests {
         let ev = ViewEvidence { mask: Some(&mask), ..ev };
         let (omega, _) = support(&ev, 0.5, 1);
         assert_eq!(omega.iter().filter(|&&o| o).count(), 2);
+    }
+
+    /// Attention (0, 0.25, 0.5, 1.0, 0.8, 0.1) over a 6 × 1 image: Ā = A / max, Ω = Ā ≥ 0.3
+    /// = pixels 2, 3, 4; the median of Ā over Ω is 0.8, so the plane is
+    /// (0, 0, 0.5/0.8, 1, 1, 0). No attention at all gives an all-zero plane.
+    #[test]
+    fn evidence_plane_by_hand() {
+        let att = [0.0f32, 0.25, 0.5, 1.0, 0.8, 0.1];
+        let (sem, app) = (vec![0.0f32; 12], vec![0.0f32; 6]);
+        let cfg = PrototypeConfig { threshold: 0.3, min_area_fraction: 0.0, ..Default::default() };
+        let plane = evidence_plane(&evidence(6, 1, &att, &sem, &app), &cfg);
+        let want = [0.0, 0.0, 0.5 / 0.8, 1.0, 1.0, 0.0];
+        for (a, b) in plane.iter().zip(want) {
+            assert!((a - b).abs() < 1e-6, "{plane:?}");
+        }
+        let z = [0.0f32; 6];
+        assert_eq!(evidence_plane(&evidence(6, 1, &z, &sem, &app), &cfg), vec![0.0; 6]);
     }
 
     #[test]

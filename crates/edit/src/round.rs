@@ -28,19 +28,19 @@ pub struct RoundStats {
 }
 
 /// One edit view as a transport round sees it: its camera, appearance plane Φ_v,
-/// support Ω (`H × W`; empty: unknown) and prototypes (empty when the view carries no
+/// evidence plane ([`crate::prototypes::evidence_plane`], `H × W`; empty: unknown) and prototypes (empty when the view carries no
 /// evidence).
 pub struct RoundView<'a> {
     pub cam: &'a Camera,
     pub appearance: &'a [f32],
     pub d_app: usize,
-    pub support: &'a [bool],
+    pub support: &'a [f32],
     pub prototypes: &'a Prototypes,
 }
 
 /// The source side of one view's transport: visible Gaussians, masses a_i^v,
-/// projected means, normalised appearance descriptors φ_i^v and the share ω_i^v of
-/// each one's blend weight inside the support Ω (empty when the support is unknown).
+/// projected means, normalised appearance descriptors φ_i^v and each one's coverage
+/// ω_i^v, the evidence plane splatted back (empty when it is unknown).
 #[derive(Clone, Debug, Default)]
 pub struct ViewSources {
     pub idx: Vec<u32>,
@@ -50,13 +50,13 @@ pub struct ViewSources {
     pub omega: Vec<f32>,
 }
 
-/// The appearance plane with 1_Ω appended as one more channel, so one splat-back
+/// The appearance plane with the evidence plane appended as one more channel, so one splat-back
 /// pass lifts both.
-fn with_support(appearance: &[f32], d_app: usize, support: &[bool]) -> Vec<f32> {
+fn with_support(appearance: &[f32], d_app: usize, support: &[f32]) -> Vec<f32> {
     let mut out = Vec::with_capacity(support.len() * (d_app + 1));
     for (p, &o) in support.iter().enumerate() {
         out.extend_from_slice(&appearance[p * d_app..(p + 1) * d_app]);
-        out.push(if o { 1.0 } else { 0.0 });
+        out.push(o);
     }
     out
 }

@@ -176,7 +176,7 @@ pub struct ViewTransport {
     /// The prototypes' total mass B_v = Σ_m b_m ([`evidence_masses`]).
     pub target_mass: f32,
     /// Each source's coverage ω_i^v ∈ [0, 1]: the share of its blend weight inside the
-    /// view's support Ω (empty when the support is unknown).
+    /// view's evidence (the splat-back of [`crate::prototypes::evidence_plane`]; empty when unknown).
     pub coverage: Vec<f32>,
 }
 
@@ -231,8 +231,9 @@ impl ViewTransport {
     }
 }
 /// The prototypes' masses under evidence-mass balancing: b_m = Σ_{i→m} a_i^v ω_i^v,
-/// the source mass that prototype m's region covers. ω_i^v ∈ [0, 1] is the share of
-/// Gaussian i's blend weight inside the support Ω (splat-back of 1_Ω) and i → m
+/// the source mass that prototype m's region covers. ω_i^v ∈ [0, 1] is Gaussian i's
+/// coverage (the splat-back of [`crate::prototypes::evidence_plane`]: its blend
+/// weight's share inside the support Ω, each pixel weighted by its evidence) and i → m
 /// assigns each covered source to the prototype with the nearest centre u_m (the
 /// regions are the k-means cells of Ω). A prototype that covers no source keeps
 /// 10⁻⁶ of the total. Returns the paper's b (Σ b = 1, App. A.1) when balancing is off

@@ -40,8 +40,9 @@ pub struct TransSplat {
     gated_densify: bool,
     /// Prototypes of each usable view.
     prototypes: Vec<Prototypes>,
-    /// Support Ω of each usable view (for evidence-mass balancing).
-    supports: Vec<Vec<bool>>,
+    /// The evidence plane of each usable view ([`prototypes::evidence_plane`]; empty when
+    /// neither evidence-mass balancing nor the coverage bound needs it).
+    supports: Vec<Vec<f32>>,
     /// The leakage reference c⁽⁰⁾: every SH coefficient of the source scene, `kc`
     /// values per Gaussian.
     sh0: Vec<f32>,
@@ -155,10 +156,9 @@ impl EditMethod for TransSplat {
         };
         let count = protos.len();
         self.prototypes.push(protos);
-        // The support plane 1_Ω, for evidence-mass balancing.
-        let needed = self.cfg.transport.evidence_mass && count > 0;
-        let omega = if needed { prototypes::view_support(ev, p).0 } else { Vec::new() };
-        self.supports.push(omega);
+        // The evidence plane, for evidence-mass balancing and the coverage bound.
+        let needed = (self.cfg.transport.evidence_mass || self.cfg.fusion.coverage) && count > 0;
+        self.supports.push(if needed { prototypes::evidence_plane(ev, p) } else { Vec::new() });
         count
     }
 
