@@ -21,7 +21,6 @@
 //!
 //! γ_i = exp(−r_i / τ_r). Gaussians visible in no view get r = 1.
 
-use crate::config::FusionConfig;
 use crate::fusion::is_supported;
 use crate::view::ViewTransport;
 use serde::{Deserialize, Serialize};
@@ -37,12 +36,20 @@ pub enum Agreement {
     Transport,
 }
 
-/// Per-Gaussian aggregated relative residual r_i ∈ [0, 1] under the fusion settings
-/// `f` (`agreement`, `coverage`, `min_support`).
-pub fn residuals(n: usize, views: &[ViewTransport], f: &FusionConfig) -> Vec<f32> {
-    match f.agreement {
-        Agreement::Visibility => visibility_residuals(n, views, f.coverage),
-        Agreement::Transport => transport_residuals(n, views, f.min_support),
+/// How the residual is aggregated: the fusion settings it reads (`fusion.agreement`,
+/// `fusion.coverage`, `fusion.min_support`).
+#[derive(Clone, Copy, Debug)]
+pub struct Aggregation {
+    pub agreement: Agreement,
+    pub coverage: bool,
+    pub min_support: f32,
+}
+
+/// Per-Gaussian aggregated relative residual r_i ∈ [0, 1].
+pub fn residuals(n: usize, views: &[ViewTransport], how: Aggregation) -> Vec<f32> {
+    match how.agreement {
+        Agreement::Visibility => visibility_residuals(n, views, how.coverage),
+        Agreement::Transport => transport_residuals(n, views, how.min_support),
     }
 }
 
@@ -119,8 +126,8 @@ mod tests {
         // Gaussian 2: never visible → 1. Gaussian 3: visible, never supported → 1.
         let v1 = view(vec![0, 1, 3, 4], vec![0.2, 0.1, 0.3, 0.3], vec![0.2, 0.3, 0.0, 0.4]);
         let v2 = view(vec![0, 1, 4], vec![0.2, 0.1, 0.1], vec![0.1, 0.0, 0.0]);
-        let fusion = |agreement, coverage| FusionConfig { agreement, coverage, ..Default::default() };
-        let r = residuals(5, &[v1.clone(), v2.clone()], &fusion(Agreement::Transport, true));
+        let fusion = |agreement, coverage| Aggregation { agreement, coverage, min_support: 1e-3 };
+        let r = residuals(5, &[v1.clone(), v2.clone()], fusion(Agreement::Transport, true));
         // Gaussian 4: supported (r = 0) where its mass is 0.3, unsupported where 0.1 → r = 0.25.
         let want = [1.0 / 6.0, 0.5, 1.0, 1.0, 0.25];
         for (a, b) in r.iter().zip(want) {
@@ -134,7 +141,7 @@ mod tests {
         let mut va = view(vec![0, 1, 2], vec![0.5, 0.3, 0.2], vec![1.0, 0.3, 0.05]);
         va.target_mass = 0.5;
         let vb = view(vec![0, 2], vec![0.4, 0.6], vec![0.0, 0.6]);
-        let r = residuals(4, &[va.clone(), vb.clone()], &fusion(Agreement::Visibility, false));
+        let r = residuals(4, &[va.clone(), vb.clone()], fusion(Agreement::Visibility, false));
         let want = [1.0 - 0.5 / 0.9, 0.5, 1.0 - 0.625 / 0.8, 1.0];
         for (a, b) in r.iter().zip(want) {
             assert!((a - b).abs() < 1e-6, "{r:?}");
@@ -142,7 +149,7 @@ mod tests {
         // A plan that moved less than its target mass: σ depends only on the ranking.
         let mut v3 = view(vec![0, 1], vec![0.4, 0.6], vec![0.1, 0.0]);
         v3.target_mass = 0.2;
-        let r = residuals(2, &[v3], &fusion(Agreement::Visibility, false));
+        let r = residuals(2, &[v3], fusion(Agreement::Visibility, false));
         assert!(r[0].abs() < 1e-6 && (r[1] - 1.0).abs() < 1e-6, "{r:?}");
         // Coverage: view A's sources cover ω = (1, 0.25, 0.5) of their footprint with
         // its support, view B's (0.16, 1) → σ̃ = √(σω): A (1, √0.125, √0.0625 = 0.25),
@@ -150,12 +157,12 @@ mod tests {
         va.coverage = vec![1.0, 0.25, 0.5];
         let mut vb_cov = vb.clone();
         vb_cov.coverage = vec![0.16, 1.0];
-        let r = residuals(4, &[va.clone(), vb_cov], &fusion(Agreement::Visibility, true));
+        let r = residuals(4, &[va.clone(), vb_cov], fusion(Agreement::Visibility, true));
         let want = [1.0 - 0.5 / 0.9, 1.0 - 0.125f32.sqrt(), 1.0 - (0.2 * 0.25 + 0.6) / 0.8, 1.0];
         for (a, b) in r.iter().zip(want) {
             assert!((a - b).abs() < 1e-6, "{r:?}");
         }
-        let r = residuals(4, &[va, vb], &fusion(Agreement::Visibility, true));
+        let r = residuals(4, &[va, vb], fusion(Agreement::Visibility, true));
         assert!((r[2] - (1.0 - (0.2 * 0.25 + 0.6 * 1.0) / 0.8)).abs() < 1e-6, "{r:?}");
         let g = gate(&[1.0 / 6.0, 0.0, 1.0], 0.5);
         assert!((g[0] - (-1.0f32 / 3.0).exp()).abs() < 1e-6);

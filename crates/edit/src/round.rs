@@ -172,7 +172,9 @@ impl TransportState {
         let acc = accumulate(n, d, &plans, f.min_support);
         let z = canonical_targets(&acc, s, f.rho);
         self.zbar = Some(ema(self.zbar.as_deref(), &z, f.ema));
-        self.gamma = gate::gate(&gate::residuals(n, &plans, f), f.tau_r);
+        let how =
+            gate::Aggregation { agreement: f.agreement, coverage: f.coverage, min_support: f.min_support };
+        self.gamma = gate::gate(&gate::residuals(n, &plans, how), f.tau_r);
         self.cached = plans;
         let v = &self.cached;
         RoundStats {
