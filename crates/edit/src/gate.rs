@@ -154,9 +154,9 @@ mod tests {
         // Coverage: view A's sources cover ω = (1, 0.25, 0.5) of their footprint with
         // its support, view B's (0.16, 1) → σ̃ = √(σω): A (1, √0.125, √0.0625 = 0.25),
         // B (0, 1); without ω known (empty) a view keeps σ.
-        va.coverage = vec![1.0, 0.25, 0.5];
+        va.coverage = vec![1.0, 0.25, 0.5].into();
         let mut vb_cov = vb.clone();
-        vb_cov.coverage = vec![0.16, 1.0];
+        vb_cov.coverage = vec![0.16, 1.0].into();
         let r = residuals(4, &[va.clone(), vb_cov], fusion(Agreement::Visibility, true));
         let want = [1.0 - 0.5 / 0.9, 1.0 - 0.125f32.sqrt(), 1.0 - (0.2 * 0.25 + 0.6) / 0.8, 1.0];
         for (a, b) in r.iter().zip(want) {

@@ -47,7 +47,7 @@ pub struct ViewSources {
     pub a: Vec<f32>,
     pub m2d: Vec<[f32; 2]>,
     pub phi: Vec<f32>,
-    pub omega: Vec<f32>,
+    pub omega: std::sync::Arc<[f32]>,
 }
 
 /// The appearance plane with the evidence plane appended as one more channel, so one splat-back
@@ -92,7 +92,7 @@ pub fn view_sources(g: &Gaussians, views: &[RoundView]) -> Vec<ViewSources> {
                     omega.push(row[v.d_app]);
                 }
             }
-            ViewSources { idx, a, m2d, phi, omega }
+            ViewSources { idx, a, m2d, phi, omega: omega.into() }
         })
         .collect()
 }
@@ -133,7 +133,7 @@ pub fn solve_views(
                 cfg,
             )?;
             t.view = cam;
-            t.coverage = src.omega.clone();
+            t.coverage = std::sync::Arc::clone(&src.omega);
             Ok(t)
         })
         .collect()

@@ -176,8 +176,10 @@ pub struct ViewTransport {
     /// The prototypes' total mass B_v = Σ_m b_m ([`evidence_masses`]).
     pub target_mass: f32,
     /// Each source's coverage ω_i^v ∈ [0, 1]: the share of its blend weight inside the
-    /// view's evidence (the splat-back of [`crate::prototypes::evidence_plane`]; empty when unknown).
-    pub coverage: Vec<f32>,
+    /// view's evidence (the splat-back of [`crate::prototypes::evidence_plane`]; empty when unknown),
+    /// shared with the round's source side (the same values for every round while the
+    /// geometry is frozen).
+    pub coverage: std::sync::Arc<[f32]>,
 }
 
 impl ViewTransport {
@@ -223,7 +225,7 @@ impl ViewTransport {
     pub fn view_support(&self, coverage: bool) -> Vec<f32> {
         let mut s = self.relative_support();
         if coverage && self.coverage.len() == s.len() {
-            for (s, &o) in s.iter_mut().zip(&self.coverage) {
+            for (s, &o) in s.iter_mut().zip(self.coverage.iter()) {
                 *s = (*s * o.clamp(0.0, 1.0)).sqrt();
             }
         }
@@ -323,7 +325,7 @@ pub fn transport(
         gap: sol.stats.gap,
         transported_mass: sol.stats.transported_mass,
         target_mass: b.iter().sum(),
-        coverage: Vec::new(),
+        coverage: Default::default(),
     })
 }
 

@@ -13,7 +13,7 @@
 mod common;
 
 use transsplat_scenes::SceneConfig;
-use transsplat_train::{evaluate, fit, start, DensifyConfig, FitOptions, PointCloud, TrainConfig};
+use transsplat_train::{evaluate, fit, start, PointCloud, TrainConfig};
 
 /// The bound: no test view more than 3 dB below the mean.
 const MAX_BELOW_MEAN_DB: f32 = 3.0;
@@ -34,25 +34,13 @@ fn open_surroundings_train_without_a_hazy_view() {
     let points = cloud.len();
     ds.points = Some(cloud);
     let iterations = 1500;
-    let opts = FitOptions {
-        config: TrainConfig {
-            iterations,
-            densify: DensifyConfig {
-                from_step: 100,
-                interval: 100,
-                until_step: 1000,
-                opacity_reset_interval: 600,
-                sh_degree_interval: 300,
-                ..Default::default()
-            },
-            background: scene.background,
-            seed: 4,
-            ..Default::default()
-        },
-        max_sh_degree: 1,
-        random_points: 0,
-        eval_every: 0,
-    };
+    let opts = common::options(TrainConfig {
+        iterations,
+        densify: common::densify(100, 1000, 600, 300),
+        background: scene.background,
+        seed: 4,
+        ..Default::default()
+    });
     let (mut trainer, _) = start(&ds, &opts).unwrap();
     fit(&ds, &mut trainer, 0, |_| {}).unwrap();
     let eval = evaluate(&trainer, &ds.test);

@@ -5,14 +5,15 @@
 //! loaded at `resolution 2` (64x48) and trained for a bounded number of steps; the
 //! held-out views (every 8th) must reach a stated PSNR.
 
+mod common;
+
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::path::Path;
 use transsplat_raster::{render, RenderOptions, Splats};
 use transsplat_scene::{image, Camera, Gaussians};
 use transsplat_train::{
-    dataset, evaluate, fit, start, write_output, AdamRule, DensifyConfig, FitOptions, InitSource,
-    LoadOptions, TrainConfig, Trainer,
+    dataset, evaluate, fit, start, write_output, AdamRule, InitSource, LoadOptions, TrainConfig, Trainer,
 };
 
 /// The quality bar on the held-out views. Measured: 11.4 dB at initialisation,
@@ -171,24 +172,12 @@ fn training_from_a_sparse_noisy_cloud_reaches_the_test_psnr() {
     assert_eq!(ds.test[1].camera.name, "view_008.png");
 
     let iterations = 1000;
-    let opts = FitOptions {
-        config: TrainConfig {
-            iterations,
-            densify: DensifyConfig {
-                from_step: 100,
-                interval: 100,
-                until_step: 650,
-                opacity_reset_interval: 0,
-                sh_degree_interval: 200,
-                ..Default::default()
-            },
-            seed: 1,
-            ..Default::default()
-        },
-        max_sh_degree: 1,
-        random_points: 0,
-        eval_every: 0,
-    };
+    let opts = common::options(TrainConfig {
+        iterations,
+        densify: common::densify(100, 650, 0, 200),
+        seed: 1,
+        ..Default::default()
+    });
     let (mut trainer, source) = start(&ds, &opts).unwrap();
     assert_eq!(source, InitSource::Points { count: g.len().div_ceil(4) });
     let before = evaluate(&trainer, &ds.test).psnr;
@@ -231,18 +220,11 @@ fn the_reused_gradient_buffer_changes_nothing_and_selective_adam_still_learns() 
     let ds = dataset::load(&data, &LoadOptions { resolution: 2, ..Default::default() }).unwrap();
     let config = TrainConfig {
         iterations: 300,
-        densify: DensifyConfig {
-            from_step: 50,
-            interval: 100,
-            until_step: 250,
-            opacity_reset_interval: 0,
-            sh_degree_interval: 100,
-            ..Default::default()
-        },
+        densify: common::densify(50, 250, 0, 100),
         seed: 1,
         ..Default::default()
     };
-    let opts = FitOptions { config: config.clone(), max_sh_degree: 1, random_points: 0, eval_every: 0 };
+    let opts = common::options(config.clone());
     let (mut reused, _) = start(&ds, &opts).unwrap();
     let mut split = reused.clone();
     let mut selective = reused.clone();

@@ -8,7 +8,7 @@ mod common;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use transsplat_train::{evaluate, fit, start, DensifyConfig, FitOptions, PointCloud, TrainConfig};
+use transsplat_train::{evaluate, fit, start, PointCloud, TrainConfig};
 
 /// The quality bar on the held-out views. Measured: 9.1 dB at initialisation,
 /// 26.8 dB after the 1000 steps (683 -> ~6200 Gaussians), about 7 s in release.
@@ -31,25 +31,13 @@ fn tabletop_training_reaches_the_test_psnr() {
     ds.points = Some(cloud);
 
     let iterations = 1000;
-    let opts = FitOptions {
-        config: TrainConfig {
-            iterations,
-            densify: DensifyConfig {
-                from_step: 100,
-                interval: 100,
-                until_step: 650,
-                opacity_reset_interval: 0,
-                sh_degree_interval: 250,
-                ..Default::default()
-            },
-            background: bg,
-            seed: 2,
-            ..Default::default()
-        },
-        max_sh_degree: 1,
-        random_points: 0,
-        eval_every: 0,
-    };
+    let opts = common::options(TrainConfig {
+        iterations,
+        densify: common::densify(100, 650, 0, 250),
+        background: bg,
+        seed: 2,
+        ..Default::default()
+    });
     let (mut trainer, _) = start(&ds, &opts).unwrap();
     let before = evaluate(&trainer, &ds.test).psnr;
     let after = fit(&ds, &mut trainer, 0, |_| {}).unwrap().psnr;

@@ -368,7 +368,7 @@ fn load_plan(a: &Archive, k: usize, n: usize, d: usize) -> Result<ViewTransport,
         return Err(e(format!("cached view plan {k}: bad statistics")));
     };
     // Empty when the view's support was unknown.
-    let coverage = a.f32(&p("coverage")).map_err(archive_error)?.to_vec();
+    let coverage: std::sync::Arc<[f32]> = a.f32(&p("coverage")).map_err(archive_error)?.into();
     if !(coverage.is_empty() || coverage.len() == m) {
         return Err(e(format!("cached view plan {k}: {} coverage values for {m} sources", coverage.len())));
     }

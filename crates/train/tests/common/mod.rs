@@ -4,6 +4,27 @@
 use transsplat_raster::{render, RenderOptions, Splats};
 use transsplat_scenes::{build, is_test, Scene, SceneConfig};
 use transsplat_train::dataset::{scale_camera, Dataset, DatasetKind, View};
+use transsplat_train::{DensifyConfig, FitOptions, TrainConfig};
+
+/// The short runs' densification: every 100 steps from `from_step` until `until_step`,
+/// an opacity reset every `reset` steps (0: none), the SH degree raised every
+/// `sh_interval` steps; INRIA's thresholds otherwise.
+pub fn densify(from_step: u64, until_step: u64, reset: u64, sh_interval: u64) -> DensifyConfig {
+    DensifyConfig {
+        from_step,
+        interval: 100,
+        until_step,
+        opacity_reset_interval: reset,
+        sh_degree_interval: sh_interval,
+        ..Default::default()
+    }
+}
+
+/// A short run of `config`: SH degree at most 1, no random points, no evaluation
+/// during the run.
+pub fn options(config: TrainConfig) -> FitOptions {
+    FitOptions { config, max_sh_degree: 1, random_points: 0, eval_every: 0 }
+}
 
 /// The quick tabletop scene and a dataset of its renders at `width × height`, every
 /// 8th view held out for testing; no point cloud.
