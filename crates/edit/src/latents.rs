@@ -118,15 +118,16 @@ fn batch(
     let mut loss = vec![0.0f64; steps.len()];
     let mut bad = None;
     let mut g = vec![0.0f32; d];
+    let mut prow = vec![0.0f32; d];
     for (k, (&(_, plan), h)) in steps.iter().zip(hyper).enumerate() {
         // This chunk's entries of the step's plan (its rows ascend).
-        let (idx, plan_e, lo) = match plan.map(|p| &terms.plans[p]) {
+        let (idx, plan, lo) = match plan.map(|p| &terms.plans[p]) {
             Some(p) => {
                 let lo = p.idx.partition_point(|&i| (i as usize) < r0);
                 let hi = p.idx.partition_point(|&i| (i as usize) < r0 + rows);
-                (&p.idx[lo..hi], &p.plan_e[..], lo)
+                (&p.idx[lo..hi], Some(p), lo)
             }
-            None => (&[][..], &[][..], 0),
+            None => (&[][..], None, 0),
         };
         let mut next = 0;
         let mut nonfinite = false;
@@ -157,8 +158,8 @@ fn batch(
             }
             // L_uot through the plan (losses::transport_semantic, same expressions).
             if next < idx.len() && idx[next] as usize == i {
-                let e = lo + next;
-                let p = &plan_e[e * d..(e + 1) * d];
+                plan.expect("a plan holds idx").plan_row(lo + next, &mut prow);
+                let p = &prow[..];
                 next += 1;
                 let n = si.iter().map(|x| x * x).sum::<f32>().sqrt();
                 // NaN takes this branch, as in losses::transport_semantic.
@@ -198,8 +199,9 @@ mod tests {
         let gamma: Vec<f32> = (0..n).map(|i| (i % 7) as f32 / 7.0).collect();
         let plan = |step: usize| {
             let idx: Vec<u32> = (0..n as u32).filter(|i| (i + step as u32).is_multiple_of(5)).collect();
-            let plan_e = (0..idx.len() * d).map(|k| ((k + step) as f32 * 0.7).sin() * 0.2).collect();
-            ViewTransport { idx, plan_e, ..Default::default() }
+            let y = (0..idx.len() * d).map(|k| ((k + step) as f32 * 0.7).sin() * 0.2).collect();
+            let w = (0..idx.len()).map(|k| ((k + step) as f32 * 0.3).cos().abs()).collect();
+            ViewTransport { idx, y, w, delta: 1e-3, ..Default::default() }
         };
         let plans = [plan(0), plan(1)];
         let terms =
@@ -220,7 +222,12 @@ mod tests {
             let l = losses::semantic(&s, &z, &gamma, d, 1.0, &mut g);
             assert!((l - loss[k].1).abs() <= 1e-5 * l.abs(), "step {k}: {l} vs {}", loss[k].1);
             if let Some(p) = p {
-                losses::transport_semantic(&s, &plans[p].idx, &plans[p].plan_e, d, 1.5, 0.1, &mut g);
+                let plan = &plans[p];
+                let mut plan_e = vec![0.0f32; plan.idx.len() * d];
+                for (k, row) in plan_e.chunks_mut(d).enumerate() {
+                    plan.plan_row(k, row);
+                }
+                losses::transport_semantic(&s, &plan.idx, &plan_e, d, 1.5, 0.1, &mut g);
             }
             let t = k as i32 + 1;
             let (step_size, bc2) = (lr / (1.0 - b1.powi(t)), (1.0 - b2.powi(t)).sqrt());

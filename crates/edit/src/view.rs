@@ -85,6 +85,7 @@ pub fn source_masses(visibility: &[f32], opacity: &[f32]) -> (Vec<u32>, Vec<f32>
 /// Adds `lambda` (1 − cos(x, y_j)) to `row[j]` for every unit row y_j of `yt`
 /// (stored transposed: `yt[k * m + j]` = y_j[k]), accumulating the dot products in
 /// `dot` (`m` long) so they vectorise over the prototypes; 1 − cos is 1 for x = 0.
+#[inline(always)]
 fn add_cosine_distances(row: &mut [f32], lambda: f32, x: &[f32], yt: &[f32], dot: &mut [f32]) {
     let n = x.iter().map(|v| v * v).sum::<f32>().sqrt();
     if n.is_nan() || n <= 0.0 {
@@ -126,22 +127,64 @@ pub fn cost(
     cfg: &TransportConfig,
 ) -> Vec<f32> {
     use rayon::prelude::*;
-    let (m, d, da) = (protos.len(), protos.d, protos.d_app);
-    let inv = 1.0 / (diag * diag);
-    let (et, psit) = (transposed(&protos.e, m, d), transposed(&protos.psi, m, da));
+    let m = protos.len();
+    let rows = CostRows {
+        means2d,
+        s,
+        phi,
+        protos,
+        et: transposed(&protos.e, m, protos.d),
+        psit: transposed(&protos.psi, m, protos.d_app),
+        inv: 1.0 / (diag * diag),
+        cfg,
+    };
+    let avx2 = transsplat_scene::cpu::has_avx2();
+    const CHUNK: usize = 256;
     let mut c = vec![0.0f32; means2d.len() * m];
-    c.par_chunks_mut(m.max(1)).enumerate().with_min_len(256).for_each_init(
+    c.par_chunks_mut((CHUNK * m).max(1)).enumerate().for_each_init(
         || vec![0.0f32; m],
-        |dot, (i, row)| {
-            for (cij, u) in row.iter_mut().zip(&protos.u) {
-                let du = [means2d[i][0] - u[0], means2d[i][1] - u[1]];
-                *cij = cfg.lambda_geo * (du[0] * du[0] + du[1] * du[1]) * inv;
+        |dot, (k, chunk)| {
+            #[cfg(target_arch = "x86_64")]
+            if avx2 {
+                // SAFETY: AVX2 and FMA detected at run time.
+                return unsafe { rows.run_avx2(k * CHUNK, chunk, dot) };
+            }
+            rows.run(k * CHUNK, chunk, dot)
+        },
+    );
+    c
+}
+
+/// [`cost`] over a chunk of rows; the prototypes' semantics and appearances are stored
+/// transposed (`et`, `psit`) so each row's dot products vectorise over the prototypes.
+struct CostRows<'a> {
+    means2d: &'a [[f32; 2]],
+    s: &'a [f32],
+    phi: &'a [f32],
+    protos: &'a Prototypes,
+    et: Vec<f32>,
+    psit: Vec<f32>,
+    inv: f32,
+    cfg: &'a TransportConfig,
+}
+
+impl CostRows<'_> {
+    /// Rows `i0..` of the cost into `c` (whole rows of `m` entries).
+    #[inline(always)]
+    fn run(&self, i0: usize, c: &mut [f32], dot: &mut [f32]) {
+        let (m, d, da, cfg) = (self.protos.len(), self.protos.d, self.protos.d_app, self.cfg);
+        for (r, row) in c.chunks_exact_mut(m.max(1)).enumerate() {
+            let i = i0 + r;
+            let p = self.means2d[i];
+            for (cij, u) in row.iter_mut().zip(&self.protos.u) {
+                let du = [p[0] - u[0], p[1] - u[1]];
+                *cij = cfg.lambda_geo * (du[0] * du[0] + du[1] * du[1]) * self.inv;
             }
             if cfg.lambda_sem != 0.0 {
-                add_cosine_distances(row, cfg.lambda_sem, &s[i * d..(i + 1) * d], &et, dot);
+                add_cosine_distances(row, cfg.lambda_sem, &self.s[i * d..(i + 1) * d], &self.et, dot);
             }
             if cfg.lambda_app != 0.0 {
-                add_cosine_distances(row, cfg.lambda_app, &phi[i * da..(i + 1) * da], &psit, dot);
+                add_cosine_distances(row, cfg.lambda_app, &self.phi[i * da..(i + 1) * da], &self.psit, dot);
             }
             // NaN stays NaN so the transport crate reports it; rounding below 0 is clipped.
             for cij in row.iter_mut() {
@@ -149,9 +192,16 @@ pub fn cost(
                     *cij = cij.max(0.0);
                 }
             }
-        },
-    );
-    c
+        }
+    }
+
+    /// [`Self::run`] compiled for AVX2 (the same operations, no fused multiply-adds, so
+    /// the same values).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn run_avx2(&self, i0: usize, c: &mut [f32], dot: &mut [f32]) {
+        self.run(i0, c, dot)
+    }
 }
 
 /// The outcome of one view's transport, per visible Gaussian.
@@ -167,8 +217,9 @@ pub struct ViewTransport {
     pub w: Vec<f32>,
     /// View targets y_i^v = Σ_m T_im e_m / (Σ_m T_im + δ), `n × d`.
     pub y: Vec<f32>,
-    /// P_i = Σ_m T_im e_m (for the L_uot gradient), `n × d`.
-    pub plan_e: Vec<f32>,
+    /// The δ of `y` ([`TransportConfig::delta`]), so the plan rows P_i can be
+    /// recovered ([`Self::plan_row`]).
+    pub delta: f32,
     pub objective: f64,
     pub dual: f64,
     pub gap: f64,
@@ -183,6 +234,18 @@ pub struct ViewTransport {
 }
 
 impl ViewTransport {
+    /// Source `k`'s plan row P_k = Σ_m T_km e_m = y_k (w_k + δ) (for the L_uot gradient)
+    /// into `out` (`d` long), computed from `y` and `w` rather than stored: the same
+    /// values as forming it beside `y`, at half the memory per cached plan.
+    #[inline]
+    pub fn plan_row(&self, k: usize, out: &mut [f32]) {
+        let d = out.len();
+        let s = self.w[k] + self.delta;
+        for (o, &v) in out.iter_mut().zip(&self.y[k * d..(k + 1) * d]) {
+            *o = v * s;
+        }
+    }
+
     /// Each source's support relative to the view's evidence, σ_i^v ∈ [0, 1]. The
     /// view claims the source mass B_v ([`evidence_masses`]); the plan ranks the sources
     /// by their relative support ρ_i = w_i / a_i. The threshold t_v is the ρ at which
@@ -297,7 +360,7 @@ pub fn transport(
             idx,
             w: vec![0.0; n],
             y: vec![0.0; n * d],
-            plan_e: vec![0.0; n * d],
+            delta: cfg.delta,
             a,
             ..Default::default()
         });
@@ -308,18 +371,13 @@ pub fn transport(
     params.max_iters = cfg.iters;
     let sol = solve(&p, &params)?;
     let (y, w) = sol.target_means(&p, &protos.e, d, cfg.delta);
-    let plan_e: Vec<f32> = y
-        .chunks(d.max(1))
-        .zip(&w)
-        .flat_map(|(yi, &wi)| yi.iter().map(move |v| v * (wi + cfg.delta)))
-        .collect();
     Ok(ViewTransport {
         view: 0,
         idx,
         a,
         w,
         y,
-        plan_e,
+        delta: cfg.delta,
         objective: sol.stats.objective,
         dual: sol.stats.dual,
         gap: sol.stats.gap,

@@ -190,15 +190,35 @@ impl Solution {
         s
     }
 
-    /// One plan entry `a_i b_j exp((f_i + g_j - C_ij)/eps)` (0 if any factor is 0).
+    /// The plan entries of engine row `r` (source i, masses `a`, `ln_b` = ln b),
+    /// `T_ij = a_i b_j exp((f_i + g_j - C_ij)/eps)` (0 if any factor is 0 or the
+    /// exponent is below -87), into `out`. Written as two flat loops (exponents in `f64`,
+    /// then [`fastmath::exp`] over the buffer) so both vectorise; the values are those
+    /// of the per-entry formula bit for bit.
     #[inline(always)]
-    fn entry(&self, ln_a: f64, ln_b: f64, f: f64, g: f64, c: f32) -> f32 {
-        let x = ln_a + ln_b + ((f + g) - c as f64) / self.eps;
-        if x > -87.0 {
-            fastmath::exp(x as f32)
+    fn row_plan<L: Layout>(&self, l: &L, r: usize, a: &[f32], ln_b: &[f64], out: &mut Vec<f32>) {
+        let ((lo, hi), i) = (l.range(r), l.source(r));
+        let ln_a = (a[i] as f64).ln();
+        let (fi, g, c) = (self.potentials.f[i], &self.potentials.g, &l.costs()[lo..hi]);
+        let (eps, len) = (self.eps, hi - lo);
+        let x = |lnb: f64, gj: f64, cij: f32| {
+            let x = ln_a + lnb + ((fi + gj) - cij as f64) / eps;
+            if x > -87.0 {
+                x as f32
+            } else {
+                f32::NEG_INFINITY
+            }
+        };
+        out.clear();
+        if l.dense() {
+            out.extend(c.iter().zip(&ln_b[..len]).zip(&g[..len]).map(|((&cij, &lnb), &gj)| x(lnb, gj, cij)));
         } else {
-            0.0
+            out.extend(c.iter().enumerate().map(|(k, &cij)| {
+                let j = l.col(lo, lo + k);
+                x(ln_b[j], g[j], cij)
+            }));
         }
+        fastmath::exp_slice(out);
     }
 
     /// Calls `visit(i, cols_and_values)` for every source row with a nonzero support,
@@ -208,19 +228,10 @@ impl Solution {
         F: Fn(usize, usize, &[f32]) + Sync,
     {
         let ln_b: Vec<f64> = p.b.iter().map(|&x| (x as f64).ln()).collect();
-        let f = &self.potentials.f;
-        let g = &self.potentials.g;
         with_layout!(p, l => {
             (0..l.rows()).into_par_iter().for_each_init(Vec::new, |buf: &mut Vec<f32>, r| {
-                let (lo, hi) = l.range(r);
-                let i = l.source(r);
-                let ln_a = (p.a[i] as f64).ln();
-                buf.clear();
-                for e in lo..hi {
-                    let j = l.col(lo, e);
-                    buf.push(self.entry(ln_a, ln_b[j], f[i], g[j], l.costs()[e]));
-                }
-                visit(r, lo, buf);
+                self.row_plan(&l, r, p.a, &ln_b, buf);
+                visit(r, l.range(r).0, buf);
             })
         })
     }
@@ -230,18 +241,12 @@ impl Solution {
         let m = p.m();
         let mut out = vec![0f32; p.n() * m];
         match &p.support {
-            Support::Dense(_) => {
+            Support::Dense(cost) => {
                 let ln_b: Vec<f64> = p.b.iter().map(|&x| (x as f64).ln()).collect();
-                let cost = match &p.support {
-                    Support::Dense(c) => *c,
-                    Support::Sparse(_) => unreachable!(),
-                };
-                out.par_chunks_mut(m.max(1)).enumerate().for_each(|(i, row)| {
-                    let ln_a = (p.a[i] as f64).ln();
-                    let fi = self.potentials.f[i];
-                    for j in 0..m {
-                        row[j] = self.entry(ln_a, ln_b[j], fi, self.potentials.g[j], cost[i * m + j]);
-                    }
+                let l = crate::layout::Dense { cost, n: p.n(), m };
+                out.par_chunks_mut(m.max(1)).enumerate().for_each_init(Vec::new, |buf, (i, row)| {
+                    self.row_plan(&l, i, p.a, &ln_b, buf);
+                    row.copy_from_slice(buf);
                 });
             }
             Support::Sparse(s) => {
@@ -293,33 +298,27 @@ impl Solution {
         let (n, m) = (p.n(), p.m());
         assert_eq!(targets.len(), m * d, "targets must be m x d");
         let ln_b: Vec<f64> = p.b.iter().map(|&x| (x as f64).ln()).collect();
-        let (f, g) = (&self.potentials.f, &self.potentials.g);
+        let avx2 = transsplat_scene::cpu::has_avx2();
         with_layout!(p, l => {
             // Per engine row (= per source when dense), then scattered to sources.
             let rows = l.rows();
-            let mut y = vec![0f32; rows * d];
+            // d = 0 still fills w: one padding value per row, dropped below.
+            let mut y = vec![0f32; rows * d.max(1)];
             let mut w = vec![0f32; rows];
-            y.par_chunks_mut(d.max(1)).zip(w.par_iter_mut()).enumerate().for_each(|(r, (yi, wi))| {
-                let (lo, hi) = l.range(r);
-                let i = l.source(r);
-                let ln_a = (p.a[i] as f64).ln();
-                let mut sum = 0f32;
-                for e in lo..hi {
-                    let j = l.col(lo, e);
-                    let t = self.entry(ln_a, ln_b[j], f[i], g[j], l.costs()[e]);
-                    if t > 0.0 {
-                        sum += t;
-                        fastmath::axpy(t, &targets[j * d..(j + 1) * d], yi);
+            const CHUNK: usize = 64;
+            y.par_chunks_mut(CHUNK * d.max(1)).zip(w.par_chunks_mut(CHUNK)).enumerate().for_each_init(
+                Vec::new,
+                |buf, (c, (yc, wc))| {
+                    let rows = MeansRows { l: &l, a: p.a, ln_b: &ln_b, targets, d, delta };
+                    #[cfg(target_arch = "x86_64")]
+                    if avx2 {
+                        // SAFETY: AVX2 and FMA detected at run time.
+                        return unsafe { rows.run_avx2(self, c * CHUNK, yc, wc, buf) };
                     }
-                }
-                let den = sum + delta;
-                if den > 0.0 {
-                    for v in yi.iter_mut() {
-                        *v /= den;
-                    }
-                }
-                *wi = sum;
-            });
+                    rows.run(self, c * CHUNK, yc, wc, buf)
+                },
+            );
+            y.truncate(rows * d);
             if rows == n && (0..rows.min(1)).all(|r| l.source(r) == r) && crate::layout::is_dense(p) {
                 (y, w)
             } else {
@@ -333,5 +332,70 @@ impl Solution {
                 (ys, ws)
             }
         })
+    }
+}
+
+/// [`Solution::target_means`] over a chunk of engine rows.
+struct MeansRows<'a, L> {
+    l: &'a L,
+    a: &'a [f32],
+    ln_b: &'a [f64],
+    targets: &'a [f32],
+    d: usize,
+    delta: f32,
+}
+
+impl<L: Layout> MeansRows<'_, L> {
+    /// Rows `r0..r0 + w.len()`: `w_r = sum_j T_rj`, `y_r = sum_j T_rj e_j / (w_r + delta)`
+    /// (entries in column order, zero entries skipped).
+    #[inline(always)]
+    fn run(&self, sol: &Solution, r0: usize, y: &mut [f32], w: &mut [f32], buf: &mut Vec<f32>) {
+        let d = self.d;
+        for (rr, wi) in w.iter_mut().enumerate() {
+            let lo = self.l.range(r0 + rr).0;
+            sol.row_plan(self.l, r0 + rr, self.a, self.ln_b, buf);
+            let yi = &mut y[rr * d..(rr + 1) * d];
+            let mut sum = 0f32;
+            for &t in buf.iter() {
+                if t > 0.0 {
+                    sum += t;
+                }
+            }
+            // Eight components at a time in a register, summed over the entries in order.
+            for (c0, yc) in (0..d).step_by(8).zip(yi.chunks_mut(8)) {
+                let mut acc = [0f32; 8];
+                for (k, &t) in buf.iter().enumerate() {
+                    if t > 0.0 {
+                        let j = self.l.col(lo, lo + k);
+                        let e = &self.targets[j * d + c0..j * d + c0 + yc.len()];
+                        if let (Ok(e), true) = (<&[f32; 8]>::try_from(e), yc.len() == 8) {
+                            for l in 0..8 {
+                                acc[l] += e[l] * t;
+                            }
+                        } else {
+                            for (a, &x) in acc.iter_mut().zip(e) {
+                                *a += x * t;
+                            }
+                        }
+                    }
+                }
+                yc.copy_from_slice(&acc[..yc.len()]);
+            }
+            let den = sum + self.delta;
+            if den > 0.0 {
+                for v in yi.iter_mut() {
+                    *v /= den;
+                }
+            }
+            *wi = sum;
+        }
+    }
+
+    /// [`Self::run`] compiled for AVX2 (the same operations, no fused multiply-adds, so
+    /// the same values).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn run_avx2(&self, sol: &Solution, r0: usize, y: &mut [f32], w: &mut [f32], buf: &mut Vec<f32>) {
+        self.run(sol, r0, y, w, buf)
     }
 }

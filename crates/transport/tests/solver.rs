@@ -244,6 +244,10 @@ fn target_means_match_dense_plan() {
                 assert!((y[i * d + c] as f64 - want).abs() < 1e-5, "y[{i},{c}] {} vs {want}", y[i * d + c]);
             }
         }
+        // Without target vectors: the same masses, no means.
+        let (y0, w0) = s.target_means(&p, &[], 0, delta);
+        assert!(y0.is_empty());
+        assert_eq!(w0, w);
         let cg = s.cost_gradient(&p);
         if k == 0 {
             assert_eq!(cg, t);

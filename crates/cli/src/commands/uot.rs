@@ -295,6 +295,12 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
             Ok(solve_with(&mut ws, &p, &params)?)
         })?;
         drop(ws);
+        // What the edit reads from each plan: w and the plan-weighted means of 16-d
+        // target vectors (Solution::target_means).
+        let e: Vec<f32> =
+            (0..args.m * 16).map(|k| unif(args.seed, (1 << 41) + k as u64) as f32 - 0.5).collect();
+        let pd = Problem::dense(&a, &b, &c)?;
+        let (t_means, _) = best_of(args.repeat, || Ok(sd.target_means(&pd, &e, 16, 1e-8)))?;
         // Top-k: selection (with validation) + solve.
         let (t_sel, _) = best_of(args.repeat, || Ok(Problem::top_k(&a, &b, &c, args.topk)?.nnz()))?;
         let (t_topk, sk) = best_of(args.repeat, || {
@@ -318,6 +324,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
             t_valid * 1e3,
             summary(&sd)
         );
+        println!("  plan means (d = 16) {:>9.1} ms", t_means * 1e3);
         println!(
             "  top-{:<4}  {:>9.1} ms   (selection {:.1} ms)   {}",
             args.topk,
@@ -340,6 +347,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
             "dense_ms": t_dense * 1e3,
             "dense_cold_ms": t_cold * 1e3,
             "dense_validation_ms": t_valid * 1e3,
+            "means_ms": t_means * 1e3,
             "topk_ms": t_topk * 1e3,
             "topk_selection_ms": t_sel * 1e3,
             "baseline_ms": base.as_ref().map(|b| b.0 * 1e3),

@@ -294,7 +294,6 @@ impl EditMethod for TransSplat {
                 .f32(format!("cached.{k}.a"), &v.a[..])
                 .f32(format!("cached.{k}.w"), &v.w[..])
                 .f32(format!("cached.{k}.y"), &v.y[..])
-                .f32(format!("cached.{k}.plan_e"), &v.plan_e[..])
                 .f32(format!("cached.{k}.coverage"), &v.coverage[..])
                 .f64(
                     format!("cached.{k}.stats"),
@@ -320,7 +319,8 @@ impl EditMethod for TransSplat {
         if count > views {
             return Err(archive_error(a.err(format!("{count} cached view plans for {views} views"))));
         }
-        self.transport.cached = (0..count).map(|k| load_plan(a, k, n, d)).collect::<Result<_, _>>()?;
+        self.transport.cached =
+            (0..count).map(|k| load_plan(a, k, n, d, self.cfg.transport.delta)).collect::<Result<_, _>>()?;
         self.gate_changed(None);
         Ok(())
     }
@@ -353,8 +353,9 @@ pub fn changeable(c: &[f32], c0: &[f32], open: &[bool], k: usize) -> Vec<bool> {
         .collect()
 }
 
-/// Reads cached view plan `k` written by [`TransSplat::save`].
-fn load_plan(a: &Archive, k: usize, n: usize, d: usize) -> Result<ViewTransport, EditError> {
+/// Reads cached view plan `k` written by [`TransSplat::save`]; `delta` is the run's
+/// δ (the run id fixes the settings of a resumed run).
+fn load_plan(a: &Archive, k: usize, n: usize, d: usize, delta: f32) -> Result<ViewTransport, EditError> {
     let e = |m: String| archive_error(a.err(m));
     let p = |s: &str| format!("cached.{k}.{s}");
     let f = |name: &str, len: usize| a.f32_len(name, len).map(<[f32]>::to_vec).map_err(archive_error);
@@ -377,7 +378,7 @@ fn load_plan(a: &Archive, k: usize, n: usize, d: usize) -> Result<ViewTransport,
         a: f(&p("a"), m)?,
         w: f(&p("w"), m)?,
         y: f(&p("y"), m * d)?,
-        plan_e: f(&p("plan_e"), m * d)?,
+        delta,
         idx,
         objective,
         dual,
