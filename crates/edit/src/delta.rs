@@ -96,6 +96,11 @@ impl Delta {
         true
     }
 
+    /// The covered Gaussians, ascending: the only rows a step writes.
+    pub fn rows(&self) -> &[u32] {
+        &self.rows
+    }
+
     /// Zeroes the covered Gaussians' rows of `grad_sh`, the only rows a step writes.
     pub fn zero_rows(&self, grad_sh: &mut [f32]) {
         let k = grad_sh.len() / self.covered.len().max(1);

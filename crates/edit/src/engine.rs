@@ -65,14 +65,20 @@ pub fn run_with(
 
     // 2. The semantic space of the source and edited views, and the initial latents
     //    (before step 3 takes the edited features).
+    let lap = Instant::now();
     let mut space = SemanticSpace::fit(job.semantic, &cams, &sources, &edited, cfg.semantic_dim, cfg.seed)?;
+    tracing::debug!("semantic space: {:.2} s", lap.elapsed().as_secs_f64());
+    let lap = Instant::now();
     let latents = space.initial_latents(job.gaussians, &cams, cfg.semantic_init);
+    tracing::debug!("initial latents: {:.2} s", lap.elapsed().as_secs_f64());
+    let lap = Instant::now();
 
     // 3. Each usable view's evidence, taken in by the method.
     let mut method = crate::methods::part(cfg);
     let (views, prototypes) =
         edits::gather(&job.edit_views, &edited, &mut space, |cam, ev| method.add_view(cam, ev));
     let ctx = Context { cameras: job.cameras, views: &views };
+    tracing::debug!("evidence and prototypes: {:.2} s", lap.elapsed().as_secs_f64());
     method.start(job.gaussians, &ctx)?;
     let view_cams: Vec<&Camera> = views.iter().map(|v| &job.cameras[v.cam]).collect();
     let mut renderer = Renderer::new(cfg.schedule.delta_render && optimise::geometry_frozen(cfg), || {
@@ -221,7 +227,7 @@ fn optimise_step(
     times.method_terms += optimise::lap(&mut clock);
     let mask = if densifies { method.densify_mask() } else { None };
     let report = tr
-        .finish_step(&grads, None, frame.as_ref(), mask.as_deref())
+        .finish_step(&grads, renderer.grad_rows(), frame.as_ref(), mask.as_deref())
         .map_err(|e| EditError::Train(e.to_string()))?;
     renderer.recycle(grads);
     times.optimiser += optimise::lap(&mut clock);

@@ -199,6 +199,15 @@ impl Renderer {
         (Some(frame), grads, loss)
     }
 
+    /// The rows a step's gradients can be non-zero in, ascending (the covered
+    /// Gaussians with [`Renderer::Delta`]); `None`: any row.
+    pub fn grad_rows(&self) -> Option<&[u32]> {
+        match self {
+            Renderer::Delta(d, _) => Some(d.rows()),
+            _ => None,
+        }
+    }
+
     /// Takes back the step's gradients: with [`Renderer::Delta`] they are zeroed where
     /// a step can write them (the covered rows' colours, the features) and kept for
     /// the next step.

@@ -188,8 +188,10 @@ impl GroupState {
 #[derive(Clone, Copy, Debug)]
 pub enum Update<'a> {
     /// Every row, as INRIA (rows with zero gradient and zero moments are skipped, an
-    /// exact shortcut).
-    Dense,
+    /// exact shortcut). `Some(rows)` lists, ascending, every row whose gradient may be
+    /// non-zero, so the step visits only those and the rows with live moments instead
+    /// of scanning every row's gradient; `None` scans. Both give the same result.
+    Dense(Option<&'a [u32]>),
     /// Only rows with a non-zero gradient. `Some(rows)` lists, ascending, every row
     /// whose gradient may be non-zero (what [`transsplat_raster::backward`] returns), so
     /// the step visits only those; `None` scans every row's gradient. Both give the
@@ -339,9 +341,13 @@ impl Adam {
             let moments = Moments { m: &mut st.m, v: &mut st.v, live: &mut st.live };
             let block = Block { row, off, w: st.width };
             let bad = match update {
-                Update::Dense => update_block(params, grad, moments, block, false, &h),
+                Update::Dense(None) => update_block(params, grad, moments, block, false, &h),
+                Update::Dense(Some(rows)) => {
+                    let rows = live_or_listed(rows, moments.live);
+                    update_rows(params, grad, moments, block, &rows, false, &h)
+                }
                 Update::Selective(None) => update_block(params, grad, moments, block, true, &h),
-                Update::Selective(Some(rows)) => update_rows(params, grad, moments, block, rows, &h),
+                Update::Selective(Some(rows)) => update_rows(params, grad, moments, block, rows, true, &h),
             };
             if bad && first_bad.is_none() {
                 first_bad = Some(group);
@@ -442,9 +448,45 @@ fn update_block(p: &mut [f32], g: &[f32], mo: Moments, b: Block, selective: bool
         .reduce(|| false, |a, b| a || b)
 }
 
-/// Selective [`update_row`] over the listed rows only (ascending), in parallel: the
-/// arrays are cut at row boundaries into one piece per run of listed rows.
-fn update_rows(p: &mut [f32], g: &[f32], mo: Moments, b: Block, rows: &[u32], h: &Hyper) -> bool {
+/// The ascending union of `rows` (ascending) and the rows whose moments are live: the
+/// rows a dense step must visit when every other row's gradient is zero.
+fn live_or_listed(rows: &[u32], live: &[bool]) -> Vec<u32> {
+    const C: usize = 256;
+    let mut out = Vec::with_capacity(rows.len());
+    let mut k = 0;
+    for (c, chunk) in live.chunks(C).enumerate() {
+        let (base, end) = (c * C, c * C + chunk.len());
+        if !chunk.iter().fold(false, |a, &l| a | l) {
+            while k < rows.len() && (rows[k] as usize) < end {
+                out.push(rows[k]);
+                k += 1;
+            }
+            continue;
+        }
+        for (o, &l) in chunk.iter().enumerate() {
+            let i = base + o;
+            let listed = k < rows.len() && rows[k] as usize == i;
+            k += listed as usize;
+            if l || listed {
+                out.push(i as u32);
+            }
+        }
+    }
+    out.extend_from_slice(&rows[k..]);
+    out
+}
+
+/// [`update_row`] (selective or not) over the listed rows only (ascending), in
+/// parallel: the arrays are cut at row boundaries into one piece per run of listed rows.
+fn update_rows(
+    p: &mut [f32],
+    g: &[f32],
+    mo: Moments,
+    b: Block,
+    rows: &[u32],
+    selective: bool,
+    h: &Hyper,
+) -> bool {
     const ROWS: usize = 2048;
     let n = mo.live.len();
     let runs: Vec<&[u32]> = rows.chunks(ROWS).collect();
@@ -483,7 +525,7 @@ fn update_rows(p: &mut [f32], g: &[f32], mo: Moments, b: Block, rows: &[u32], h:
                     v: &mut v[k * b.w..(k + 1) * b.w],
                     live: &mut live[k..k + 1],
                 };
-                bad |= update_row(pr, gr, mo, b, true, h);
+                bad |= update_row(pr, gr, mo, b, selective, h);
             }
             bad
         })
@@ -531,7 +573,7 @@ mod tests {
         grads.sh[3] = -1.0; // first rest coefficient, red
         grads.features[1] = 3.0;
         let lr = [0.1, 0.01, 0.001, 0.05, 0.0, 0.0, 0.2];
-        assert!(adam.step(&mut model, &grads, &lr, Update::Dense).is_none());
+        assert!(adam.step(&mut model, &grads, &lr, Update::Dense(None)).is_none());
         // Step 1: m = 0.1 g, v = 0.001 g², m̂ = g, v̂ = g² -> p -= lr · sign(g) (eps negligible).
         let g = &model.gaussians;
         assert!((g.means[0][0] - (1.0 - 0.1)).abs() < 1e-6);
@@ -545,7 +587,7 @@ mod tests {
         assert!(adam.groups[Group::Scaling.index()].m.is_empty());
         // Step 2 with gradient g2 = -1 on x: hand computation.
         grads.means[0] = [-1.0, 0.0, 0.0];
-        assert!(adam.step(&mut model, &grads, &lr, Update::Dense).is_none());
+        assert!(adam.step(&mut model, &grads, &lr, Update::Dense(None)).is_none());
         let (b1, b2) = (0.9f64, 0.999f64);
         let m = b1 * (0.1 * 0.5) - 0.1;
         let v = b2 * (0.001 * 0.25) + 0.001 * 1.0;
@@ -590,7 +632,7 @@ mod tests {
                 grads.features[r * 2] = 0.3 * step as f32 - 0.5;
                 grads.features[r * 2 + 1] = -0.2;
             }
-            assert!(adam.step(&mut model, &grads, &lr, Update::Dense).is_none());
+            assert!(adam.step(&mut model, &grads, &lr, Update::Dense(None)).is_none());
             let (b1, b2) = (0.9f32, 0.999f32);
             let step_size = 0.05 / (1.0 - b1.powi(step));
             let bc2 = (1.0 - b2.powi(step)).sqrt();
@@ -649,15 +691,19 @@ mod tests {
         let some: Vec<u32> = (0..n as u32).filter(|i| i % 3 != 1).collect();
         let (mut dense, mut sel, mut listed) = (varied_model(n), varied_model(n), varied_model(n));
         let (mut ad, mut asel, mut alisted) = (Adam::new(&dense), Adam::new(&sel), Adam::new(&listed));
+        let mut dense_listed = varied_model(n);
+        let mut adl = Adam::new(&dense_listed);
         for step in 1..=3u64 {
             let rows = if step == 1 { &all } else { &some };
             let g = grads_on(n, rows, step);
             let (before, abefore) = (sel.clone(), asel.clone());
-            assert!(ad.step(&mut dense, &g, &lr, Update::Dense).is_none());
+            assert!(ad.step(&mut dense, &g, &lr, Update::Dense(None)).is_none());
+            assert!(adl.step(&mut dense_listed, &g, &lr, Update::Dense(Some(rows))).is_none());
             assert!(asel.step(&mut sel, &g, &lr, Update::Selective(None)).is_none());
             assert!(alisted.step(&mut listed, &g, &lr, Update::Selective(Some(rows))).is_none());
             // Listing the rows is only a shortcut: bit-identical to scanning them.
             assert_eq!((&sel, &asel), (&listed, &alisted), "step {step}");
+            assert_eq!((&dense, &ad), (&dense_listed, &adl), "step {step}");
             for i in 0..n {
                 let reached = rows.binary_search(&(i as u32)).is_ok();
                 let moved = sel.gaussians.means[i] != before.gaussians.means[i];

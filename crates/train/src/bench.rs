@@ -98,7 +98,7 @@ pub fn run(n: usize, width: u32, height: u32, reps: usize) -> TrainBench {
     settle_moments(&mut adam, adam_model.len());
     let lr = trainer.learning_rates();
     let (adam_t, ()) = best_of(1, reps, || {
-        let _ = adam.step(&mut adam_model, &grads, &lr, Update::Dense);
+        let _ = adam.step(&mut adam_model, &grads, &lr, Update::Dense(None));
     });
     drop(adam_model);
     // One densification pass with realistic statistics: about 5 % above threshold.

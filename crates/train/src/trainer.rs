@@ -335,7 +335,7 @@ impl Trainer {
         // Densification and the opacity reset copy or set finite values, so the update is
         // the only place a finite model can turn NaN or infinite.
         let update = match self.config.adam {
-            AdamRule::Dense => Update::Dense,
+            AdamRule::Dense => Update::Dense(rows),
             AdamRule::Selective => Update::Selective(rows),
         };
         if let Some(group) = self.adam.step(&mut self.model, grads, &lr, update) {

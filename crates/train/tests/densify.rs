@@ -41,7 +41,10 @@ fn trainer() -> Trainer {
         grads.sh[i * 12] = i as f32 + 1.0;
         grads.sh[i * 12 + 5] = i as f32 + 1.0;
     }
-    assert!(t.adam.step(&mut t.model, &grads, &t.config.lr.at(1, 100, EXTENT), Update::Dense).is_none());
+    assert!(t
+        .adam
+        .step(&mut t.model, &grads, &t.config.lr.at(1, 100, EXTENT), Update::Dense(None))
+        .is_none());
     // Densification statistics: rows 0..6 above the threshold 2e-4.
     for i in 0..N {
         t.stats.grad_accum[i] = if i < 6 { 3e-3 } else { 1e-4 };
