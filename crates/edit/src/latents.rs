@@ -79,11 +79,19 @@ impl Latents {
         for p in terms.plans {
             assert!(p.idx.windows(2).all(|w| w[0] < w[1]), "view plan rows must ascend");
         }
+        let avx2 = transsplat_scene::cpu::has_avx2();
         let chunks: Vec<(Vec<f64>, Option<usize>)> =
             (s.par_chunks_mut(ROWS * d), self.m.par_chunks_mut(ROWS * d), self.v.par_chunks_mut(ROWS * d))
                 .into_par_iter()
                 .enumerate()
-                .map(|(c, (s, m, v))| batch(c * ROWS, s, m, v, d, terms, &steps, &hyper))
+                .map(|(c, (s, m, v))| {
+                    #[cfg(target_arch = "x86_64")]
+                    if avx2 {
+                        // SAFETY: AVX2 and FMA detected at run time.
+                        return unsafe { batch_avx2(c * ROWS, s, m, v, d, terms, &steps, &hyper) };
+                    }
+                    batch(c * ROWS, s, m, v, d, terms, &steps, &hyper)
+                })
                 .collect();
         let mut loss = vec![0.0f64; steps.len()];
         let mut bad: Option<usize> = None;
@@ -101,9 +109,28 @@ impl Latents {
     }
 }
 
+/// [`batch`] compiled for AVX2: the same operations (no fused multiply-adds; square
+/// roots and divisions are exact in both), so the same bits.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn batch_avx2(
+    r0: usize,
+    s: &mut [f32],
+    m: &mut [f32],
+    v: &mut [f32],
+    d: usize,
+    terms: &Terms,
+    steps: &[(usize, Option<usize>)],
+    hyper: &[Hyper],
+) -> (Vec<f64>, Option<usize>) {
+    batch(r0, s, m, v, d, terms, steps, hyper)
+}
+
 /// Takes rows `r0..` (the chunk `s`, `m`, `v`) through every recorded step; returns
 /// each step's L_sem sum over the chunk and the first step with a non-finite latent.
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn batch(
     r0: usize,
     s: &mut [f32],
