@@ -65,20 +65,17 @@ pub fn run_with(
 
     // 2. The semantic space of the source and edited views, and the initial latents
     //    (before step 3 takes the edited features).
-    let lap = Instant::now();
+    let mut lap = Instant::now();
     let mut space = SemanticSpace::fit(job.semantic, &cams, &sources, &edited, cfg.semantic_dim, cfg.seed)?;
-    tracing::debug!("semantic space: {:.2} s", lap.elapsed().as_secs_f64());
-    let lap = Instant::now();
+    tracing::debug!("semantic space: {:.2} s", optimise::lap(&mut lap));
     let latents = space.initial_latents(job.gaussians, &cams, cfg.semantic_init);
-    tracing::debug!("initial latents: {:.2} s", lap.elapsed().as_secs_f64());
-    let lap = Instant::now();
+    tracing::debug!("initial latents: {:.2} s", optimise::lap(&mut lap));
 
     // 3. Each usable view's evidence, taken in by the method.
     let mut method = crate::methods::part(cfg);
     let (views, prototypes) =
         edits::gather(&job.edit_views, &edited, &mut space, |cam, ev| method.add_view(cam, ev));
     let ctx = Context { cameras: job.cameras, views: &views };
-    tracing::debug!("evidence and prototypes: {:.2} s", lap.elapsed().as_secs_f64());
     method.start(job.gaussians, &ctx)?;
     let view_cams: Vec<&Camera> = views.iter().map(|v| &job.cameras[v.cam]).collect();
     let mut renderer = Renderer::new(cfg.schedule.delta_render && optimise::geometry_frozen(cfg), || {
@@ -86,12 +83,11 @@ pub fn run_with(
         let at = |cam| job.edit_views.iter().position(|&c| c == cam).expect("a usable view is an edit view");
         views.iter().map(|v| sources[at(v.cam)].take().expect("one usable view per edit view")).collect()
     });
-
-    tracing::debug!("semantic space and evidence: {:.2} s", clock.elapsed().as_secs_f64() - editor_s);
+    tracing::debug!("evidence, prototypes and the method's start: {:.2} s", optimise::lap(&mut lap));
 
     // 4. The optimiser, from the source scene with its initial semantic latents.
-    tracing::debug!("initial latents and trainer: {:.2} s", clock.elapsed().as_secs_f64() - editor_s);
     let mut tr = optimise::trainer(job.gaussians, latents, cfg, job.cameras, job.background)?;
+    tracing::debug!("trainer: {:.2} s", optimise::lap(&mut lap));
     let mut ls = LoopState::new(cfg.seed, editor_s);
     if let (true, Some(ck), Some(sum)) = (control.resume, control.checkpoint.as_mut(), editor_sum) {
         (tr, ls) = ckpt::load_state(ck, tr.config.clone(), method.as_mut(), sum, views.len())?;

@@ -80,6 +80,7 @@ impl Latents {
             assert!(p.idx.windows(2).all(|w| w[0] < w[1]), "view plan rows must ascend");
         }
         let avx2 = transsplat_scene::cpu::has_avx2();
+        let batch = Batch { d, terms, steps: &steps, hyper: &hyper };
         let chunks: Vec<(Vec<f64>, Option<usize>)> =
             (s.par_chunks_mut(ROWS * d), self.m.par_chunks_mut(ROWS * d), self.v.par_chunks_mut(ROWS * d))
                 .into_par_iter()
@@ -88,9 +89,9 @@ impl Latents {
                     #[cfg(target_arch = "x86_64")]
                     if avx2 {
                         // SAFETY: AVX2 and FMA detected at run time.
-                        return unsafe { batch_avx2(c * ROWS, s, m, v, d, terms, &steps, &hyper) };
+                        return unsafe { batch.run_avx2(c * ROWS, s, m, v) };
                     }
-                    batch(c * ROWS, s, m, v, d, terms, &steps, &hyper)
+                    batch.run(c * ROWS, s, m, v)
                 })
                 .collect();
         let mut loss = vec![0.0f64; steps.len()];
@@ -109,106 +110,105 @@ impl Latents {
     }
 }
 
-/// [`batch`] compiled for AVX2: the same operations (no fused multiply-adds; square
-/// roots and divisions are exact in both), so the same bits.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn batch_avx2(
-    r0: usize,
-    s: &mut [f32],
-    m: &mut [f32],
-    v: &mut [f32],
+/// What every batch of an advance shares: the row width, the round's terms, the
+/// recorded steps and their Adam constants.
+struct Batch<'a> {
     d: usize,
-    terms: &Terms,
-    steps: &[(usize, Option<usize>)],
-    hyper: &[Hyper],
-) -> (Vec<f64>, Option<usize>) {
-    batch(r0, s, m, v, d, terms, steps, hyper)
+    terms: &'a Terms<'a>,
+    steps: &'a [(usize, Option<usize>)],
+    hyper: &'a [Hyper],
 }
 
-/// Takes rows `r0..` (the chunk `s`, `m`, `v`) through every recorded step; returns
-/// each step's L_sem sum over the chunk and the first step with a non-finite latent.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn batch(
-    r0: usize,
-    s: &mut [f32],
-    m: &mut [f32],
-    v: &mut [f32],
-    d: usize,
-    terms: &Terms,
-    steps: &[(usize, Option<usize>)],
-    hyper: &[Hyper],
-) -> (Vec<f64>, Option<usize>) {
-    let rows = s.len() / d;
-    let mut loss = vec![0.0f64; steps.len()];
-    let mut bad = None;
-    let mut g = vec![0.0f32; d];
-    let mut prow = vec![0.0f32; d];
-    for (k, (&(_, plan), h)) in steps.iter().zip(hyper).enumerate() {
-        // This chunk's entries of the step's plan (its rows ascend).
-        let (idx, plan, lo) = match plan.map(|p| &terms.plans[p]) {
-            Some(p) => {
-                let lo = p.idx.partition_point(|&i| (i as usize) < r0);
-                let hi = p.idx.partition_point(|&i| (i as usize) < r0 + rows);
-                (&p.idx[lo..hi], Some(p), lo)
-            }
-            None => (&[][..], None, 0),
-        };
-        let mut next = 0;
-        let mut nonfinite = false;
-        for r in 0..rows {
-            let i = r0 + r;
-            let si = &mut s[r * d..(r + 1) * d];
-            g.fill(0.0);
-            // L_sem = Σ γ ‖s − z̄‖² (losses::semantic, same expressions for the
-            // gradient; the row's loss is summed in f32).
-            if let Some(z) = terms.zbar {
-                let gm = terms.gamma[i];
-                let zi = &z[i * d..(i + 1) * d];
-                for ((gj, &sj), &zj) in g.iter_mut().zip(si.iter()).zip(zi) {
-                    let diff = sj - zj;
-                    *gj += terms.l_sem * 2.0 * gm * diff;
-                }
-                // The loss in eight partial sums, so it does not serialise the row.
-                let mut lanes = [0.0f32; 8];
-                for (a, b) in si.chunks_exact(8).zip(zi.chunks_exact(8)) {
-                    for l in 0..8 {
-                        let diff = a[l] - b[l];
-                        lanes[l] += gm * diff * diff;
-                    }
-                }
-                let tail = (d / 8) * 8;
-                let rest: f32 = si[tail..].iter().zip(&zi[tail..]).map(|(a, b)| gm * (a - b) * (a - b)).sum();
-                loss[k] += (lanes.iter().sum::<f32>() + rest) as f64;
-            }
-            // L_uot through the plan (losses::transport_semantic, same expressions).
-            if next < idx.len() && idx[next] as usize == i {
-                plan.expect("a plan holds idx").plan_row(lo + next, &mut prow);
-                let p = &prow[..];
-                next += 1;
-                let n = si.iter().map(|x| x * x).sum::<f32>().sqrt();
-                // NaN takes this branch, as in losses::transport_semantic.
-                if n.is_nan() || n > 1e-12 {
-                    let sp = si.iter().zip(p).map(|(a, b)| a * b).sum::<f32>() / n;
-                    for j in 0..d {
-                        g[j] += -terms.l_uot * terms.cost_sem * (p[j] - sp * si[j] / n) / n;
-                    }
-                }
-            }
-            // The trainer's Adam update, element by element.
-            let (mr, vr) = (&mut m[r * d..(r + 1) * d], &mut v[r * d..(r + 1) * d]);
-            for (((pj, mj), vj), &gk) in si.iter_mut().zip(mr.iter_mut()).zip(vr.iter_mut()).zip(&g) {
-                h.update(pj, mj, vj, gk);
-                nonfinite |= !pj.is_finite();
-            }
-        }
-        if nonfinite && bad.is_none() {
-            bad = Some(k);
-        }
+impl Batch<'_> {
+    /// [`Self::run`] compiled for AVX2: the same operations (no fused multiply-adds;
+    /// square roots and divisions are exact in both), so the same bits.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn run_avx2(
+        &self,
+        r0: usize,
+        s: &mut [f32],
+        m: &mut [f32],
+        v: &mut [f32],
+    ) -> (Vec<f64>, Option<usize>) {
+        self.run(r0, s, m, v)
     }
-    (loss, bad)
+
+    /// Takes rows `r0..` (the chunk `s`, `m`, `v`) through every recorded step; returns
+    /// each step's L_sem sum over the chunk and the first step with a non-finite latent.
+    #[inline(always)]
+    fn run(&self, r0: usize, s: &mut [f32], m: &mut [f32], v: &mut [f32]) -> (Vec<f64>, Option<usize>) {
+        let Batch { d, terms, steps, hyper } = *self;
+        let rows = s.len() / d;
+        let mut loss = vec![0.0f64; steps.len()];
+        let mut bad = None;
+        let mut g = vec![0.0f32; d];
+        let mut prow = vec![0.0f32; d];
+        for (k, (&(_, plan), h)) in steps.iter().zip(hyper).enumerate() {
+            // This chunk's entries of the step's plan (its rows ascend).
+            let (idx, plan, lo) = match plan.map(|p| &terms.plans[p]) {
+                Some(p) => {
+                    let lo = p.idx.partition_point(|&i| (i as usize) < r0);
+                    let hi = p.idx.partition_point(|&i| (i as usize) < r0 + rows);
+                    (&p.idx[lo..hi], Some(p), lo)
+                }
+                None => (&[][..], None, 0),
+            };
+            let mut next = 0;
+            let mut nonfinite = false;
+            for r in 0..rows {
+                let i = r0 + r;
+                let si = &mut s[r * d..(r + 1) * d];
+                g.fill(0.0);
+                // L_sem = Σ γ ‖s − z̄‖² (losses::semantic, same expressions for the
+                // gradient; the row's loss is summed in f32).
+                if let Some(z) = terms.zbar {
+                    let gm = terms.gamma[i];
+                    let zi = &z[i * d..(i + 1) * d];
+                    for ((gj, &sj), &zj) in g.iter_mut().zip(si.iter()).zip(zi) {
+                        let diff = sj - zj;
+                        *gj += terms.l_sem * 2.0 * gm * diff;
+                    }
+                    // The loss in eight partial sums, so it does not serialise the row.
+                    let mut lanes = [0.0f32; 8];
+                    for (a, b) in si.chunks_exact(8).zip(zi.chunks_exact(8)) {
+                        for l in 0..8 {
+                            let diff = a[l] - b[l];
+                            lanes[l] += gm * diff * diff;
+                        }
+                    }
+                    let tail = (d / 8) * 8;
+                    let rest: f32 =
+                        si[tail..].iter().zip(&zi[tail..]).map(|(a, b)| gm * (a - b) * (a - b)).sum();
+                    loss[k] += (lanes.iter().sum::<f32>() + rest) as f64;
+                }
+                // L_uot through the plan (losses::transport_semantic, same expressions).
+                if next < idx.len() && idx[next] as usize == i {
+                    plan.expect("a plan holds idx").plan_row(lo + next, &mut prow);
+                    let p = &prow[..];
+                    next += 1;
+                    let n = si.iter().map(|x| x * x).sum::<f32>().sqrt();
+                    // NaN takes this branch, as in losses::transport_semantic.
+                    if n.is_nan() || n > 1e-12 {
+                        let sp = si.iter().zip(p).map(|(a, b)| a * b).sum::<f32>() / n;
+                        for j in 0..d {
+                            g[j] += -terms.l_uot * terms.cost_sem * (p[j] - sp * si[j] / n) / n;
+                        }
+                    }
+                }
+                // The trainer's Adam update, element by element.
+                let (mr, vr) = (&mut m[r * d..(r + 1) * d], &mut v[r * d..(r + 1) * d]);
+                for (((pj, mj), vj), &gk) in si.iter_mut().zip(mr.iter_mut()).zip(vr.iter_mut()).zip(&g) {
+                    h.update(pj, mj, vj, gk);
+                    nonfinite |= !pj.is_finite();
+                }
+            }
+            if nonfinite && bad.is_none() {
+                bad = Some(k);
+            }
+        }
+        (loss, bad)
+    }
 }
 
 #[cfg(test)]

@@ -19,12 +19,6 @@ pub(crate) trait Layout: Sync {
     fn costs(&self) -> &[f32];
     /// Target of entry `e` in a row starting at `lo`.
     fn col(&self, lo: usize, e: usize) -> usize;
-    /// Whether every row holds all targets in order (`col(lo, e) = e - lo`), so
-    /// per-target arrays can be read as slices alongside a row.
-    #[inline(always)]
-    fn dense(&self) -> bool {
-        false
-    }
     /// Entry of target `j` in row `[lo, hi)`, if any.
     fn find(&self, lo: usize, hi: usize, j: usize) -> Option<usize>;
     /// `sum_e k[e] * v[col(e)]` for the row's kernel slice `k`.
@@ -86,10 +80,6 @@ impl<const NB: usize> Layout for DenseFixed<'_, NB> {
     #[inline(always)]
     fn col(&self, lo: usize, e: usize) -> usize {
         e - lo
-    }
-    #[inline(always)]
-    fn dense(&self) -> bool {
-        true
     }
     #[inline(always)]
     fn find(&self, lo: usize, _hi: usize, j: usize) -> Option<usize> {
@@ -228,10 +218,6 @@ impl Layout for Dense<'_> {
     #[inline(always)]
     fn col(&self, lo: usize, e: usize) -> usize {
         e - lo
-    }
-    #[inline(always)]
-    fn dense(&self) -> bool {
-        true
     }
     #[inline(always)]
     fn find(&self, lo: usize, _hi: usize, j: usize) -> Option<usize> {

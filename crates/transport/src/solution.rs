@@ -192,32 +192,24 @@ impl Solution {
 
     /// The plan entries of engine row `r` (source i, masses `a`, `ln_b` = ln b),
     /// `T_ij = a_i b_j exp((f_i + g_j - C_ij)/eps)` (0 if any factor is 0 or the
-    /// exponent is below -87), into `out`. Written as two flat loops (exponents in `f64`,
-    /// then [`fastmath::exp`] over the buffer) so both vectorise; the values are those
-    /// of the per-entry formula bit for bit.
+    /// exponent is below -87), into `out`: the exponents in `f64`, then the branch-free
+    /// [`fastmath::exp`] over the whole buffer, which vectorises; the values are those of
+    /// the per-entry formula bit for bit.
     #[inline(always)]
     fn row_plan<L: Layout>(&self, l: &L, r: usize, a: &[f32], ln_b: &[f64], out: &mut Vec<f32>) {
         let ((lo, hi), i) = (l.range(r), l.source(r));
         let ln_a = (a[i] as f64).ln();
         let (fi, g, c) = (self.potentials.f[i], &self.potentials.g, &l.costs()[lo..hi]);
-        let (eps, len) = (self.eps, hi - lo);
-        let x = |lnb: f64, gj: f64, cij: f32| {
-            let x = ln_a + lnb + ((fi + gj) - cij as f64) / eps;
+        out.clear();
+        out.extend(c.iter().enumerate().map(|(k, &cij)| {
+            let j = l.col(lo, lo + k);
+            let x = ln_a + ln_b[j] + ((fi + g[j]) - cij as f64) / self.eps;
             if x > -87.0 {
                 x as f32
             } else {
                 f32::NEG_INFINITY
             }
-        };
-        out.clear();
-        if l.dense() {
-            out.extend(c.iter().zip(&ln_b[..len]).zip(&g[..len]).map(|((&cij, &lnb), &gj)| x(lnb, gj, cij)));
-        } else {
-            out.extend(c.iter().enumerate().map(|(k, &cij)| {
-                let j = l.col(lo, lo + k);
-                x(ln_b[j], g[j], cij)
-            }));
-        }
+        }));
         fastmath::exp_slice(out);
     }
 
@@ -368,7 +360,7 @@ impl<L: Layout> MeansRows<'_, L> {
                     if t > 0.0 {
                         let j = self.l.col(lo, lo + k);
                         let e = &self.targets[j * d + c0..j * d + c0 + yc.len()];
-                        if let (Ok(e), true) = (<&[f32; 8]>::try_from(e), yc.len() == 8) {
+                        if let Ok(e) = <&[f32; 8]>::try_from(e) {
                             for l in 0..8 {
                                 acc[l] += e[l] * t;
                             }

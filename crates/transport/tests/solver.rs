@@ -244,6 +244,23 @@ fn target_means_match_dense_plan() {
                 assert!((y[i * d + c] as f64 - want).abs() < 1e-5, "y[{i},{c}] {} vs {want}", y[i * d + c]);
             }
         }
+        // Target vectors whose length is not a multiple of eight (the register blocks'
+        // remainder): the first five components of each e_j.
+        let d5 = 5;
+        let e5: Vec<f32> = e.chunks(d).flat_map(|ej| ej[..d5].to_vec()).collect();
+        let (y5, w5) = s.target_means(&p, &e5, d5, delta);
+        assert_eq!(w5, w);
+        for i in 0..n {
+            for c in 0..d5 {
+                let num: f64 = (0..m).map(|j| t[i * m + j] as f64 * e5[j * d5 + c] as f64).sum();
+                let want = num / (w[i] as f64 + delta as f64);
+                assert!(
+                    (y5[i * d5 + c] as f64 - want).abs() < 1e-5,
+                    "d = 5: y[{i},{c}] {} vs {want}",
+                    y5[i * d5 + c]
+                );
+            }
+        }
         // Without target vectors: the same masses, no means.
         let (y0, w0) = s.target_means(&p, &[], 0, delta);
         assert!(y0.is_empty());
