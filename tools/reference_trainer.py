@@ -248,6 +248,7 @@ def main():
     ap.add_argument("--opensplat-label", default="opensplat",
                     help="name of the reference's run (its folders and table row), e.g. to keep runs with different --opensplat-args apart")
     ap.add_argument("--transsplat-args", default="", help="extra arguments for `transsplat train`")
+    ap.add_argument("--transsplat-label", default="transsplat", help="name of transsplat's run (see --opensplat-label)")
     ap.add_argument("--skip", default="", help="comma-separated trainers not to run: opensplat, transsplat")
     a = ap.parse_args()
     ts = os.path.abspath(a.transsplat)
@@ -287,23 +288,23 @@ def main():
         results[label]["gaussians"] = ply_count(ply)
         results[label]["seconds"] = timings.get(label)
 
+    tl = a.transsplat_label
     if "transsplat" not in skip:
-        t_dir = os.path.join(out, f"transsplat_{a.iters}")
+        t_dir = os.path.join(out, f"{tl}_{a.iters}")
         if not os.path.exists(t_dir):
             cmd = [ts, "train", "--data", capture, "--iters", str(a.iters), "--out", t_dir,
                    "--checkpoint-every", "0"] + a.transsplat_args.split()
-            timings["transsplat"] = run(cmd, os.path.join(out, "train_transsplat.log"))
-            json.dump(timings, open(timing_file, "w"))
+            run(cmd, os.path.join(out, f"train_{tl}.log"))
         ply = os.path.join(t_dir, "point_cloud", f"iteration_{a.iters}", "point_cloud.ply")
-        r_dir = os.path.join(out, f"transsplat_{a.iters}_render")
-        render(ts, ply, capture, r_dir, (0, 0, 0), os.path.join(out, "render_transsplat.log"))
-        results["transsplat"] = score(r_dir, capture, test)
-        results["transsplat"]["gaussians"] = ply_count(ply)
-        results["transsplat"]["seconds"] = timings.get("transsplat")
+        r_dir = os.path.join(out, f"{tl}_{a.iters}_render")
+        render(ts, ply, capture, r_dir, (0, 0, 0), os.path.join(out, f"render_{tl}.log"))
+        results[tl] = score(r_dir, capture, test)
+        results[tl]["gaussians"] = ply_count(ply)
         own = json.load(open(os.path.join(t_dir, "train.json")))
-        results["transsplat"]["train_json"] = own
+        results[tl]["seconds"] = own.get("seconds")
+        results[tl]["train_json"] = own
 
-    with open(os.path.join(out, f"anchor_{label}.json"), "w") as f:
+    with open(os.path.join(out, f"anchor_{label}_{tl}.json"), "w") as f:
         json.dump({"settings": vars(a), "results": results}, f, indent=2)
     print(f"\n{a.scene} --open, {a.views} views of {a.size}², {a.points} initial points, "
           f"{a.iters} steps; test views: {', '.join(sorted(os.path.splitext(n)[0] for n in test))}")
@@ -313,8 +314,8 @@ def main():
         secs = f"{r['seconds']:.0f} s" if r.get("seconds") else "–"
         print(f"| {k} | {r['psnr']:.3f} | {r['ssim']:.4f} | {r['worst']['name']} {r['worst']['psnr']:.2f} "
               f"| {len(r['views_3db_below_mean'])} | {r['gaussians']:,} | {secs} |")
-    if "transsplat" in results:
-        own = results["transsplat"]["train_json"]
+    if tl in results:
+        own = results[tl]["train_json"]
         print(f"transsplat's own train.json (cross-check of the evaluators): {json.dumps(own.get('test', own))[:300]}")
 
 

@@ -385,6 +385,18 @@ fn cases() -> Vec<Case> {
             .file("ds/images/view_0.png", png(40, 30))
             .file("ds/images/view_1.png", png(40, 30))
             .expect(&["--random-points must be at most 10000000"]),
+        Case::new("train: --min-opacity of 1", "train --data {d}/ds --out {d}/out --iters 1")
+            .args("--min-opacity 1")
+            .file("ds/cameras.json", cameras_json(&cams(2)))
+            .file("ds/images/view_0.png", png(40, 30))
+            .file("ds/images/view_1.png", png(40, 30))
+            .expect(&["--min-opacity must be in [0, 1), got 1"]),
+        Case::new("train: zero --densify-grad-threshold", "train --data {d}/ds --out {d}/out --iters 1")
+            .args("--densify-grad-threshold 0")
+            .file("ds/cameras.json", cameras_json(&cams(2)))
+            .file("ds/images/view_0.png", png(40, 30))
+            .file("ds/images/view_1.png", png(40, 30))
+            .expect(&["--densify-grad-threshold must be positive, got 0"]),
         Case::new(
             "train: --masks folder without a view's mask",
             "train --data {d}/ds --out {d}/out --iters 1",

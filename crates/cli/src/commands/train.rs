@@ -60,6 +60,14 @@ pub struct TrainArgs {
     /// Densify until this step (INRIA: 15000).
     #[arg(long, default_value_t = 15_000)]
     pub densify_until: u64,
+    /// Clone or split a Gaussian whose mean screen-space positional gradient (NDC units,
+    /// as INRIA's `--densify_grad_threshold`) reaches this (INRIA: 0.0002).
+    #[arg(long, value_parser = super::common::finite_f32, default_value_t = 2e-4)]
+    pub densify_grad_threshold: f32,
+    /// Prune Gaussians whose opacity falls below this at each densification (INRIA: 0.005;
+    /// nerfstudio's splatfacto and OpenSplat cull below 0.1).
+    #[arg(long, value_parser = super::common::finite_f32, default_value_t = 0.005)]
+    pub min_opacity: f32,
     /// Adam's update rule: `dense` updates every Gaussian every step (INRIA); `selective`
     /// only those the step's view reached, so a step costs what the view sees, not the
     /// whole model (docs/method.md M10).
@@ -88,6 +96,12 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
     }
     if !(args.opacity_lr.is_finite() && args.opacity_lr >= 0.0) {
         bail!("--opacity-lr must be a non-negative number");
+    }
+    if !(args.densify_grad_threshold > 0.0) {
+        bail!("--densify-grad-threshold must be positive, got {}", args.densify_grad_threshold);
+    }
+    if !(0.0..1.0).contains(&args.min_opacity) {
+        bail!("--min-opacity must be in [0, 1), got {}", args.min_opacity);
     }
     if args.random_points > MAX_RANDOM_POINTS {
         bail!("--random-points must be at most {MAX_RANDOM_POINTS}, got {}", args.random_points);
@@ -122,7 +136,12 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
         config: TrainConfig {
             iterations: args.iters,
             lr: LearningRates { opacity: args.opacity_lr, ..Default::default() },
-            densify: DensifyConfig { until_step: args.densify_until, ..Default::default() },
+            densify: DensifyConfig {
+                until_step: args.densify_until,
+                grad_threshold: args.densify_grad_threshold,
+                min_opacity: args.min_opacity,
+                ..Default::default()
+            },
             background: args.background,
             seed: args.seed,
             adam: args.adam,
