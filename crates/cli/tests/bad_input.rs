@@ -397,6 +397,12 @@ fn cases() -> Vec<Case> {
             .file("ds/images/view_0.png", png(40, 30))
             .file("ds/images/view_1.png", png(40, 30))
             .expect(&["--densify-grad-threshold must be positive, got 0"]),
+        Case::new("train: negative --max-screen-radius", "train --data {d}/ds --out {d}/out --iters 1")
+            .args("--max-screen-radius=-1")
+            .file("ds/cameras.json", cameras_json(&cams(2)))
+            .file("ds/images/view_0.png", png(40, 30))
+            .file("ds/images/view_1.png", png(40, 30))
+            .expect(&["--max-screen-radius must be at least 0, got -1"]),
         Case::new(
             "train: --masks folder without a view's mask",
             "train --data {d}/ds --out {d}/out --iters 1",

@@ -406,8 +406,9 @@ impl Trainer {
             g.log_scales[plan.first_split + k] = *s;
         }
         self.stats.clear();
+        let [by_opacity, by_world, by_screen] = plan.counts.pruned_by;
         tracing::debug!(
-            "step {}: cloned {}, split {}, pruned {} -> {} Gaussians",
+            "step {}: cloned {}, split {}, pruned {} (opacity {by_opacity}, world size {by_world}, screen size {by_screen}) -> {} Gaussians",
             self.step,
             plan.counts.cloned,
             plan.counts.split,
