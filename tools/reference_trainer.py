@@ -53,7 +53,7 @@ OPENSPLAT_BACKGROUND = (0.6130, 0.0101, 0.3984)
 
 
 def run(cmd, log):
-    """Runs `cmd`, teeing nothing: stdout and stderr go to `log`. Returns seconds."""
+    """Runs `cmd` with stdout and stderr into `log`; exits on failure. Returns its wall seconds."""
     print("+", " ".join(cmd), flush=True)
     t0 = time.time()
     with open(log, "w") as f:
@@ -269,24 +269,27 @@ def main():
         print(f"nerfstudio copy: {n_train} training views ({n_test} test views held out)")
 
     results = {}
-    timing_file = os.path.join(out, "timings.json")
-    timings = json.load(open(timing_file)) if os.path.exists(timing_file) else {}
-
     label = a.opensplat_label
     if "opensplat" not in skip:
+        # The reference writes into a staging folder renamed when it finishes, so an
+        # interrupted run leaves no PLY that a later run would score.
         os_dir = os.path.join(out, f"{label}_{a.iters}")
         ply = os.path.join(os_dir, "splat.ply")
-        if not os.path.exists(ply):
-            os.makedirs(os_dir, exist_ok=True)
+        if not os.path.exists(os_dir):
+            tmp = os_dir + ".partial"
+            shutil.rmtree(tmp, ignore_errors=True)
+            os.makedirs(tmp)
             cmd = [os.path.abspath(a.opensplat), ns, "-n", str(a.iters), "--keep-crs",
-                   "--cpu", "-o", ply] + a.opensplat_args.split()
-            timings[label] = run(cmd, os.path.join(os_dir, "train.log"))
-            json.dump(timings, open(timing_file, "w"))
+                   "--cpu", "-o", os.path.join(tmp, "splat.ply")] + a.opensplat_args.split()
+            seconds = run(cmd, os.path.join(tmp, "train.log"))
+            with open(os.path.join(tmp, "seconds.json"), "w") as f:
+                json.dump(seconds, f)
+            os.rename(tmp, os_dir)
         r_dir = os.path.join(out, f"{label}_{a.iters}_render")
         render(ts, ply, capture, r_dir, OPENSPLAT_BACKGROUND, os.path.join(out, f"render_{label}.log"))
         results[label] = score(r_dir, capture, test)
         results[label]["gaussians"] = ply_count(ply)
-        results[label]["seconds"] = timings.get(label)
+        results[label]["seconds"] = json.load(open(os.path.join(os_dir, "seconds.json")))
 
     tl = a.transsplat_label
     if "transsplat" not in skip:

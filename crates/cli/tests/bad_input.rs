@@ -61,6 +61,12 @@ impl Case {
         self.setup = Some(f);
         self
     }
+    /// A valid two-view cameras.json dataset in `ds/`.
+    fn with_dataset(self) -> Self {
+        self.file("ds/cameras.json", cameras_json(&cams(2)))
+            .file("ds/images/view_0.png", png(40, 30))
+            .file("ds/images/view_1.png", png(40, 30))
+    }
     /// A valid scene and cameras.json in `in/`.
     fn with_scene(self) -> Self {
         self.file("in/scene.ply", scene_ply()).file("in/cameras.json", cameras_json(&cams(3)))
@@ -370,9 +376,7 @@ fn cases() -> Vec<Case> {
             .file("ds/images/view_1.png", png(30, 30))
             .expect(&["view_1.png", "30x30"]),
         Case::new("train: output folder is the dataset", "train --data {d}/ds --out {d}/ds --iters 1")
-            .file("ds/cameras.json", cameras_json(&cams(2)))
-            .file("ds/images/view_0.png", png(40, 30))
-            .file("ds/images/view_1.png", png(40, 30))
+            .with_dataset()
             .expect(&["the output is the input", "ds"]),
         Case::new("train: zero focal length in COLMAP", "train --data {d}/ds --out {d}/out --iters 1")
             .file("ds/sparse/0/cameras.txt", "1 PINHOLE 40 30 0 50 20 15\n")
@@ -381,27 +385,19 @@ fn cases() -> Vec<Case> {
             .expect(&["images.txt", "focal length fx = 0"]),
         Case::new("train: --random-points beyond the bound", "train --data {d}/ds --out {d}/out --iters 1")
             .args("--random-points 1000000000000")
-            .file("ds/cameras.json", cameras_json(&cams(2)))
-            .file("ds/images/view_0.png", png(40, 30))
-            .file("ds/images/view_1.png", png(40, 30))
+            .with_dataset()
             .expect(&["--random-points must be at most 10000000"]),
         Case::new("train: --min-opacity of 1", "train --data {d}/ds --out {d}/out --iters 1")
             .args("--min-opacity 1")
-            .file("ds/cameras.json", cameras_json(&cams(2)))
-            .file("ds/images/view_0.png", png(40, 30))
-            .file("ds/images/view_1.png", png(40, 30))
+            .with_dataset()
             .expect(&["--min-opacity must be in [0, 1), got 1"]),
         Case::new("train: zero --densify-grad-threshold", "train --data {d}/ds --out {d}/out --iters 1")
             .args("--densify-grad-threshold 0")
-            .file("ds/cameras.json", cameras_json(&cams(2)))
-            .file("ds/images/view_0.png", png(40, 30))
-            .file("ds/images/view_1.png", png(40, 30))
+            .with_dataset()
             .expect(&["--densify-grad-threshold must be positive, got 0"]),
         Case::new("train: negative --max-screen-radius", "train --data {d}/ds --out {d}/out --iters 1")
             .args("--max-screen-radius=-1")
-            .file("ds/cameras.json", cameras_json(&cams(2)))
-            .file("ds/images/view_0.png", png(40, 30))
-            .file("ds/images/view_1.png", png(40, 30))
+            .with_dataset()
             .expect(&["--max-screen-radius must be at least 0, got -1"]),
         Case::new(
             "train: --masks folder without a view's mask",

@@ -412,7 +412,7 @@ impl Trainer {
             self.step,
             plan.counts.cloned,
             plan.counts.split,
-            plan.counts.pruned,
+            plan.counts.pruned(),
             self.model.len()
         );
         (plan.reindex, plan.counts)

@@ -122,7 +122,7 @@ fn densify_without_mask_moves_the_right_rows() {
     let mut t = trainer();
     let before = t.clone();
     let (r, counts) = t.densify_and_prune(None);
-    assert_eq!((counts.cloned, counts.split, counts.pruned), (3, 3, 2));
+    assert_eq!((counts.cloned, counts.split, counts.pruned()), (3, 3, 2));
     assert_eq!(
         counts.pruned_by,
         [2, 0, 0],
@@ -149,7 +149,7 @@ fn densify_with_mask_only_touches_allowed_rows() {
     let before = t.clone();
     let mask: Vec<bool> = (0..N).map(|i| i % 2 == 0).collect();
     let (_, counts) = t.densify_and_prune(Some(&mask));
-    assert_eq!((counts.cloned, counts.split, counts.pruned), (2, 1, 1));
+    assert_eq!((counts.cloned, counts.split, counts.pruned()), (2, 1, 1));
     let want = [0, 1, 2, 3, 5, 7, 8, 9, 10, 11, 0, 2, 4, 4];
     check_rows(&t, &want, 10);
     check_split_children(&t, &before, 12..14, &[4, 4]);
@@ -160,6 +160,7 @@ fn prune_of_large_gaussians_after_the_first_reset() {
     let mut t = trainer();
     t.stats.grad_accum.fill(0.0);
     t.model.gaussians.log_scales[9] = [(2.0f32).ln(); 3]; // > 0.1 * extent = 1
+    t.config.densify.max_screen_radius = Some(20.0); // the paper's rule (off by default)
     t.stats.max_radii[10] = 25.0; // > 20 px
     t.step = 2000; // before the first reset: only opacity
     let r = t.clone().prune(None);

@@ -9,11 +9,19 @@
 //! 25.64 (1.56) dB; with INRIA's fixed rule 18.03 (3.22) / 24.41 (1.65) / 19.66 (3.08) /
 //! 22.64 (1.78) dB. The rule removes most of the loss, not every uneven view (seed 5),
 //! so this fixed-seed test checks one run, not the distribution.
+//!
+//! The run uses the paper's 20 px screen-size prune, which the trainer's default leaves
+//! off (as INRIA's code and gsplat do; at 256² over 7000 steps it cost 8 dB, README
+//! "Against a reference trainer"). At this toy scale — 96×72, where 20 px is a fifth of
+//! the image, and 900 steps after the only reset — it helps: seeds 4–8 score 25.94 /
+//! 25.47 / 26.65 / 25.64 / 26.42 dB with it and 23.65 / 25.14 / 25.72 / 24.86 / 24.87 dB
+//! without, whose worst views fall 2.50 / 3.95 / 4.16 / 6.39 / 3.47 dB below the mean.
+//! So without the rule this short run does show haze; the test checks the run with it.
 
 mod common;
 
 use transsplat_scenes::SceneConfig;
-use transsplat_train::{evaluate, fit, start, PointCloud, TrainConfig};
+use transsplat_train::{evaluate, fit, start, DensifyConfig, PointCloud, TrainConfig};
 
 /// The bound: no test view more than 3 dB below the mean.
 const MAX_BELOW_MEAN_DB: f32 = 3.0;
@@ -36,7 +44,7 @@ fn open_surroundings_train_without_a_hazy_view() {
     let iterations = 1500;
     let opts = common::options(TrainConfig {
         iterations,
-        densify: common::densify(100, 1000, 600, 300),
+        densify: DensifyConfig { max_screen_radius: Some(20.0), ..common::densify(100, 1000, 600, 300) },
         background: scene.background,
         seed: 4,
         ..Default::default()

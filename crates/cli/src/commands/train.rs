@@ -58,24 +58,21 @@ pub struct TrainArgs {
     #[arg(long, value_parser = super::common::finite_f32, default_value_t = 0.025)]
     pub opacity_lr: f32,
     /// Densify until this step (INRIA: 15000).
-    #[arg(long, default_value_t = 15_000)]
+    #[arg(long, default_value_t = DensifyConfig::default().until_step)]
     pub densify_until: u64,
     /// Clone or split a Gaussian whose mean screen-space positional gradient (NDC units,
     /// as INRIA's `--densify_grad_threshold`) reaches this (INRIA: 0.0002).
-    #[arg(long, value_parser = super::common::finite_f32, default_value_t = 2e-4)]
+    #[arg(long, value_parser = super::common::finite_f32, default_value_t = DensifyConfig::default().grad_threshold)]
     pub densify_grad_threshold: f32,
     /// Prune Gaussians whose opacity falls below this at each densification (INRIA: 0.005;
     /// nerfstudio's splatfacto and OpenSplat cull below 0.1).
-    #[arg(long, value_parser = super::common::finite_f32, default_value_t = 0.005)]
+    #[arg(long, value_parser = super::common::finite_f32, default_value_t = DensifyConfig::default().min_opacity)]
     pub min_opacity: f32,
     /// After the first opacity reset, prune Gaussians whose screen radius exceeded this
     /// many pixels since the last densification (the paper states 20). Default 0 = off,
-    /// as INRIA's code behaves (it zeroes the radii before testing them) and gsplat's
-    /// default strategy: on a 48-view 256² open capture the 20 px rule removed far
-    /// floor and sky Gaussians that are large on screen at every densification after a
-    /// reset, and cost 8 dB of test PSNR and 57 % more Gaussians (README, "Against a
-    /// reference trainer").
-    #[arg(long, value_parser = super::common::finite_f32, default_value_t = 0.0)]
+    /// as in INRIA's code and gsplat: on a 48-view 256² open capture the 20 px rule cost
+    /// 8 dB of test PSNR and 57 % more Gaussians (README, "Against a reference trainer").
+    #[arg(long, value_parser = super::common::finite_f32, default_value_t = DensifyConfig::default().max_screen_radius.unwrap_or(0.0))]
     pub max_screen_radius: f32,
     /// Adam's update rule: `dense` updates every Gaussian every step (INRIA); `selective`
     /// only those the step's view reached, so a step costs what the view sees, not the
