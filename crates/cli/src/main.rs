@@ -76,6 +76,18 @@ enum BenchCommand {
 /// `train` / `edit` write a checkpoint to resume from.
 static CANCEL: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
+/// Held by whoever ends the process. The hard exit on a second signal takes it before it
+/// ends the editors (which lets the main thread run on to its own exit) and never lets
+/// go, so the process quits with 130 and not with the main thread's code; a main thread
+/// that took it first was already quitting, and its code stands.
+static EXITING: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// Ends the process with `code` unless a hard exit already holds [`EXITING`].
+fn exit(code: i32) -> ! {
+    let _held = EXITING.lock().unwrap_or_else(|e| e.into_inner());
+    std::process::exit(code)
+}
+
 fn main() {
     let cli = Cli::parse();
     // Commands that poll CANCEL stop cleanly at their next step; the others (short, and
@@ -96,6 +108,7 @@ fn main() {
             if CANCEL.swap(true, std::sync::atomic::Ordering::SeqCst) {
                 // A second signal quits at once, still ending any editor process group
                 // and removing the staging folders.
+                let _held = EXITING.lock().unwrap_or_else(|e| e.into_inner());
                 transsplat_editors::child::kill_all();
                 transsplat_scene::atomic::remove_staged();
                 std::process::exit(130);
@@ -134,6 +147,7 @@ fn main() {
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");
-        std::process::exit(2);
+        exit(2);
     }
+    exit(0)
 }
