@@ -408,10 +408,11 @@ impl Trainer {
         self.stats.clear();
         let [by_opacity, by_world, by_screen] = plan.counts.pruned_by;
         tracing::debug!(
-            "step {}: cloned {}, split {}, pruned {} (opacity {by_opacity}, world size {by_world}, screen size {by_screen}) -> {} Gaussians",
+            "step {}: cloned {}, split {} ({} held back by the budget), pruned {} (opacity {by_opacity}, world size {by_world}, screen size {by_screen}) -> {} Gaussians",
             self.step,
             plan.counts.cloned,
             plan.counts.split,
+            plan.counts.deferred,
             plan.counts.pruned(),
             self.model.len()
         );

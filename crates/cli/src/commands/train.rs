@@ -74,6 +74,11 @@ pub struct TrainArgs {
     /// 8 dB of test PSNR and 57 % more Gaussians (README, "Against a reference trainer").
     #[arg(long, value_parser = super::common::finite_f32, default_value_t = DensifyConfig::default().max_screen_radius.unwrap_or(0.0))]
     pub max_screen_radius: f32,
+    /// Never grow past this many Gaussians: densification takes the largest gradients
+    /// first while they fit (gsplat's MCMC strategy has such a cap). Default 0 = no cap,
+    /// as INRIA. For a fixed memory, or to compare with another trainer at equal size.
+    #[arg(long, default_value_t = 0)]
+    pub max_gaussians: usize,
     /// Adam's update rule: `dense` updates every Gaussian every step (INRIA); `selective`
     /// only those the step's view reached, so a step costs what the view sees, not the
     /// whole model (docs/method.md M10).
@@ -150,6 +155,7 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
                 grad_threshold: args.densify_grad_threshold,
                 min_opacity: args.min_opacity,
                 max_screen_radius: (args.max_screen_radius > 0.0).then_some(args.max_screen_radius),
+                max_gaussians: (args.max_gaussians > 0).then_some(args.max_gaussians),
                 ..Default::default()
             },
             background: args.background,
