@@ -84,6 +84,21 @@ pub struct View {
     pub path: PathBuf,
 }
 
+impl View {
+    /// The view with its image (and weights) divided by `factor`, area-resampled as at
+    /// load time, and its intrinsics scaled to match.
+    pub fn downscaled(&self, factor: u32) -> View {
+        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
+        let (nw, nh) = scaled_size(w, h, factor);
+        View {
+            camera: scale_camera(&self.camera, nw, nh),
+            image: resample(&self.image, w, h, 3, nw, nh),
+            weights: self.weights.as_ref().map(|m| resample(m, w, h, 1, nw, nh)),
+            path: self.path.clone(),
+        }
+    }
+}
+
 /// Which kind of folder was loaded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DatasetKind {

@@ -259,6 +259,8 @@ pub fn fit_with(
     let start = trainer.step;
     let mut progress =
         Progress { iterations: trainer.config.iterations, ema_loss: state.ema_loss, ..Default::default() };
+    // The training views at the current coarse-to-fine level (empty at full resolution).
+    let mut coarse: (u32, Vec<View>) = (1, Vec::new());
     while trainer.step < trainer.config.iterations {
         let step = trainer.step;
         if let Some(ck) = control.checkpoint.as_mut().filter(|ck| ck.due(step, start)) {
@@ -274,7 +276,20 @@ pub fn fit_with(
             state.stack = (0..ds.train.len()).collect();
             state.stack.shuffle(&mut state.order_rng);
         }
-        let v = &ds.train[state.stack.pop().expect("refilled")];
+        let factor = trainer.config.downscale.factor(step);
+        if factor != coarse.0 {
+            tracing::debug!("step {step}: training at 1/{factor} resolution");
+            coarse = (
+                factor,
+                if factor > 1 {
+                    ds.train.par_iter().map(|v| v.downscaled(factor)).collect()
+                } else {
+                    Vec::new()
+                },
+            );
+        }
+        let i = state.stack.pop().expect("refilled");
+        let v = if factor > 1 { &coarse.1[i] } else { &ds.train[i] };
         let report = trainer.step(&v.camera, &v.image, v.weights.as_deref())?;
         state.ema_loss =
             if report.step == 1 { report.loss } else { 0.4 * report.loss + 0.6 * state.ema_loss };

@@ -50,5 +50,6 @@ pub use loss::{image_loss, psnr, ssim, ImageLoss};
 pub use model::{Model, Reindex};
 pub use points::PointCloud;
 pub use trainer::{
-    apply_reindex, camera_centre, scene_extent, StepReport, TrainConfig, TrainError, Trainer, ViewPass,
+    apply_reindex, camera_centre, scene_extent, Downscale, StepReport, TrainConfig, TrainError, Trainer,
+    ViewPass,
 };

@@ -46,6 +46,33 @@ pub struct TrainConfig {
     pub seed: u64,
     /// Adam's update rule (dense as INRIA, or selective: only the rows a step reached).
     pub adam: AdamRule,
+    /// Coarse-to-fine training resolution (off by default, as INRIA).
+    pub downscale: Downscale,
+}
+
+/// Coarse-to-fine training as nerfstudio's splatfacto and OpenSplat do it
+/// (`num_downscales`, `resolution_schedule`): the first `every` steps train on images
+/// divided by 2^`levels`, the next `every` by 2^(`levels` − 1), and so on to full
+/// resolution. Densification statistics are in NDC units, so the gradient threshold
+/// means the same at every level.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Downscale {
+    /// Halvings at the start (0 = full resolution throughout).
+    pub levels: u32,
+    /// Steps per level.
+    pub every: u64,
+}
+
+impl Downscale {
+    /// The image divisor for the step after `step` steps: 2^(levels − step / every),
+    /// at least 1.
+    pub fn factor(&self, step: u64) -> u32 {
+        if self.levels == 0 || self.every == 0 {
+            return 1;
+        }
+        let done = (step / self.every).min(self.levels as u64) as u32;
+        1 << (self.levels - done).min(16)
+    }
 }
 
 impl Default for TrainConfig {
@@ -58,6 +85,7 @@ impl Default for TrainConfig {
             background: [0.0; 3],
             seed: 0,
             adam: AdamRule::Dense,
+            downscale: Downscale::default(),
         }
     }
 }
@@ -483,4 +511,18 @@ fn first_non_finite(grads: &Grads, rows: Option<&[u32]>, lr: &[f32; 7]) -> Optio
             on && bad(v)
         })
         .map(|(g, _)| g)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_downscale_schedule_halves_the_divisor_every_interval() {
+        let d = Downscale { levels: 2, every: 3000 };
+        let f: Vec<u32> = [0, 2999, 3000, 5999, 6000, 7000, u64::MAX].iter().map(|&s| d.factor(s)).collect();
+        assert_eq!(f, vec![4, 4, 2, 2, 1, 1, 1]);
+        assert_eq!(Downscale::default().factor(0), 1);
+        assert_eq!(Downscale { levels: 3, every: 0 }.factor(5), 1);
+    }
 }

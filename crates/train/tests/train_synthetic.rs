@@ -13,7 +13,8 @@ use std::path::Path;
 use transsplat_raster::{render, RenderOptions, Splats};
 use transsplat_scene::{image, Camera, Gaussians};
 use transsplat_train::{
-    dataset, evaluate, fit, start, write_output, AdamRule, InitSource, LoadOptions, TrainConfig, Trainer,
+    dataset, evaluate, fit, start, write_output, AdamRule, Downscale, InitSource, LoadOptions, TrainConfig,
+    Trainer,
 };
 
 /// The quality bar on the held-out views. Measured: 11.4 dB at initialisation,
@@ -252,4 +253,33 @@ fn the_reused_gradient_buffer_changes_nothing_and_selective_adam_still_learns() 
     let (dense_psnr, sel_psnr) = (evaluate(&split, &ds.test).psnr, evaluate(&selective, &ds.test).psnr);
     eprintln!("test PSNR {before:.2} -> dense {dense_psnr:.2}, selective {sel_psnr:.2} dB after 300 steps");
     assert!(sel_psnr > before + 6.0 && sel_psnr > dense_psnr - 1.0, "{sel_psnr} vs {dense_psnr}");
+}
+
+/// The coarse-to-fine schedule trains on `View::downscaled` images, which resample and
+/// scale the camera exactly as loading at `--resolution` does: a run held at 1/2 for its
+/// whole length must end with the very model of a run on the dataset loaded at
+/// resolution 2, and a run that switches to full resolution half-way must differ.
+#[test]
+fn a_run_held_at_half_resolution_equals_a_run_on_the_half_resolution_dataset() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    write_dataset(&data, &scene());
+    let full = dataset::load(&data, &LoadOptions::default()).unwrap();
+    let half = dataset::load(&data, &LoadOptions { resolution: 2, ..Default::default() }).unwrap();
+    let run = |ds: &transsplat_train::Dataset, downscale: Downscale| {
+        let opts = common::options(TrainConfig {
+            iterations: 300,
+            densify: common::densify(100, 250, 0, 200),
+            seed: 3,
+            downscale,
+            ..Default::default()
+        });
+        let (mut trainer, _) = start(ds, &opts).unwrap();
+        fit(ds, &mut trainer, 0, |_| {}).unwrap();
+        trainer.model.gaussians
+    };
+    let reference = run(&half, Downscale::default());
+    assert!(!reference.is_empty());
+    assert_eq!(run(&full, Downscale { levels: 1, every: 300 }), reference);
+    assert_ne!(run(&full, Downscale { levels: 1, every: 150 }), reference);
 }

@@ -10,8 +10,8 @@ use transsplat_train::dataset::Masks;
 use transsplat_train::fit::{train_run_id, SUMMARY_FILE, TRAIN_FILE};
 use transsplat_train::init::MAX_RANDOM_POINTS;
 use transsplat_train::{
-    dataset, fit_with, start, write_output, AdamRule, DensifyConfig, FitOptions, FitState, InitSource,
-    LearningRates, LoadOptions, TrainConfig, TrainError, Trainer,
+    dataset, fit_with, start, write_output, AdamRule, DensifyConfig, Downscale, FitOptions, FitState,
+    InitSource, LearningRates, LoadOptions, TrainConfig, TrainError, Trainer,
 };
 
 /// Arguments of `transsplat train`.
@@ -79,6 +79,14 @@ pub struct TrainArgs {
     /// as INRIA. For a fixed memory, or to compare with another trainer at equal size.
     #[arg(long, default_value_t = 0)]
     pub max_gaussians: usize,
+    /// Coarse to fine: the first --downscale-every steps train at 1/2^N resolution, the
+    /// next at 1/2^(N-1), and so on (splatfacto's and OpenSplat's num_downscales; they use
+    /// 2). Default 0 = full resolution throughout, as INRIA.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=6))]
+    pub downscales: u32,
+    /// Steps per level of --downscales (splatfacto and OpenSplat: 3000).
+    #[arg(long, default_value_t = 3000)]
+    pub downscale_every: u64,
     /// Adam's update rule: `dense` updates every Gaussian every step (INRIA); `selective`
     /// only those the step's view reached, so a step costs what the view sees, not the
     /// whole model (docs/method.md M10).
@@ -161,6 +169,7 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
             background: args.background,
             seed: args.seed,
             adam: args.adam,
+            downscale: Downscale { levels: args.downscales, every: args.downscale_every },
             ..Default::default()
         },
         max_sh_degree: args.sh_degree,
