@@ -400,6 +400,17 @@ fn cases() -> Vec<Case> {
             .with_dataset()
             .expect(&["--max-screen-radius must be at least 0, got -1"]),
         Case::new(
+            "train: --downscales without steps per level",
+            "train --data {d}/ds --out {d}/out --iters 1",
+        )
+        .args("--downscales 2 --downscale-every 0")
+        .with_dataset()
+        .expect(&["--downscale-every must be at least 1 with --downscales 2"]),
+        Case::new("train: --downscales beyond the bound", "train --data {d}/ds --out {d}/out --iters 1")
+            .args("--downscales 7")
+            .with_dataset()
+            .expect(&["--downscales must be at most 6, got 7"]),
+        Case::new(
             "train: --masks folder without a view's mask",
             "train --data {d}/ds --out {d}/out --iters 1",
         )

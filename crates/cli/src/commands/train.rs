@@ -82,7 +82,7 @@ pub struct TrainArgs {
     /// Coarse to fine: the first --downscale-every steps train at 1/2^N resolution, the
     /// next at 1/2^(N-1), and so on (splatfacto's and OpenSplat's num_downscales; they use
     /// 2). Default 0 = full resolution throughout, as INRIA.
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=6))]
+    #[arg(long, default_value_t = 0)]
     pub downscales: u32,
     /// Steps per level of --downscales (splatfacto and OpenSplat: 3000).
     #[arg(long, default_value_t = 3000)]
@@ -101,6 +101,9 @@ fn parse_adam(s: &str) -> Result<AdamRule, String> {
     let names: Vec<&str> = AdamRule::ALL.iter().map(|r| r.name()).collect();
     AdamRule::from_name(s).ok_or_else(|| format!("unknown Adam rule {s:?}; one of: {}", names.join(", ")))
 }
+
+/// Halvings `--downscales` may ask for (1/64 of the size).
+const MAX_DOWNSCALES: u32 = 6;
 
 /// Runs `transsplat train`.
 pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
@@ -124,6 +127,12 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
     }
     if args.max_screen_radius < 0.0 {
         bail!("--max-screen-radius must be at least 0, got {}", args.max_screen_radius);
+    }
+    if args.downscales > MAX_DOWNSCALES {
+        bail!("--downscales must be at most {MAX_DOWNSCALES}, got {}", args.downscales);
+    }
+    if args.downscales > 0 && args.downscale_every == 0 {
+        bail!("--downscale-every must be at least 1 with --downscales {}", args.downscales);
     }
     if args.random_points > MAX_RANDOM_POINTS {
         bail!("--random-points must be at most {MAX_RANDOM_POINTS}, got {}", args.random_points);
