@@ -67,6 +67,14 @@ impl Case {
             .file("ds/images/view_0.png", png(40, 30))
             .file("ds/images/view_1.png", png(40, 30))
     }
+    /// `train` on the valid dataset with one bad flag value: `message` is the error.
+    fn train_flag(name: &'static str, flags: &str, message: &'static str) -> Self {
+        Case::new(name, "train --data {d}/ds --out {d}/out --iters 1")
+            .args(flags)
+            .with_dataset()
+            .expect(&[message])
+    }
+
     /// A valid scene and cameras.json in `in/`.
     fn with_scene(self) -> Self {
         self.file("in/scene.ply", scene_ply()).file("in/cameras.json", cameras_json(&cams(3)))
@@ -383,33 +391,36 @@ fn cases() -> Vec<Case> {
             .file("ds/sparse/0/images.txt", "1 1 0 0 0 0 0 3 1 view_0.png\n\n")
             .file("ds/images/view_0.png", png(40, 30))
             .expect(&["images.txt", "focal length fx = 0"]),
-        Case::new("train: --random-points beyond the bound", "train --data {d}/ds --out {d}/out --iters 1")
-            .args("--random-points 1000000000000")
-            .with_dataset()
-            .expect(&["--random-points must be at most 10000000"]),
-        Case::new("train: --min-opacity of 1", "train --data {d}/ds --out {d}/out --iters 1")
-            .args("--min-opacity 1")
-            .with_dataset()
-            .expect(&["--min-opacity must be in [0, 1), got 1"]),
-        Case::new("train: zero --densify-grad-threshold", "train --data {d}/ds --out {d}/out --iters 1")
-            .args("--densify-grad-threshold 0")
-            .with_dataset()
-            .expect(&["--densify-grad-threshold must be positive, got 0"]),
-        Case::new("train: negative --max-screen-radius", "train --data {d}/ds --out {d}/out --iters 1")
-            .args("--max-screen-radius=-1")
-            .with_dataset()
-            .expect(&["--max-screen-radius must be at least 0, got -1"]),
-        Case::new(
+        Case::train_flag(
+            "train: --random-points beyond the bound",
+            "--random-points 1000000000000",
+            "--random-points must be at most 10000000",
+        ),
+        Case::train_flag(
+            "train: --min-opacity of 1",
+            "--min-opacity 1",
+            "--min-opacity must be in [0, 1), got 1",
+        ),
+        Case::train_flag(
+            "train: zero --densify-grad-threshold",
+            "--densify-grad-threshold 0",
+            "--densify-grad-threshold must be positive, got 0",
+        ),
+        Case::train_flag(
+            "train: negative --max-screen-radius",
+            "--max-screen-radius=-1",
+            "--max-screen-radius must be at least 0, got -1",
+        ),
+        Case::train_flag(
             "train: --downscales without steps per level",
-            "train --data {d}/ds --out {d}/out --iters 1",
-        )
-        .args("--downscales 2 --downscale-every 0")
-        .with_dataset()
-        .expect(&["--downscale-every must be at least 1 with --downscales 2"]),
-        Case::new("train: --downscales beyond the bound", "train --data {d}/ds --out {d}/out --iters 1")
-            .args("--downscales 7")
-            .with_dataset()
-            .expect(&["--downscales must be at most 6, got 7"]),
+            "--downscales 2 --downscale-every 0",
+            "--downscale-every must be at least 1 with --downscales 2",
+        ),
+        Case::train_flag(
+            "train: --downscales beyond the bound",
+            "--downscales 7",
+            "--downscales must be at most 6, got 7",
+        ),
         Case::new(
             "train: --masks folder without a view's mask",
             "train --data {d}/ds --out {d}/out --iters 1",
