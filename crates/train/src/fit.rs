@@ -259,8 +259,7 @@ pub fn fit_with(
     let start = trainer.step;
     let mut progress =
         Progress { iterations: trainer.config.iterations, ema_loss: state.ema_loss, ..Default::default() };
-    // The training views at the current coarse-to-fine level (empty at full resolution).
-    let mut coarse: (u32, Vec<View>) = (1, Vec::new());
+    let mut coarse = CoarseViews::default();
     while trainer.step < trainer.config.iterations {
         let step = trainer.step;
         if let Some(ck) = control.checkpoint.as_mut().filter(|ck| ck.due(step, start)) {
@@ -276,20 +275,8 @@ pub fn fit_with(
             state.stack = (0..ds.train.len()).collect();
             state.stack.shuffle(&mut state.order_rng);
         }
-        let factor = trainer.config.downscale.factor(step);
-        if factor != coarse.0 {
-            tracing::debug!("step {step}: training at 1/{factor} resolution");
-            coarse = (
-                factor,
-                if factor > 1 {
-                    ds.train.par_iter().map(|v| v.downscaled(factor)).collect()
-                } else {
-                    Vec::new()
-                },
-            );
-        }
-        let i = state.stack.pop().expect("refilled");
-        let v = if factor > 1 { &coarse.1[i] } else { &ds.train[i] };
+        let views = coarse.at(&ds.train, trainer.config.downscale.factor(step));
+        let v = &views[state.stack.pop().expect("refilled")];
         let report = trainer.step(&v.camera, &v.image, v.weights.as_deref())?;
         state.ema_loss =
             if report.step == 1 { report.loss } else { 0.4 * report.loss + 0.6 * state.ema_loss };
@@ -303,6 +290,30 @@ pub fn fit_with(
         on_progress(&progress);
     }
     Ok(evaluate(trainer, &ds.test))
+}
+
+/// The training views at the coarse-to-fine schedule's current divisor
+/// ([`crate::trainer::Downscale`]), made once per level and dropped at full resolution.
+#[derive(Default)]
+struct CoarseViews {
+    factor: u32,
+    views: Vec<View>,
+}
+
+impl CoarseViews {
+    /// `train` itself at divisor 1, else its views divided by `factor`.
+    fn at<'a>(&'a mut self, train: &'a [View], factor: u32) -> &'a [View] {
+        if factor <= 1 {
+            *self = CoarseViews::default(); // the last coarse level is not kept
+            return train;
+        }
+        if factor != self.factor {
+            tracing::debug!("training at 1/{factor} resolution");
+            self.views = train.par_iter().map(|v| v.downscaled(factor)).collect();
+            self.factor = factor;
+        }
+        &self.views
+    }
 }
 
 /// The run summary `train.json` in a training output folder (steps, Gaussians, test
