@@ -73,6 +73,7 @@ impl Method {
                 cfg.fusion.coverage = false;
                 cfg.loss.colour_gate = 0.0;
                 cfg.semantic_init = SemanticInit::Source;
+                cfg.prototypes.close_radius = 0.0;
             }
             Method::Geometric => {
                 cfg.transport.lambda_sem = 0.0;
@@ -350,10 +351,11 @@ impl EditConfig {
     /// Checks ranges; the message names the offending key.
     pub fn validate(&self) -> Result<(), String> {
         let t = &self.transport;
-        let checks: [(&str, bool); 13] = [
+        let checks: [(&str, bool); 14] = [
             ("semantic_dim", self.semantic_dim > 0 && self.semantic_dim <= 256),
             ("prototypes.count", self.prototypes.count > 0),
             ("prototypes.threshold", (0.0..=1.0).contains(&self.prototypes.threshold)),
+            ("prototypes.close_radius", (0.0..=0.1).contains(&self.prototypes.close_radius)),
             ("transport.eps", t.eps.is_finite() && t.eps > 0.0),
             ("transport.tau_s", t.tau_s > 0.0),
             ("transport.tau_t", t.tau_t > 0.0),

@@ -152,18 +152,19 @@ mod tests {
         let r = residuals(2, &[v3], fusion(Agreement::Visibility, false));
         assert!(r[0].abs() < 1e-6 && (r[1] - 1.0).abs() < 1e-6, "{r:?}");
         // Coverage: view A's sources cover ω = (1, 0.25, 0.5) of their footprint with
-        // its support, view B's (0.16, 1) → σ̃ = √(σω): A (1, √0.125, √0.0625 = 0.25),
-        // B (0, 1); without ω known (empty) a view keeps σ.
+        // its support, view B's (0.16, 1); σ is A (1, 0.5, 0.125), B (0, 1), so
+        // σ̃ = min(σ, ω) is A (1, 0.25, 0.125), B (0, 1); without ω known (empty) a view
+        // keeps σ.
         va.coverage = vec![1.0, 0.25, 0.5].into();
         let mut vb_cov = vb.clone();
         vb_cov.coverage = vec![0.16, 1.0].into();
         let r = residuals(4, &[va.clone(), vb_cov], fusion(Agreement::Visibility, true));
-        let want = [1.0 - 0.5 / 0.9, 1.0 - 0.125f32.sqrt(), 1.0 - (0.2 * 0.25 + 0.6) / 0.8, 1.0];
+        let want = [1.0 - 0.5 / 0.9, 0.75, 1.0 - (0.2 * 0.125 + 0.6) / 0.8, 1.0];
         for (a, b) in r.iter().zip(want) {
             assert!((a - b).abs() < 1e-6, "{r:?}");
         }
         let r = residuals(4, &[va, vb], fusion(Agreement::Visibility, true));
-        assert!((r[2] - (1.0 - (0.2 * 0.25 + 0.6 * 1.0) / 0.8)).abs() < 1e-6, "{r:?}");
+        assert!((r[2] - (1.0 - (0.2 * 0.125 + 0.6 * 1.0) / 0.8)).abs() < 1e-6, "{r:?}");
         let g = gate(&[1.0 / 6.0, 0.0, 1.0], 0.5);
         assert!((g[0] - (-1.0f32 / 3.0).exp()).abs() < 1e-6);
         assert!((g[2] - (-2.0f32).exp()).abs() < 1e-6);

@@ -10,7 +10,7 @@ use crate::prototypes::Prototypes;
 use crate::view::{self, TransportConfig, ViewTransport};
 use crate::{gate, EditConfig};
 use rayon::prelude::*;
-use transsplat_raster::{gaussian_stats, Splats};
+use transsplat_raster::{gaussian_stats_capped, Splats};
 use transsplat_scene::{sigmoid, Camera, Gaussians};
 
 /// Statistics of one transport round.
@@ -78,7 +78,8 @@ pub fn view_sources(g: &Gaussians, views: &[RoundView]) -> Vec<ViewSources> {
                 Some(p) => (p.as_slice(), v.d_app + 1),
                 None => (v.appearance, v.d_app),
             };
-            let st = gaussian_stats(&splats, v.cam, Some((img, ch)));
+            // The evidence channel is splatted back capped: ω_i = Σ_p min(w_i(p), E(p)) / Σ_p w_i(p).
+            let st = gaussian_stats_capped(&splats, v.cam, Some((img, ch)), has_support as usize);
             let (idx, a) = view::source_masses(&st.visibility, &opacity);
             let m2d: Vec<[f32; 2]> = idx.iter().map(|&i| st.means2d[i as usize]).collect();
             let mut phi: Vec<f32> = Vec::with_capacity(idx.len() * v.d_app);

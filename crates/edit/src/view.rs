@@ -275,21 +275,25 @@ impl ViewTransport {
     }
 
     /// The view's support of each source: the relative support σ_i
-    /// ([`Self::relative_support`]), and with `coverage` (and ω known) the geometric
-    /// mean √(σ_i ω_i) with the source's coverage ω_i (`fusion.coverage`;
+    /// ([`Self::relative_support`]), and with `coverage` (and ω known) bounded by the
+    /// source's coverage ω_i: min(σ_i, ω_i) (`fusion.coverage`;
     /// docs/method.md#m6-residual-and-gate).
     ///
     /// *Why:* σ ranks whole Gaussians, so a Gaussian whose footprint only touches the
-    /// evidence (a table Gaussian half inside a spill ring around the edited object)
-    /// can hold full support; ω says how much of it the view's evidence is about. Each
-    /// alone fails on a kind of 2D error: σ on regions the entropic plan smears into,
-    /// ω on holes a noisy attention map leaves in the target. The geometric mean
-    /// asks for both and lets neither decide alone (σ = 1, ω = 0.25 gives 0.5).
+    /// evidence (a table Gaussian at the edited object's silhouette, or half inside a
+    /// spill ring) can hold full support; ω says how much of it the view's evidence
+    /// accounts for. A view supports a Gaussian as far as both say so (a fuzzy "and"):
+    /// with σ = 1 a Gaussian a quarter inside the evidence has support 0.25, not the
+    /// geometric mean's 0.5, which let such Gaussians through the majority colour gate.
+    /// The geometric mean was chosen when ω failed on the target itself (holes a noisy
+    /// attention leaves in Ω, partly covered pixels at its edges); the closing of Ā
+    /// ([`crate::prototypes::grey_closing`]) and the capped splat-back of ω
+    /// ([`transsplat_raster::gaussian_stats_capped`]) fix those where they arise.
     pub fn view_support(&self, coverage: bool) -> Vec<f32> {
         let mut s = self.relative_support();
         if coverage && self.coverage.len() == s.len() {
             for (s, &o) in s.iter_mut().zip(self.coverage.iter()) {
-                *s = (*s * o.clamp(0.0, 1.0)).sqrt();
+                *s = s.min(o.clamp(0.0, 1.0));
             }
         }
         s

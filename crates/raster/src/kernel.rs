@@ -110,6 +110,9 @@ pub struct Accum<'a> {
     /// `H × W × channels` image to splat back, or empty.
     pub image: &'a [f32],
     pub channels: usize,
+    /// The last `capped` channels accumulate min(w, G(p)) instead of w G(p)
+    /// ([`crate::gaussian_stats_capped`]).
+    pub capped: usize,
 }
 
 impl Accum<'_> {
@@ -239,12 +242,16 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
                     if a.channels > 0 {
                         let stride = a.stride();
                         let dst = &mut acc_buf[j as usize * stride + 3..(j as usize + 1) * stride];
+                        let plain = a.channels - a.capped.min(a.channels);
                         for (x, &w) in wrow.iter().enumerate() {
                             if w > 0.0 {
                                 let col = x0 + h * HALF + x;
                                 let g = &a.image[(py * b.width + col) * a.channels..][..a.channels];
-                                for (d, gv) in dst.iter_mut().zip(g) {
+                                for (d, gv) in dst[..plain].iter_mut().zip(&g[..plain]) {
                                     *d += w * gv;
+                                }
+                                for (d, &gv) in dst[plain..].iter_mut().zip(&g[plain..]) {
+                                    *d += w.min(gv);
                                 }
                             }
                         }

@@ -434,6 +434,19 @@ pub struct GaussianStats {
 /// (`H × W × channels`), the blend-weight-weighted mean of the image per Gaussian:
 /// the transpose of rendering, used to lift masks and features onto Gaussians.
 pub fn gaussian_stats(splats: &Splats, cam: &Camera, image: Option<(&[f32], usize)>) -> GaussianStats {
+    gaussian_stats_capped(splats, cam, image, 0)
+}
+
+/// [`gaussian_stats`] whose last `capped` image channels are splatted back capped:
+/// Σ_p min(w_i(p), G(p)) / Σ_p w_i(p), the share of the Gaussian's blend weight that a
+/// per-pixel share G(p) ∈ [0, 1] of the pixel can account for
+/// (docs/method.md#m6-residual-and-gate, the coverage ω).
+pub fn gaussian_stats_capped(
+    splats: &Splats,
+    cam: &Camera,
+    image: Option<(&[f32], usize)>,
+    capped: usize,
+) -> GaussianStats {
     validate(splats, cam);
     let view = View::new(cam);
     let mut only = *splats;
@@ -442,7 +455,7 @@ pub fn gaussian_stats(splats: &Splats, cam: &Camera, image: Option<(&[f32], usiz
     let b = bin::bin(&only, &view);
     let (img, channels) = image.unwrap_or((&[], 0));
     assert!(img.len() == b.width * b.height * channels, "splat-back image has the wrong size");
-    let accum = Accum { image: img, channels };
+    let accum = Accum { image: img, channels, capped };
     let stride = accum.stride();
     let m = b.splats.len();
     let num_tiles = b.tiles_x * b.tiles_y;
