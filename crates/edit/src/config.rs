@@ -112,7 +112,7 @@ pub struct FusionConfig {
     /// How per-view residuals are combined across views ([`crate::gate::Agreement`]).
     pub agreement: crate::gate::Agreement,
     /// A view's support of a Gaussian is bounded by how much of its footprint lies in
-    /// the view's evidence: √(σ ω) ([`crate::view::ViewTransport::view_support`]); off:
+    /// the view's evidence: min(σ, ω) ([`crate::view::ViewTransport::view_support`]); off:
     /// the plan's relative support σ alone.
     pub coverage: bool,
 }
