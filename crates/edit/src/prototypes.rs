@@ -81,11 +81,21 @@ pub struct ViewEvidence<'a> {
     pub d_app: usize,
 }
 
+/// A view's support Ω and normalised attention Ā, computed once per view
+/// ([`view_support`]) and read by the prototypes, the evidence plane and masklift.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Support {
+    /// Ω, `H × W`.
+    pub omega: Vec<bool>,
+    /// Ā (closed), `H × W`.
+    pub abar: Vec<f32>,
+}
+
 /// The support Ω as a boolean plane: thresholded normalised attention inside the
 /// mask, with connected components (4-neighbour) smaller than `min_area` removed.
 /// Ā is closed over a square of radius `close` pixels first ([`grey_closing`]; 0:
-/// not). Returns the support and the normalised attention Ā.
-pub fn support(ev: &ViewEvidence, threshold: f32, min_area: usize, close: usize) -> (Vec<bool>, Vec<f32>) {
+/// not).
+pub fn support(ev: &ViewEvidence, threshold: f32, min_area: usize, close: usize) -> Support {
     let (w, h) = (ev.width, ev.height);
     let max = ev.attention.iter().fold(0.0f32, |m, &v| if v.is_finite() { m.max(v) } else { m });
     let abar: Vec<f32> =
@@ -135,7 +145,7 @@ pub fn support(ev: &ViewEvidence, threshold: f32, min_area: usize, close: usize)
             }
         }
     }
-    (omega, abar)
+    Support { omega, abar }
 }
 
 /// Grey-level closing of an `h × w` plane by a (2r+1)² square: a max filter then a min
@@ -151,25 +161,49 @@ pub fn support(ev: &ViewEvidence, threshold: f32, min_area: usize, close: usize)
 /// latent cell of a Stable-Diffusion editor (1/64 of the side, 1.1 % of the diagonal),
 /// the scale at which its attention is resolved.
 pub fn grey_closing(a: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
-    let pass = |src: &[f32], take_max: bool| -> Vec<f32> {
-        let pick = |x: f32, y: f32| if take_max { x.max(y) } else { x.min(y) };
-        let mut rows = vec![0.0f32; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                let (x0, x1) = (x.saturating_sub(r), (x + r).min(w - 1));
-                rows[y * w + x] = (x0..=x1).map(|k| src[y * w + k]).reduce(pick).unwrap();
-            }
-        }
-        let mut out = vec![0.0f32; w * h];
-        for y in 0..h {
-            let (y0, y1) = (y.saturating_sub(r), (y + r).min(h - 1));
-            for x in 0..w {
-                out[y * w + x] = (y0..=y1).map(|k| rows[k * w + x]).reduce(pick).unwrap();
-            }
-        }
-        out
-    };
-    pass(&pass(a, true), false)
+    if r == 0 {
+        return a.to_vec();
+    }
+    let dilated = filter_2d(a, w, h, r, f32::max, f32::NEG_INFINITY);
+    filter_2d(&dilated, w, h, r, f32::min, f32::INFINITY)
+}
+
+/// The running `op` (max or min, with `identity` its neutral value) over a
+/// (2r+1)² square, clipped at the border: rows, then columns.
+fn filter_2d(a: &[f32], w: usize, h: usize, r: usize, op: fn(f32, f32) -> f32, identity: f32) -> Vec<f32> {
+    let mut rows = vec![0.0f32; w * h];
+    for (src, dst) in a.chunks_exact(w).zip(rows.chunks_exact_mut(w)) {
+        running(src, dst, r, op, identity);
+    }
+    let mut out = vec![0.0f32; w * h];
+    let (mut col, mut res) = (vec![0.0f32; h], vec![0.0f32; h]);
+    for x in 0..w {
+        col.iter_mut().enumerate().for_each(|(y, c)| *c = rows[y * w + x]);
+        running(&col, &mut res, r, op, identity);
+        res.iter().enumerate().for_each(|(y, &v)| out[y * w + x] = v);
+    }
+    out
+}
+
+/// `dst[i] = op(src[i − r ..= i + r])` (clipped at both ends) in O(n) whatever r: the
+/// van Herk / Gil-Werman scheme, prefix and suffix runs within blocks of 2r + 1, so a
+/// window is one suffix run and one prefix run.
+fn running(src: &[f32], dst: &mut [f32], r: usize, op: fn(f32, f32) -> f32, identity: f32) {
+    let (n, k) = (src.len(), 2 * r + 1);
+    // Padded by r identities on the left and up to a whole block on the right.
+    let m = (n + 2 * r).div_ceil(k) * k;
+    let at = |i: usize| if i >= r && i - r < n { src[i - r] } else { identity };
+    let (mut pre, mut suf) = (vec![identity; m], vec![identity; m]);
+    for i in 0..m {
+        pre[i] = if i % k == 0 { at(i) } else { op(pre[i - 1], at(i)) };
+    }
+    for i in (0..m).rev() {
+        suf[i] = if i % k == k - 1 { at(i) } else { op(suf[i + 1], at(i)) };
+    }
+    // The window of output i covers padded positions i ..= i + 2r.
+    for (i, d) in dst.iter_mut().enumerate() {
+        *d = op(suf[i], pre[i + 2 * r]);
+    }
 }
 
 /// Weighted k-means of 2D points: k-means++ seeding then `iters` Lloyd steps.
@@ -243,7 +277,7 @@ pub fn weighted_kmeans(pts: &[[f32; 2]], wts: &[f32], k: usize, iters: usize, se
 
 /// The support Ω and normalised attention Ā of a view with the configured threshold
 /// δ_a and minimum component area (a fraction of the image, at least one pixel).
-pub fn view_support(ev: &ViewEvidence, cfg: &PrototypeConfig) -> (Vec<bool>, Vec<f32>) {
+pub fn view_support(ev: &ViewEvidence, cfg: &PrototypeConfig) -> Support {
     let min_area = ((cfg.min_area_fraction * (ev.width * ev.height) as f32).ceil() as usize).max(1);
     let diag = ((ev.width * ev.width + ev.height * ev.height) as f32).sqrt();
     support(ev, cfg.threshold, min_area, (cfg.close_radius * diag).round() as usize)
@@ -259,22 +293,23 @@ pub fn view_support(ev: &ViewEvidence, cfg: &PrototypeConfig) -> (Vec<bool>, Vec
 /// much as the edited object. Relative to the typical attention of the support, the
 /// object's pixels count fully and weaker evidence in proportion. The median, not the
 /// maximum Ā is normalised by: one noisy peak does not lower every other pixel.
-pub fn evidence_plane(ev: &ViewEvidence, cfg: &PrototypeConfig) -> Vec<f32> {
-    let (omega, abar) = view_support(ev, cfg);
-    let mut inside: Vec<f32> = omega.iter().zip(&abar).filter(|(&o, _)| o).map(|(_, &a)| a).collect();
+pub fn evidence_plane(sup: &Support) -> Vec<f32> {
+    let Support { omega, abar } = sup;
+    let mut inside: Vec<f32> = omega.iter().zip(abar).filter(|(&o, _)| o).map(|(_, &a)| a).collect();
     if inside.is_empty() {
         return vec![0.0; omega.len()];
     }
     let k = inside.len() / 2;
     let median = *inside.select_nth_unstable_by(k, f32::total_cmp).1;
-    omega.iter().zip(&abar).map(|(&o, &a)| if o { (a / median).min(1.0) } else { 0.0 }).collect()
+    omega.iter().zip(abar).map(|(&o, &a)| if o { (a / median).min(1.0) } else { 0.0 }).collect()
 }
 
 /// Pixel-level prototypes for the `no_prototype` ablation: a seeded subsample of
-/// `samples` support pixels, each its own prototype with mass ∝ Ā.
-pub fn pixels(ev: &ViewEvidence, cfg: &PrototypeConfig, samples: usize, seed: u64) -> Prototypes {
+/// `samples` support pixels (of `sup`, the view's [`view_support`]), each its own
+/// prototype with mass ∝ Ā.
+pub fn pixels(ev: &ViewEvidence, sup: &Support, samples: usize, seed: u64) -> Prototypes {
     use rand::seq::SliceRandom;
-    let (omega, abar) = view_support(ev, cfg);
+    let Support { omega, abar } = sup;
     let mut idx: Vec<usize> = (0..omega.len()).filter(|&i| omega[i]).collect();
     idx.shuffle(&mut ChaCha8Rng::seed_from_u64(seed));
     idx.truncate(samples);
@@ -294,11 +329,11 @@ pub fn pixels(ev: &ViewEvidence, cfg: &PrototypeConfig, samples: usize, seed: u6
     out
 }
 
-/// Extracts the prototypes of one view (appendix A.1). An empty result means the
-/// view carries no editing evidence.
-pub fn extract(ev: &ViewEvidence, cfg: &PrototypeConfig, seed: u64) -> Prototypes {
+/// Extracts the prototypes of one view (appendix A.1) from its support `sup`
+/// ([`view_support`]). An empty result means the view carries no editing evidence.
+pub fn extract(ev: &ViewEvidence, sup: &Support, cfg: &PrototypeConfig, seed: u64) -> Prototypes {
     let (w, h, d, da) = (ev.width, ev.height, ev.d, ev.d_app);
-    let (omega, abar) = view_support(ev, cfg);
+    let Support { omega, abar } = sup;
     let idx: Vec<usize> = (0..w * h).filter(|&p| omega[p]).collect();
     if idx.is_empty() {
         return Prototypes { d, d_app: da, ..Default::default() };
@@ -383,7 +418,8 @@ mod tests {
             close_radius: 0.0,
             lloyd_iters: 5,
         };
-        let p = extract(&evidence(w, h, &att, &sem, &app), &cfg, 3);
+        let ev = evidence(w, h, &att, &sem, &app);
+        let p = extract(&ev, &view_support(&ev, &cfg), &cfg, 3);
         assert_eq!(p.len(), 2);
         let (a, b) = if p.u[0][0] < p.u[1][0] { (0, 1) } else { (1, 0) };
         assert!((p.u[a][0] - 2.0).abs() < 1e-5 && (p.u[a][1] - 2.0).abs() < 1e-5, "{:?}", p.u);
@@ -409,14 +445,14 @@ mod tests {
         let sem = vec![1.0f32; w * h * 2];
         let app = vec![1.0f32; w * h];
         let ev = evidence(w, h, &att, &sem, &app);
-        let (omega, _) = support(&ev, 0.5, 2, 0);
+        let omega = support(&ev, 0.5, 2, 0).omega;
         assert!(!omega[0], "isolated pixel kept");
         assert_eq!(omega.iter().filter(|&&o| o).count(), 16);
         let mut mask = vec![0.0f32; w * h];
         mask[4 * w + 4] = 1.0;
         mask[4 * w + 5] = 1.0;
         let ev = ViewEvidence { mask: Some(&mask), ..ev };
-        let (omega, _) = support(&ev, 0.5, 1, 0);
+        let omega = support(&ev, 0.5, 1, 0).omega;
         assert_eq!(omega.iter().filter(|&&o| o).count(), 2);
     }
 
@@ -428,13 +464,13 @@ mod tests {
         let att = [0.0f32, 0.25, 0.5, 1.0, 0.8, 0.1];
         let (sem, app) = (vec![0.0f32; 12], vec![0.0f32; 6]);
         let cfg = PrototypeConfig { threshold: 0.3, min_area_fraction: 0.0, ..Default::default() };
-        let plane = evidence_plane(&evidence(6, 1, &att, &sem, &app), &cfg);
+        let plane = evidence_plane(&view_support(&evidence(6, 1, &att, &sem, &app), &cfg));
         let want = [0.0, 0.0, 0.5 / 0.8, 1.0, 1.0, 0.0];
         for (a, b) in plane.iter().zip(want) {
             assert!((a - b).abs() < 1e-6, "{plane:?}");
         }
         let z = [0.0f32; 6];
-        assert_eq!(evidence_plane(&evidence(6, 1, &z, &sem, &app), &cfg), vec![0.0; 6]);
+        assert_eq!(evidence_plane(&view_support(&evidence(6, 1, &z, &sem, &app), &cfg)), vec![0.0; 6]);
     }
 
     /// Closing by radius 1 on a 5 × 3 plane: a one-pixel dip inside a plateau is
@@ -462,6 +498,36 @@ mod tests {
         assert!(grey_closing(&noisy, 5, 3, 1).iter().zip(&noisy).all(|(c, a)| c >= a));
     }
 
+    /// The O(n) closing against its definition, max then min over the clipped
+    /// (2r+1)² window pixel by pixel, on random planes of several shapes and radii
+    /// (windows wider than the plane included).
+    #[test]
+    fn closing_equals_the_windowed_max_then_min() {
+        let naive = |a: &[f32], w: usize, h: usize, r: usize, max: bool| -> Vec<f32> {
+            (0..w * h)
+                .map(|p| {
+                    let (x, y) = (p % w, p / w);
+                    let (xs, ys) =
+                        (x.saturating_sub(r)..=(x + r).min(w - 1), y.saturating_sub(r)..=(y + r).min(h - 1));
+                    let vals = ys.flat_map(|yy| xs.clone().map(move |xx| a[yy * w + xx]));
+                    if max {
+                        vals.fold(f32::NEG_INFINITY, f32::max)
+                    } else {
+                        vals.fold(f32::INFINITY, f32::min)
+                    }
+                })
+                .collect()
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        for &(w, h) in &[(1, 1), (7, 1), (1, 9), (13, 11), (40, 23)] {
+            let a: Vec<f32> = (0..w * h).map(|_| rng.gen_range(0.0f32..1.0)).collect();
+            for r in [1, 2, 3, 5, 30] {
+                let want = naive(&naive(&a, w, h, r, true), w, h, r, false);
+                assert_eq!(grey_closing(&a, w, h, r), want, "{w}x{h}, r = {r}");
+            }
+        }
+    }
+
     /// The support of a plateau with noisy dips below δ_a away from its edge: without
     /// closing the dips are holes in Ω, with it Ω is the whole plateau and nothing
     /// outside it. (A dip on the edge stays: closing fills what is surrounded.)
@@ -483,9 +549,9 @@ mod tests {
         let (sem, app) = (vec![0.0f32; 2 * w * h], vec![0.0f32; w * h]);
         let ev = evidence(w, h, &att, &sem, &app);
         let plateau = |p: usize| (2..10).contains(&(p % w)) && (2..10).contains(&(p / w));
-        let (open, _) = support(&ev, 0.3, 1, 0);
+        let open = support(&ev, 0.3, 1, 0).omega;
         assert!((0..w * h).any(|p| plateau(p) && !open[p]), "the test needs holes");
-        let (closed, _) = support(&ev, 0.3, 1, 1);
+        let closed = support(&ev, 0.3, 1, 1).omega;
         assert!((0..w * h).all(|p| closed[p] == plateau(p)));
     }
 
@@ -493,7 +559,9 @@ mod tests {
     fn no_attention_means_no_evidence() {
         let z = vec![0.0f32; 16];
         let sem = vec![0.0f32; 32];
-        let p = extract(&evidence(4, 4, &z, &sem, &z), &PrototypeConfig::default(), 0);
+        let ev = evidence(4, 4, &z, &sem, &z);
+        let cfg = PrototypeConfig::default();
+        let p = extract(&ev, &view_support(&ev, &cfg), &cfg, 0);
         assert!(p.is_empty());
     }
 

@@ -43,7 +43,7 @@ pub fn view_mask(ev: &ViewEvidence, cfg: &PrototypeConfig) -> Vec<f32> {
     if let Some(m) = ev.mask {
         return m.iter().map(|&v| if v > 0.5 { 1.0 } else { 0.0 }).collect();
     }
-    view_support(ev, cfg).0.iter().map(|&o| if o { 1.0 } else { 0.0 }).collect()
+    view_support(ev, cfg).omega.iter().map(|&o| if o { 1.0 } else { 0.0 }).collect()
 }
 
 impl EditMethod for Masklift {

@@ -150,15 +150,16 @@ impl EditMethod for TransSplat {
     fn add_view(&mut self, cam: usize, ev: &ViewEvidence) -> usize {
         let seed = self.cfg.seed.wrapping_mul(1_000_003).wrapping_add(cam as u64);
         let p = &self.cfg.prototypes;
+        let sup = prototypes::view_support(ev, p);
         let protos = match self.prototyping {
-            Prototyping::Regions => prototypes::extract(ev, p, seed),
-            Prototyping::Pixels => prototypes::pixels(ev, p, self.cfg.pixel_samples, seed),
+            Prototyping::Regions => prototypes::extract(ev, &sup, p, seed),
+            Prototyping::Pixels => prototypes::pixels(ev, &sup, self.cfg.pixel_samples, seed),
         };
         let count = protos.len();
         self.prototypes.push(protos);
         // The evidence plane, for evidence-mass balancing and the coverage bound.
         let needed = (self.cfg.transport.evidence_mass || self.cfg.fusion.coverage) && count > 0;
-        self.supports.push(if needed { prototypes::evidence_plane(ev, p) } else { Vec::new() });
+        self.supports.push(if needed { prototypes::evidence_plane(&sup) } else { Vec::new() });
         count
     }
 
