@@ -7,6 +7,7 @@ use crate::prototypes::PrototypeConfig;
 use crate::view::TransportConfig;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use transsplat_raster::ClampGrad;
 
 /// Which method runs in the edit loop: the full method or a baseline / ablation.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -234,6 +235,11 @@ pub struct EditConfig {
     pub pixel_samples: usize,
     /// masklift: splat-back mask threshold.
     pub masklift_threshold: f32,
+    /// How the colour clamp at 0 passes the image loss's gradients to the SH
+    /// coefficients (docs/method.md#m11-colour-clamp): `revive` (default) lets a
+    /// channel below 0 rise, so a dark colour of a scene trained elsewhere can be
+    /// edited; `exact` is the clamp's derivative.
+    pub clamp_grad: ClampGrad,
     pub seed: u64,
 }
 
@@ -251,6 +257,7 @@ impl Default for EditConfig {
             lr: LearningRates::default(),
             pixel_samples: 256,
             masklift_threshold: 0.5,
+            clamp_grad: ClampGrad::Revive,
             seed: 0,
         }
     }

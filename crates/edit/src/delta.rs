@@ -14,6 +14,7 @@
 //! weights are built when the mask first reaches a Gaussian not yet covered.
 
 use transsplat_raster::weights::{blend_weights, colour_sh_backward, colours, BlendWeights};
+use transsplat_raster::ClampGrad;
 use transsplat_raster::Splats;
 use transsplat_scene::{Camera, Gaussians};
 
@@ -121,7 +122,8 @@ impl Delta {
     }
 
     /// Adds the SH gradients of the Gaussians in `mask` from the image gradient
-    /// `grad_rgb` of usable view `k` into `grad_sh`.
+    /// `grad_rgb` of usable view `k` into `grad_sh`, through the colour clamp as
+    /// `clamp` says.
     pub fn backward(
         &self,
         k: usize,
@@ -130,11 +132,12 @@ impl Delta {
         grad_rgb: &[f32],
         mask: &[bool],
         grad_sh: &mut [f32],
+        clamp: ClampGrad,
     ) {
         let v = &self.views[k];
         let vcol = v.weights.transpose(grad_rgb);
         let (ids, vcol): (Vec<u32>, Vec<[f32; 3]>) =
             v.weights.ids.iter().zip(vcol).filter(|(&i, _)| mask[i as usize]).unzip();
-        colour_sh_backward(splats, cam, &ids, &vcol, grad_sh);
+        colour_sh_backward(splats, cam, &ids, &vcol, grad_sh, clamp);
     }
 }

@@ -61,6 +61,7 @@ pub fn trainer(
         densify,
         background,
         seed: cfg.seed,
+        clamp_grad: cfg.clamp_grad,
         ..TrainConfig::default()
     };
     let model = Model::with_features(g.clone(), s, cfg.semantic_dim).map_err(EditError::Train)?;
@@ -181,7 +182,7 @@ impl Renderer {
             times.image_loss += lap(&mut clock);
             let mut grads = std::mem::take(buf.as_mut());
             let mask = mask.expect("a delta render follows a colour mask");
-            d.backward(k, &splats, cam, &grad_rgb, mask, &mut grads.sh);
+            d.backward(k, &splats, cam, &grad_rgb, mask, &mut grads.sh, tr.config.clamp_grad);
             times.backward += lap(&mut clock);
             return (None, grads, loss);
         }

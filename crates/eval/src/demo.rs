@@ -59,6 +59,27 @@ pub struct MethodScore {
     pub transport_seconds: f64,
 }
 
+/// How well a scene trained from the built-in scene's renders reproduces the unedited
+/// truth on the test views (dB): over whole images, inside the target and over the
+/// background. The target value is the bar of an edit's target PSNR on that scene.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct Fidelity {
+    pub test_psnr: f64,
+    pub target_psnr: f64,
+    pub background_psnr: f64,
+}
+
+/// What a demo run produced.
+#[derive(Clone, Debug)]
+pub struct DemoOutcome {
+    /// The output folder.
+    pub out: PathBuf,
+    /// Per method, in the order run.
+    pub scores: Vec<MethodScore>,
+    /// The trained source's fidelity, for a scene trained from its renders.
+    pub trained: Option<Fidelity>,
+}
+
 /// The demo's errors.
 #[derive(Debug, thiserror::Error)]
 pub enum DemoError {
@@ -103,7 +124,7 @@ pub fn run(
     opts: &DemoOptions,
     cancel: Option<&AtomicBool>,
     on_progress: &mut dyn FnMut(&str, Progress),
-) -> Result<(PathBuf, Vec<MethodScore>), DemoError> {
+) -> Result<DemoOutcome, DemoError> {
     let staged = StagedDir::begin(&opts.out, MARKER)?;
     let dir = staged.path().to_path_buf();
     let scfg = if opts.quick { SceneConfig::quick() } else { SceneConfig::default() };
@@ -114,7 +135,7 @@ pub fn run(
     let truth = sim.ground_truth().clone();
     tracing::info!("demo: scene {} ({} Gaussians), {description}", scene.name, scene.gaussians.len());
     let mut reference = Reference::new(&scene, &truth, &target_labels);
-    let (source, trained_psnr) = if opts.trained > 0 {
+    let (source, trained) = if opts.trained > 0 {
         let (g, psnr) = crate::trained::train_from_renders(
             &scene,
             opts.trained,
@@ -133,12 +154,7 @@ pub fn run(
         // Background PSNR then measures what the edit changed outside the target, not
         // the trained scene's own error.
         reference = reference.with_source(&scene, &g);
-        (
-            g,
-            Some(
-                serde_json::json!({"test_psnr": psnr, "target_psnr": target, "background_psnr": background}),
-            ),
-        )
+        (g, Some(Fidelity { test_psnr: psnr as f64, target_psnr: target, background_psnr: background }))
     } else {
         (scene.gaussians_with_labels(), None)
     };
@@ -239,7 +255,7 @@ pub fn run(
     let metrics = serde_json::json!({
         "scene": scene.name, "prompt": opts.prompt, "edit": description, "severity": opts.severity,
         "quick": opts.quick, "gaussians": source.len(), "test_views": test,
-        "trained_steps": opts.trained, "trained": trained_psnr,
+        "trained_steps": opts.trained, "trained": trained,
         "methods": methods,
     });
     write_report(&dir, &opts.prompt, &description, &scene.name, &stems, &scores, &results, &config, viewer)?;
@@ -248,7 +264,7 @@ pub fn run(
         serde_json::to_string_pretty(&metrics).expect("json").as_bytes(),
     )?;
     let out = staged.commit()?;
-    Ok((out, scores))
+    Ok(DemoOutcome { out, scores, trained })
 }
 
 #[allow(clippy::too_many_arguments)]

@@ -8,7 +8,10 @@
 //! anything) is reported as failed with its reason; the others still run.
 //!
 //! **Edits** ([`EDITS`], each at severities 0–3 of the simulated editor on the built
-//! scene, and at severity 1 on the scene trained from its renders):
+//! scene, and at severities 0 and 1 on the scene trained from its renders; with the
+//! perfect edits of severity 0 a trained case checks that the edit is as faithful as
+//! the trained scene allows: its target PSNR against the trained source's own target
+//! PSNR on the unedited truth, the case's `source_fidelity`):
 //!
 //! | scene | kind | instruction | what it tests |
 //! |---|---|---|---|
@@ -63,8 +66,12 @@ pub const EDITS: &[(&str, &str, &str)] = &[
     ("garden", "global", "make it autumn"),
 ];
 
-/// The cases: every edit at severities 0 to 3 on the built scenes, and at severity 1
-/// on the scenes trained from their renders (`trained_steps`).
+/// Severities of the trained variants: perfect edits (the fidelity check) and the
+/// default demo's.
+pub const TRAINED_SEVERITIES: [u32; 2] = [0, 1];
+
+/// The cases: every edit at severities 0 to 3 on the built scenes, and at
+/// [`TRAINED_SEVERITIES`] on the scenes trained from their renders (`trained_steps`).
 pub fn cases(trained_steps: u64) -> Vec<Case> {
     let mut out = Vec::new();
     for &(scene, edit, prompt) in EDITS {
@@ -72,7 +79,9 @@ pub fn cases(trained_steps: u64) -> Vec<Case> {
             out.push(case(scene, 0, edit, prompt, s as f32));
         }
         if trained_steps > 0 {
-            out.push(case(scene, trained_steps, edit, prompt, 1.0));
+            for s in TRAINED_SEVERITIES {
+                out.push(case(scene, trained_steps, edit, prompt, s as f32));
+            }
         }
     }
     out
@@ -121,6 +130,9 @@ pub struct CaseResult {
     pub case: Case,
     /// Per method, when the case ran.
     pub scores: Vec<MethodScore>,
+    /// A trained case's source against the unedited truth inside the target (dB): the
+    /// bar of the edits' target PSNR (docs/method.md#m11-colour-clamp).
+    pub source_fidelity: Option<f64>,
     /// Why the case failed, when it did.
     pub failed: Option<String>,
 }
@@ -151,13 +163,23 @@ pub fn run(
         };
         let outcome = demo::run(&demo_opts, cancel, &mut |m, p| on_progress(&c.name, m, p));
         let r = match outcome {
-            Ok((_, scores)) => CaseResult { case: c.clone(), scores, failed: None },
+            Ok(d) => CaseResult {
+                case: c.clone(),
+                scores: d.scores,
+                source_fidelity: d.trained.map(|f| f.target_psnr),
+                failed: None,
+            },
             Err(DemoError::Edit(e @ transsplat_edit::EditError::Interrupted(_))) => {
                 return Err(DemoError::Edit(e));
             }
             Err(e) => {
                 tracing::warn!("case {} failed: {e}", c.name);
-                CaseResult { case: c.clone(), scores: Vec::new(), failed: Some(e.to_string()) }
+                CaseResult {
+                    case: c.clone(),
+                    scores: Vec::new(),
+                    source_fidelity: None,
+                    failed: Some(e.to_string()),
+                }
             }
         };
         results.push(r);
@@ -272,6 +294,7 @@ pub fn table(results: &[CaseResult], avg: &BTreeMap<String, Average>) -> String 
             );
         }
     }
+    s += &fidelity_table(results);
     s += "\n| method | cases | mean target PSNR (cases) | mean background PSNR (cases) | mean gate AUROC | worst on a case |\n|---|---|---|---|---|---|\n";
     for (name, a) in avg {
         s += &format!(
@@ -284,6 +307,39 @@ pub fn table(results: &[CaseResult], avg: &BTreeMap<String, Average>) -> String 
             a.gate_auroc.map_or("-".into(), |g| format!("{g:.4}")),
             a.worst_cases
         );
+    }
+    s
+}
+
+/// The trained cases' target PSNR against their source's fidelity (target PSNR minus
+/// fidelity, per method), as Markdown; empty without trained cases.
+pub fn fidelity_table(results: &[CaseResult]) -> String {
+    let trained: Vec<&CaseResult> =
+        results.iter().filter(|r| r.failed.is_none() && r.source_fidelity.is_some()).collect();
+    let Some(first) = trained.first() else { return String::new() };
+    let names: Vec<&str> = first.scores.iter().map(|m| m.name.as_str()).collect();
+    let mut s = format!(
+        "\nTrained cases: each method's target PSNR minus the trained source's own target PSNR \
+         against the unedited truth (the edit's bar)\n\n| case | source's target PSNR | {} |\n|---|---|{}\n",
+        names.join(" | "),
+        "---|".repeat(names.len())
+    );
+    for r in trained {
+        let f = r.source_fidelity.unwrap_or(f64::NAN);
+        let gaps: Vec<String> = names
+            .iter()
+            .map(|n| {
+                r.scores.iter().find(|m| m.name == *n).map_or("-".into(), |m| {
+                    let g = m.metrics.target_psnr - f;
+                    if g.is_finite() {
+                        format!("{g:+.2}")
+                    } else {
+                        "-".into()
+                    }
+                })
+            })
+            .collect();
+        s += &format!("| {} | {} | {} |\n", r.case.name, db(f), gaps.join(" | "));
     }
     s
 }
@@ -402,7 +458,8 @@ mod tests {
         let one = select(cases(0), &["occluded-built-occluded-s2".into()]).unwrap();
         assert_eq!(one.len(), 1);
         assert_eq!(select(cases(0), &[]).unwrap().len(), 28);
-        assert_eq!(cases(500).len(), 35);
+        assert_eq!(cases(500).len(), 42);
+        assert!(select(cases(500), &["garden-trained-global-s0".into()]).is_ok());
         let e = select(cases(0), &["garden-built-global-s1".into(), "garden-built-global-s9".into()])
             .unwrap_err();
         assert!(e.contains("\"garden-built-global-s9\"") && e.contains("garden-built-global-s3"), "{e}");
@@ -438,11 +495,13 @@ mod tests {
             CaseResult {
                 case: c[0].clone(),
                 scores: vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)],
+                source_fidelity: None,
                 failed: None,
             },
             CaseResult {
                 case: global,
                 scores: vec![score("a", 10.0, f64::NAN), score("b", 14.0, f64::NAN)],
+                source_fidelity: None,
                 failed: None,
             },
         ];
@@ -461,6 +520,7 @@ mod tests {
         let only_nan = vec![CaseResult {
             case: c[1].clone(),
             scores: vec![score("a", f64::NAN, f64::NAN)],
+            source_fidelity: None,
             failed: None,
         }];
         let avg = averages(&only_nan);
@@ -470,6 +530,7 @@ mod tests {
         let tied = vec![CaseResult {
             case: c[1].clone(),
             scores: vec![score("a", 20.0, 30.0), score("b", 20.0, 35.0), score("c", 25.0, 30.0)],
+            source_fidelity: None,
             failed: None,
         }];
         let avg = averages(&tied);
@@ -477,6 +538,7 @@ mod tests {
         let all_tie = vec![CaseResult {
             case: c[1].clone(),
             scores: vec![score("a", 20.0, 30.0), score("b", 20.0, 30.0)],
+            source_fidelity: None,
             failed: None,
         }];
         let avg = averages(&all_tie);
@@ -490,14 +552,21 @@ mod tests {
             CaseResult {
                 case: c[0].clone(),
                 scores: vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)],
+                source_fidelity: None,
                 failed: None,
             },
             CaseResult {
                 case: c[1].clone(),
                 scores: vec![score("a", 10.0, 20.0), score("b", 12.0, 30.0)],
+                source_fidelity: None,
                 failed: None,
             },
-            CaseResult { case: c[2].clone(), scores: Vec::new(), failed: Some("editor error".into()) },
+            CaseResult {
+                case: c[2].clone(),
+                scores: Vec::new(),
+                source_fidelity: None,
+                failed: Some("editor error".into()),
+            },
         ];
         let avg = averages(&results);
         assert_eq!(avg["a"].cases, 2);
@@ -507,5 +576,31 @@ mod tests {
         assert_eq!((avg["a"].worst_cases, avg["b"].worst_cases), (2, 1));
         let t = table(&results, &avg);
         assert!(t.contains("| tabletop-built-recolour-s2 | **failed** | editor error |"), "{t}");
+    }
+
+    #[test]
+    fn trained_cases_show_each_method_against_the_source_fidelity() {
+        let c = cases(500);
+        let trained = c.iter().find(|c| c.trained > 0 && c.severity == 0.0).unwrap().clone();
+        let results = vec![
+            CaseResult {
+                case: c[0].clone(),
+                scores: vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)],
+                source_fidelity: None,
+                failed: None,
+            },
+            CaseResult {
+                case: trained,
+                scores: vec![score("a", 31.5, 40.0), score("b", 34.25, 50.0)],
+                source_fidelity: Some(33.0),
+                failed: None,
+            },
+        ];
+        let t = fidelity_table(&results);
+        assert!(t.contains("| case | source's target PSNR | a | b |"), "{t}");
+        assert!(t.contains("| tabletop-trained-recolour-s0 | 33.00 | -1.50 | +1.25 |"), "{t}");
+        assert!(!t.contains("built"), "built cases have no fidelity row: {t}");
+        assert_eq!(fidelity_table(&results[..1]), "");
+        assert!(table(&results, &averages(&results)).contains(&t));
     }
 }

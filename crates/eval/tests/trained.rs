@@ -30,12 +30,18 @@ fn demo_edits_the_trained_scene() {
         trained: 300,
         ..Default::default()
     };
-    let (out, scores) = demo::run(&opts, None, &mut |_, _| {}).unwrap();
+    let demo::DemoOutcome { out, scores, trained } = demo::run(&opts, None, &mut |_, _| {}).unwrap();
     let metrics: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
     assert_eq!(metrics["trained_steps"], 300);
-    for k in ["test_psnr", "target_psnr", "background_psnr"] {
+    let trained = trained.expect("the trained source's fidelity");
+    for (k, v) in [
+        ("test_psnr", trained.test_psnr),
+        ("target_psnr", trained.target_psnr),
+        ("background_psnr", trained.background_psnr),
+    ] {
         assert!(metrics["trained"][k].as_f64().unwrap() > 12.0, "{k}: {metrics}");
+        assert_eq!(metrics["trained"][k].as_f64().unwrap(), v, "{k}: metrics.json and the outcome agree");
     }
     let built_in = build("tabletop", &SceneConfig::quick()).unwrap().gaussians.len();
     assert_ne!(metrics["gaussians"].as_u64().unwrap() as usize, built_in, "the trained scene is edited");

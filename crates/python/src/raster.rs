@@ -17,7 +17,7 @@ use numpy::{PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use rayon::prelude::*;
-use transsplat_raster::{backward, render, Frame, Grads, ImageGrads, RenderOptions, Splats};
+use transsplat_raster::{backward, render, ClampGrad, Frame, Grads, ImageGrads, RenderOptions, Splats};
 use transsplat_scene::{sh_coeffs, sigmoid, Camera};
 
 /// Opacities are used within [ε, 1 − ε] so that their logit is finite.
@@ -367,7 +367,8 @@ pub fn rasterize_backward<'py>(
                 }
             }
             let (rgb, features) = if sh_mode { (&g_color[..], &[][..]) } else { (&[][..], &g_color[..]) };
-            let ig = ImageGrads { rgb, alpha: &g_alpha, depth: &g_depth, features };
+            // An autograd function returns the derivative of what it rendered: the exact clamp.
+            let ig = ImageGrads { rgb, alpha: &g_alpha, depth: &g_depth, features, clamp: ClampGrad::Exact };
             backward(&splats, cam, &state.frames[ci], &ig, &mut grads);
             let m2 = if ci + 1 < c {
                 std::mem::replace(&mut grads.means2d, vec![[0.0; 2]; n])

@@ -30,6 +30,7 @@ pub mod weights;
 
 use bin::Binned;
 use kernel::{Accum, ForwardState, PixelGrads, TileOut};
+pub use project::ClampGrad;
 use project::{GaussianParams, View};
 use rayon::iter::Either;
 use rayon::prelude::*;
@@ -239,6 +240,9 @@ pub struct ImageGrads<'a> {
     pub alpha: &'a [f32],
     pub depth: &'a [f32],
     pub features: &'a [f32],
+    /// How the colour clamp at 0 passes these gradients to the SH coefficients
+    /// ([`ClampGrad::Exact`] by default: the derivative of what is rendered).
+    pub clamp: ClampGrad,
 }
 
 /// Gradients with respect to every Gaussian parameter (same layouts as [`Splats`]).
@@ -389,7 +393,7 @@ pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, gr
             let a = &acc[j * stride..(j + 1) * stride];
             let sg = kernel::splat_grads(a);
             let mut vsh = [0.0f32; 48];
-            let gg = project::project_backward(&view, &splats.params(i), &sg, &mut vsh[..nsh]);
+            let gg = project::project_backward(&view, &splats.params(i), &sg, &mut vsh[..nsh], g.clamp);
             for k in 0..3 {
                 mean[k] += gg.mean[k];
                 ls[k] += gg.log_scale[k];

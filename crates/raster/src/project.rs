@@ -237,19 +237,65 @@ pub fn view_colour(view: &View, p: &GaussianParams) -> [f32; 3] {
     sh_color(view, p).map(|c| c.max(0.0))
 }
 
+/// How the colour clamp `c = max(raw, 0)` passes gradients to the SH coefficients.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ClampGrad {
+    /// The clamp's own derivative: nothing where the SH colour is below 0 (INRIA's and
+    /// gsplat's backward; the gradient of the function actually rendered).
+    #[default]
+    Exact,
+    /// A one-sided straight-through estimate (docs/method.md#m11-colour-clamp): where a
+    /// channel is below 0, a gradient asking it to *rise* still reaches the SH
+    /// coefficients; one asking it to fall does not (it is already black). With the
+    /// exact derivative a channel that overshoots below 0 in every view that sees it
+    /// never receives a gradient again, a dead channel: a dark red trained that way
+    /// cannot turn cyan in an edit, nor recover in training. The forward is unchanged,
+    /// and the mean's gradient (through the view direction) stays exact.
+    Revive,
+}
+
+impl ClampGrad {
+    pub const ALL: [ClampGrad; 2] = [ClampGrad::Exact, ClampGrad::Revive];
+
+    /// The rule's name (`exact`, `revive`), as in configuration files.
+    pub fn name(self) -> &'static str {
+        match self {
+            ClampGrad::Exact => "exact",
+            ClampGrad::Revive => "revive",
+        }
+    }
+
+    /// The rule named `s`, if any.
+    pub fn from_name(s: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|r| r.name() == s)
+    }
+}
+
 /// Backward of [`view_colour`] to the SH coefficients (mean held fixed): writes
 /// ∂L/∂sh_{k,c} = Y_k(d) ∂L/∂c_c into `v_sh` (`[coefficient][channel]`, the active
-/// coefficients) and returns ∂L/∂c with the clamp applied (0 where the SH colour is
-/// below 0: the clamp passes no gradient there).
+/// coefficients), where below the clamp ∂L/∂c_c is 0 or, under [`ClampGrad::Revive`],
+/// kept when negative (the loss asks the channel to rise). Returns the exact ∂L/∂c
+/// (0 where the SH colour is below 0), which the mean's gradient uses.
 #[inline(always)]
-pub fn colour_backward(view: &View, p: &GaussianParams, v_colour: [f32; 3], v_sh: &mut [f32]) -> [f32; 3] {
+pub fn colour_backward(
+    view: &View,
+    p: &GaussianParams,
+    v_colour: [f32; 3],
+    v_sh: &mut [f32],
+    clamp: ClampGrad,
+) -> [f32; 3] {
     let raw = sh_color(view, p);
     let vcol: [f32; 3] = std::array::from_fn(|c| if raw[c] < 0.0 { 0.0 } else { v_colour[c] });
+    let vsh: [f32; 3] = match clamp {
+        ClampGrad::Exact => vcol,
+        ClampGrad::Revive => std::array::from_fn(|c| if v_colour[c] < 0.0 { v_colour[c] } else { vcol[c] }),
+    };
     let (d, _) = view_dir(view, p.mean);
     let b = sh::basis(p.active_degree, d);
     for kk in 0..crate::sh_coeffs(p.active_degree) {
         for c in 0..3 {
-            v_sh[kk * 3 + c] = b[kk] * vcol[c];
+            v_sh[kk * 3 + c] = b[kk] * vsh[c];
         }
     }
     vcol
@@ -309,12 +355,14 @@ pub fn project(view: &View, p: &GaussianParams) -> Option<(Splat2d, [u32; 2])> {
 
 /// Backward of [`project`] for a visible Gaussian: from the gradients on its
 /// splat to the gradients on its parameters. SH coefficient gradients are written
-/// into `v_sh` (`[coefficient][channel]`, the active coefficients only).
+/// into `v_sh` (`[coefficient][channel]`, the active coefficients only), through the
+/// colour clamp as `clamp` says.
 pub fn project_backward(
     view: &View,
     p: &GaussianParams,
     g: &Splat2dGrads,
     v_sh: &mut [f32],
+    clamp: ClampGrad,
 ) -> GaussianGrads {
     let f = forward_internals(view, p);
     let [c00, c01, c11] = f.cov2d;
@@ -405,7 +453,7 @@ pub fn project_backward(
     let v_quat: [f32; 4] = std::array::from_fn(|k| (vqn[k] - f.qn[k] * dot) / f.qnorm);
 
     // Colour: c = max(Σ_k sh_k Y_k(d) + 0.5, 0).
-    let vcol = colour_backward(view, p, g.color, v_sh);
+    let vcol = colour_backward(view, p, g.color, v_sh, clamp);
     let (d, dn) = view_dir(view, p.mean);
     let k = crate::sh_coeffs(p.active_degree);
     let mut gk = [0.0f32; 16];
@@ -426,5 +474,94 @@ pub fn project_backward(
         log_scale: v_log_scale,
         quat: v_quat,
         opacity_logit: g.opacity * o * (1.0 - o),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use transsplat_scene::Camera;
+
+    const C0: f32 = 0.282_094_8;
+
+    fn view() -> View {
+        View::new(&Camera {
+            name: "c".into(),
+            width: 8,
+            height: 8,
+            fx: 8.0,
+            fy: 8.0,
+            cx: 4.0,
+            cy: 4.0,
+            rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            translation: [0.0; 3],
+        })
+    }
+
+    fn params(sh: &[f32], degree: u32) -> GaussianParams<'_> {
+        GaussianParams {
+            mean: [0.1, -0.2, 3.0],
+            log_scale: [-2.0; 3],
+            quat: [1.0, 0.0, 0.0, 0.0],
+            opacity_logit: 0.0,
+            sh,
+            active_degree: degree,
+        }
+    }
+
+    /// Degree 0, by hand: raw = 0.5 + C0 f = (−0.064, 0.782, −0.346). The clamp passes
+    /// nothing to the clamped channels 0 and 2 under `Exact`; under `Revive` channel 0
+    /// (its gradient −1 asks it to rise) gets C0 · (−1), channel 2 (0.5 asks it to
+    /// fall) still nothing. The returned ∂L/∂c, which the mean uses, is exact in both.
+    #[test]
+    fn revive_passes_only_the_gradients_that_raise_a_clamped_channel() {
+        let sh = [-2.0, 1.0, -3.0];
+        let v = [-1.0, 2.0, 0.5];
+        let mut exact = [0.0; 3];
+        let mut revive = [0.0; 3];
+        let a = colour_backward(&view(), &params(&sh, 0), v, &mut exact, ClampGrad::Exact);
+        let b = colour_backward(&view(), &params(&sh, 0), v, &mut revive, ClampGrad::Revive);
+        assert_eq!(a, [0.0, 2.0, 0.0]);
+        assert_eq!(b, a);
+        assert_eq!(exact, [0.0, 2.0 * C0, 0.0]);
+        assert_eq!(revive, [-C0, 2.0 * C0, 0.0]);
+    }
+
+    /// Degree 2: under `Revive`, a clamped channel asked to rise gets the gradient every
+    /// coefficient would get with the channel unclamped (the same Gaussian with the
+    /// channel's DC raised above 0, through the exact rule), and every other channel
+    /// what `Exact` gives.
+    #[test]
+    fn a_revived_channel_gets_the_unclamped_gradient_at_every_degree() {
+        let k = crate::sh_coeffs(2);
+        let mut sh: Vec<f32> = (0..k * 3).map(|j| 0.05 * ((j * 7 % 11) as f32 - 5.0)).collect();
+        sh[0] = -4.0; // channel 0 clamped
+        sh[1] = 1.5;
+        sh[2] = -4.0; // channel 2 clamped
+        let v = [-0.7, 0.3, 0.9];
+        let raw = sh_color(&view(), &params(&sh, 2));
+        assert!(raw[0] < 0.0 && raw[1] > 0.0 && raw[2] < 0.0, "{raw:?}");
+        let mut revive = vec![0.0; k * 3];
+        colour_backward(&view(), &params(&sh, 2), v, &mut revive, ClampGrad::Revive);
+        let mut lifted = sh.clone();
+        lifted[0] = 4.0;
+        let mut unclamped = vec![0.0; k * 3];
+        colour_backward(&view(), &params(&lifted, 2), v, &mut unclamped, ClampGrad::Exact);
+        let mut exact = vec![0.0; k * 3];
+        colour_backward(&view(), &params(&sh, 2), v, &mut exact, ClampGrad::Exact);
+        for kk in 0..k {
+            assert_eq!(revive[kk * 3], unclamped[kk * 3], "coefficient {kk}, revived channel");
+            assert_ne!(revive[kk * 3], 0.0);
+            assert_eq!(revive[kk * 3 + 1], exact[kk * 3 + 1], "coefficient {kk}, live channel");
+            assert_eq!(revive[kk * 3 + 2], 0.0, "coefficient {kk}, channel asked to fall");
+        }
+    }
+
+    #[test]
+    fn rules_round_trip_their_names() {
+        for r in ClampGrad::ALL {
+            assert_eq!(ClampGrad::from_name(r.name()), Some(r));
+        }
+        assert_eq!(ClampGrad::from_name("leaky"), None);
     }
 }

@@ -17,7 +17,7 @@
 use crate::bin::{bin, Binned, TILE};
 use crate::fastexp::exp_neg;
 use crate::kernel::{ALPHA_MIN, T_MIN};
-use crate::project::{view_colour, View};
+use crate::project::{view_colour, ClampGrad, View};
 use crate::{validate, Splats};
 use rayon::prelude::*;
 use transsplat_scene::Camera;
@@ -187,13 +187,15 @@ pub fn colours(splats: &Splats, cam: &Camera, ids: &[u32]) -> Vec<[f32; 3]> {
 
 /// Adds the SH gradients of the colour gradients `v_colour` (one per entry of `ids`,
 /// seen from `cam`) into `grad_sh` (`[gaussian][coefficient][channel]`, every
-/// coefficient of the layout; inactive ones get nothing).
+/// coefficient of the layout; inactive ones get nothing), through the colour clamp as
+/// `clamp` says.
 pub fn colour_sh_backward(
     splats: &Splats,
     cam: &Camera,
     ids: &[u32],
     v_colour: &[[f32; 3]],
     grad_sh: &mut [f32],
+    clamp: ClampGrad,
 ) {
     assert_eq!(ids.len(), v_colour.len(), "one colour gradient per Gaussian");
     let kc = crate::sh_coeffs(splats.sh_degree) * 3;
@@ -206,7 +208,7 @@ pub fn colour_sh_backward(
         .with_min_len(1024)
         .map(|(&i, &vc)| {
             let mut v = [0.0f32; 48];
-            crate::project::colour_backward(&view, &splats.params(i as usize), vc, &mut v[..nsh]);
+            crate::project::colour_backward(&view, &splats.params(i as usize), vc, &mut v[..nsh], clamp);
             v
         })
         .collect();
@@ -289,7 +291,7 @@ mod tests {
         let w = blend_weights(&splats, &cam, &chosen);
         let vcol = w.transpose(&grad_rgb);
         let mut sh = vec![0.0f32; g.sh.len()];
-        colour_sh_backward(&splats, &cam, &w.ids, &vcol, &mut sh);
+        colour_sh_backward(&splats, &cam, &w.ids, &vcol, &mut sh, ClampGrad::Exact);
         let scale = full.sh.iter().fold(0.0f32, |m, v| m.max(v.abs()));
         assert!(scale > 1e-3, "the test image reaches the colours");
         for (k, (a, b)) in sh.iter().zip(&full.sh).enumerate() {

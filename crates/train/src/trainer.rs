@@ -27,7 +27,9 @@ use crate::model::{Model, Reindex};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
-use transsplat_raster::{backward, render, Frame, Grads, Image, ImageGrads, RenderOptions, Splats};
+use transsplat_raster::{
+    backward, render, ClampGrad, Frame, Grads, Image, ImageGrads, RenderOptions, Splats,
+};
 use transsplat_scene::Camera;
 
 /// Everything that shapes a training run.
@@ -48,6 +50,10 @@ pub struct TrainConfig {
     pub adam: AdamRule,
     /// Coarse-to-fine training resolution (off by default, as INRIA).
     pub downscale: Downscale,
+    /// How the colour clamp at 0 passes gradients to the SH coefficients
+    /// (docs/method.md#m11-colour-clamp): `Revive` by default, so a channel that
+    /// overshoots below 0 can come back; `Exact` is INRIA's and gsplat's.
+    pub clamp_grad: ClampGrad,
 }
 
 /// Coarse-to-fine training as nerfstudio's splatfacto and OpenSplat do it
@@ -86,6 +92,7 @@ impl Default for TrainConfig {
             seed: 0,
             adam: AdamRule::Dense,
             downscale: Downscale::default(),
+            clamp_grad: ClampGrad::Revive,
         }
     }
 }
@@ -300,8 +307,9 @@ impl Trainer {
     }
 
     /// Backward pass of a render of `cam` with caller-supplied image gradients
-    /// (RGB, alpha, depth, features), accumulated into `grads`; returns the rows it
-    /// wrote (ascending).
+    /// (RGB, alpha, depth, features), accumulated into `grads`, through the colour
+    /// clamp by the trainer's rule (`config.clamp_grad`, whatever `image_grads.clamp`
+    /// says); returns the rows it wrote (ascending).
     pub fn backward(
         &self,
         cam: &Camera,
@@ -309,7 +317,8 @@ impl Trainer {
         image_grads: &ImageGrads,
         grads: &mut Grads,
     ) -> Vec<u32> {
-        backward(&self.splats(), cam, frame, image_grads, grads)
+        let image_grads = ImageGrads { clamp: self.config.clamp_grad, ..*image_grads };
+        backward(&self.splats(), cam, frame, &image_grads, grads)
     }
 
     /// Finishes a step begun with [`Trainer::begin_step`]: records densification

@@ -83,7 +83,7 @@ pub fn run(args: &DemoArgs, cancel: &AtomicBool) -> Result<()> {
         trained: args.trained,
     };
     let mut bar: Option<(String, indicatif::ProgressBar)> = None;
-    let (out, scores) = demo::run(&opts, Some(cancel), &mut |name, p| {
+    let demo::DemoOutcome { out, scores, .. } = demo::run(&opts, Some(cancel), &mut |name, p| {
         if let Progress::Step { step, steps, loss } = p {
             if bar.as_ref().is_none_or(|(n, _)| n != name) {
                 if let Some((_, b)) = bar.take() {

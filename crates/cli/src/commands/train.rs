@@ -5,6 +5,7 @@ use super::common::{parse_rgb, progress, staged_output, CheckpointArgs};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
+use transsplat_raster::ClampGrad;
 use transsplat_scene::atomic;
 use transsplat_train::dataset::Masks;
 use transsplat_train::fit::{train_run_id, SUMMARY_FILE, TRAIN_FILE};
@@ -92,8 +93,19 @@ pub struct TrainArgs {
     /// whole model (docs/method.md M10).
     #[arg(long, value_parser = parse_adam, default_value = "dense")]
     pub adam: AdamRule,
+    /// How the colour clamp at 0 passes gradients to the SH: `revive` lets a channel
+    /// that fell below 0 rise again (default; docs/method.md M11); `exact` is the
+    /// clamp's derivative, as INRIA and gsplat (a channel below 0 gets none).
+    #[arg(long, value_parser = parse_clamp_grad, default_value = "revive")]
+    pub clamp_grad: ClampGrad,
     #[command(flatten)]
     pub checkpoints: CheckpointArgs,
+}
+
+/// A colour-clamp gradient rule by name (`exact`, `revive`).
+fn parse_clamp_grad(s: &str) -> Result<ClampGrad, String> {
+    let names: Vec<&str> = ClampGrad::ALL.iter().map(|r| r.name()).collect();
+    ClampGrad::from_name(s).ok_or_else(|| format!("unknown clamp rule {s:?}; one of: {}", names.join(", ")))
 }
 
 /// An Adam rule by name (`dense`, `selective`).
@@ -178,6 +190,7 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
             background: args.background,
             seed: args.seed,
             adam: args.adam,
+            clamp_grad: args.clamp_grad,
             downscale: Downscale { levels: args.downscales, every: args.downscale_every },
             ..Default::default()
         },
@@ -254,6 +267,7 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
         "test_psnr_masked": eval.masked_psnr, "test_views": eval.views, "worst_test_view": worst,
         "train_psnr_sample": train_psnr, "per_test_view": per_view,
         "seconds": started.elapsed().as_secs_f64(), "scene": ply, "adam": trainer.config.adam.name(),
+        "clamp_grad": trainer.config.clamp_grad.name(),
     });
     atomic::write_bytes(&staged.path().join(SUMMARY_FILE), format!("{summary:#}\n").as_bytes())?;
     staged.commit()?;
