@@ -124,6 +124,7 @@ impl Delta {
     /// Adds the SH gradients of the Gaussians in `mask` from the image gradient
     /// `grad_rgb` of usable view `k` into `grad_sh`, through the colour clamp as
     /// `clamp` says.
+    #[allow(clippy::too_many_arguments)]
     pub fn backward(
         &self,
         k: usize,

@@ -133,6 +133,9 @@ pub struct CaseResult {
     /// A trained case's source against the unedited truth inside the target (dB): the
     /// bar of the edits' target PSNR (docs/method.md#m11-colour-clamp).
     pub source_fidelity: Option<f64>,
+    /// A trained case at severity 0: the target PSNR of a scene trained the same way
+    /// from the true edit's renders ([`crate::demo::Fidelity::retrained`]).
+    pub retrained: Option<f64>,
     /// Why the case failed, when it did.
     pub failed: Option<String>,
 }
@@ -160,6 +163,8 @@ pub fn run(
             config: opts.config.clone(),
             seed: opts.seed,
             trained: c.trained,
+            // Perfect edits: how close can an edit of this trained scene come?
+            retrain_truth: c.trained > 0 && c.severity == 0.0,
         };
         let outcome = demo::run(&demo_opts, cancel, &mut |m, p| on_progress(&c.name, m, p));
         let r = match outcome {
@@ -167,6 +172,7 @@ pub fn run(
                 case: c.clone(),
                 scores: d.scores,
                 source_fidelity: d.trained.map(|f| f.target_psnr),
+                retrained: d.trained.and_then(|f| f.retrained),
                 failed: None,
             },
             Err(DemoError::Edit(e @ transsplat_edit::EditError::Interrupted(_))) => {
@@ -178,6 +184,7 @@ pub fn run(
                     case: c.clone(),
                     scores: Vec::new(),
                     source_fidelity: None,
+                    retrained: None,
                     failed: Some(e.to_string()),
                 }
             }
@@ -312,7 +319,8 @@ pub fn table(results: &[CaseResult], avg: &BTreeMap<String, Average>) -> String 
 }
 
 /// The trained cases' target PSNR against their source's fidelity (target PSNR minus
-/// fidelity, per method), as Markdown; empty without trained cases.
+/// fidelity, per method), with the target PSNR of the scene retrained from the true
+/// edit where there is one, as Markdown; empty without trained cases.
 pub fn fidelity_table(results: &[CaseResult]) -> String {
     let trained: Vec<&CaseResult> =
         results.iter().filter(|r| r.failed.is_none() && r.source_fidelity.is_some()).collect();
@@ -320,7 +328,9 @@ pub fn fidelity_table(results: &[CaseResult]) -> String {
     let names: Vec<&str> = first.scores.iter().map(|m| m.name.as_str()).collect();
     let mut s = format!(
         "\nTrained cases: each method's target PSNR minus the trained source's own target PSNR \
-         against the unedited truth (the edit's bar)\n\n| case | source's target PSNR | {} |\n|---|---|{}\n",
+         against the unedited truth (the edit's bar), and the target PSNR of a scene trained the same \
+         way from the true edit's renders (severity 0)\n\n| case | source's target PSNR | \
+         retrained on the true edit | {} |\n|---|---|---|{}\n",
         names.join(" | "),
         "---|".repeat(names.len())
     );
@@ -339,7 +349,13 @@ pub fn fidelity_table(results: &[CaseResult]) -> String {
                 })
             })
             .collect();
-        s += &format!("| {} | {} | {} |\n", r.case.name, db(f), gaps.join(" | "));
+        s += &format!(
+            "| {} | {} | {} | {} |\n",
+            r.case.name,
+            db(f),
+            db(r.retrained.unwrap_or(f64::NAN)),
+            gaps.join(" | ")
+        );
     }
     s
 }
@@ -496,12 +512,14 @@ mod tests {
                 case: c[0].clone(),
                 scores: vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)],
                 source_fidelity: None,
+                retrained: None,
                 failed: None,
             },
             CaseResult {
                 case: global,
                 scores: vec![score("a", 10.0, f64::NAN), score("b", 14.0, f64::NAN)],
                 source_fidelity: None,
+                retrained: None,
                 failed: None,
             },
         ];
@@ -521,6 +539,7 @@ mod tests {
             case: c[1].clone(),
             scores: vec![score("a", f64::NAN, f64::NAN)],
             source_fidelity: None,
+            retrained: None,
             failed: None,
         }];
         let avg = averages(&only_nan);
@@ -531,6 +550,7 @@ mod tests {
             case: c[1].clone(),
             scores: vec![score("a", 20.0, 30.0), score("b", 20.0, 35.0), score("c", 25.0, 30.0)],
             source_fidelity: None,
+            retrained: None,
             failed: None,
         }];
         let avg = averages(&tied);
@@ -539,6 +559,7 @@ mod tests {
             case: c[1].clone(),
             scores: vec![score("a", 20.0, 30.0), score("b", 20.0, 30.0)],
             source_fidelity: None,
+            retrained: None,
             failed: None,
         }];
         let avg = averages(&all_tie);
@@ -553,18 +574,21 @@ mod tests {
                 case: c[0].clone(),
                 scores: vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)],
                 source_fidelity: None,
+                retrained: None,
                 failed: None,
             },
             CaseResult {
                 case: c[1].clone(),
                 scores: vec![score("a", 10.0, 20.0), score("b", 12.0, 30.0)],
                 source_fidelity: None,
+                retrained: None,
                 failed: None,
             },
             CaseResult {
                 case: c[2].clone(),
                 scores: Vec::new(),
                 source_fidelity: None,
+                retrained: None,
                 failed: Some("editor error".into()),
             },
         ];
@@ -587,18 +611,20 @@ mod tests {
                 case: c[0].clone(),
                 scores: vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)],
                 source_fidelity: None,
+                retrained: None,
                 failed: None,
             },
             CaseResult {
                 case: trained,
                 scores: vec![score("a", 31.5, 40.0), score("b", 34.25, 50.0)],
                 source_fidelity: Some(33.0),
+                retrained: Some(35.5),
                 failed: None,
             },
         ];
         let t = fidelity_table(&results);
-        assert!(t.contains("| case | source's target PSNR | a | b |"), "{t}");
-        assert!(t.contains("| tabletop-trained-recolour-s0 | 33.00 | -1.50 | +1.25 |"), "{t}");
+        assert!(t.contains("| case | source's target PSNR | retrained on the true edit | a | b |"), "{t}");
+        assert!(t.contains("| tabletop-trained-recolour-s0 | 33.00 | 35.50 | -1.50 | +1.25 |"), "{t}");
         assert!(!t.contains("built"), "built cases have no fidelity row: {t}");
         assert_eq!(fidelity_table(&results[..1]), "");
         assert!(table(&results, &averages(&results)).contains(&t));

@@ -28,6 +28,7 @@ fn demo_edits_the_trained_scene() {
         methods: vec![Method::Naive],
         config,
         trained: 300,
+        retrain_truth: true,
         ..Default::default()
     };
     let demo::DemoOutcome { out, scores, trained } = demo::run(&opts, None, &mut |_, _| {}).unwrap();
@@ -35,6 +36,9 @@ fn demo_edits_the_trained_scene() {
         serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
     assert_eq!(metrics["trained_steps"], 300);
     let trained = trained.expect("the trained source's fidelity");
+    let retrained = trained.retrained.expect("the scene retrained from the true edit");
+    assert!(retrained > 12.0 && retrained.is_finite(), "{retrained}");
+    assert_eq!(metrics["trained"]["retrained"].as_f64().unwrap(), retrained);
     for (k, v) in [
         ("test_psnr", trained.test_psnr),
         ("target_psnr", trained.target_psnr),

@@ -5,7 +5,7 @@
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use transsplat_raster::{backward, render, Grads, ImageGrads, RenderOptions, Splats};
+use transsplat_raster::{backward, render, ClampGrad, Grads, ImageGrads, RenderOptions, Splats};
 use transsplat_scene::{Camera, Gaussians};
 
 struct Case {
@@ -82,7 +82,13 @@ fn analytic(c: &Case) -> Grads {
     let s = Splats::new(&c.g).with_features(&c.feats, c.nf);
     let (_, frame) = render(&s, &c.cam, &c.opts);
     let mut grads = Grads::zeros(c.g.len(), c.g.sh_degree, c.nf);
-    let ig = ImageGrads { rgb: &c.v[0], alpha: &c.v[1], depth: &c.v[2], features: &c.v[3] };
+    let ig = ImageGrads {
+        rgb: &c.v[0],
+        alpha: &c.v[1],
+        depth: &c.v[2],
+        features: &c.v[3],
+        clamp: ClampGrad::Exact, // the derivative of what is rendered
+    };
     backward(&s, &c.cam, &frame, &ig, &mut grads);
     grads
 }

@@ -3,7 +3,9 @@
 //! (fixtures written by `tools/raster_fixtures.py`, float64 reference).
 
 use std::path::{Path, PathBuf};
-use transsplat_raster::{backward, gaussian_stats, render, Grads, ImageGrads, RenderOptions, Splats};
+use transsplat_raster::{
+    backward, gaussian_stats, render, ClampGrad, Grads, ImageGrads, RenderOptions, Splats,
+};
 use transsplat_scene::{npy, Camera, Gaussians};
 
 fn fixtures() -> PathBuf {
@@ -171,7 +173,7 @@ fn backward_matches_oracle() {
             &s,
             &fx.cam,
             &frame,
-            &ImageGrads { rgb: &vr, alpha: &va, depth: &vd, features: &vf },
+            &ImageGrads { rgb: &vr, alpha: &va, depth: &vd, features: &vf, clamp: ClampGrad::Exact },
             &mut grads,
         );
         let n = &fx.name;

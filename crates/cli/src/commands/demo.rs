@@ -42,6 +42,10 @@ pub struct DemoArgs {
     /// (what users bring: a scene trained from photos); scored against the same truth.
     #[arg(long, value_name = "N", default_value_t = 0)]
     pub trained: u64,
+    /// With --trained: also train a scene the same way from the true edit's renders and
+    /// report its target PSNR (what an edit of the trained scene could reach at best).
+    #[arg(long, requires = "trained")]
+    pub retrain_truth: bool,
 }
 
 /// The methods named on the command line (all of them when none are).
@@ -81,6 +85,7 @@ pub fn run(args: &DemoArgs, cancel: &AtomicBool) -> Result<()> {
         config,
         seed: args.seed,
         trained: args.trained,
+        retrain_truth: args.retrain_truth,
     };
     let mut bar: Option<(String, indicatif::ProgressBar)> = None;
     let demo::DemoOutcome { out, scores, .. } = demo::run(&opts, Some(cancel), &mut |name, p| {
