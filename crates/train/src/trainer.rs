@@ -51,8 +51,8 @@ pub struct TrainConfig {
     /// Coarse-to-fine training resolution (off by default, as INRIA).
     pub downscale: Downscale,
     /// How the colour clamp at 0 passes gradients to the SH coefficients
-    /// (docs/method.md#m11-colour-clamp): `Revive` by default, so a channel that
-    /// overshoots below 0 can come back; `Exact` is INRIA's and gsplat's.
+    /// (docs/method.md#m11-colour-clamp): `Exact` by default (INRIA's and gsplat's; in
+    /// training, `Revive` lets floaters survive as haze); the edit uses `Revive`.
     pub clamp_grad: ClampGrad,
 }
 
@@ -92,7 +92,7 @@ impl Default for TrainConfig {
             seed: 0,
             adam: AdamRule::Dense,
             downscale: Downscale::default(),
-            clamp_grad: ClampGrad::Revive,
+            clamp_grad: ClampGrad::Exact,
         }
     }
 }

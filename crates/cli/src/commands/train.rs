@@ -93,10 +93,11 @@ pub struct TrainArgs {
     /// whole model (docs/method.md M10).
     #[arg(long, value_parser = parse_adam, default_value = "dense")]
     pub adam: AdamRule,
-    /// How the colour clamp at 0 passes gradients to the SH: `revive` lets a channel
-    /// that fell below 0 rise again (default; docs/method.md M11); `exact` is the
-    /// clamp's derivative, as INRIA and gsplat (a channel below 0 gets none).
-    #[arg(long, value_parser = parse_clamp_grad, default_value = "revive")]
+    /// How the colour clamp at 0 passes gradients to the SH: `exact` is the clamp's
+    /// derivative, as INRIA and gsplat (default; a channel below 0 gets none); `revive`
+    /// lets a channel that fell below 0 rise again: dark objects come out better, but
+    /// floaters survive as haze (docs/method.md M11).
+    #[arg(long, value_parser = parse_clamp_grad, default_value = "exact")]
     pub clamp_grad: ClampGrad,
     #[command(flatten)]
     pub checkpoints: CheckpointArgs,
