@@ -49,6 +49,7 @@ pub use job::{EditJob, EditResult, Progress, Timing};
 pub use optimise::StepLosses;
 pub use round::RoundStats;
 pub use semantic::SemanticFn;
+pub use transsplat_raster::ClampGrad;
 
 /// L2-normalises `v` in place (leaves a zero vector as is); returns the norm.
 pub fn normalize(v: &mut [f32], eps: f32) -> f32 {
