@@ -48,3 +48,35 @@ fn bench_edit_reports_every_stage() {
     assert_eq!(o.status.code(), Some(2));
     assert!(text(&o).contains("sizes are: a, b, quick"), "{}", text(&o));
 }
+
+/// The suite's default is the small one: one severity-0 trained case runs through the
+/// binary (training, the retrained reference, one method) and reports its source
+/// fidelity; an unknown case name and `--full` with `--quick` are errors.
+#[test]
+fn bench_quality_runs_a_trained_case_and_rejects_bad_cases() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("q");
+    let o = bin()
+        .args(["bench", "quality", "--trained", "300", "--methods", "naive"])
+        .args(["--cases", "tabletop-trained-recolour-s0", "--set", "schedule.steps=10", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    ok(&o);
+    let j: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("quality.json")).unwrap()).unwrap();
+    let case = &j["cases"][0];
+    assert_eq!(case["name"], "tabletop-trained-recolour-s0");
+    assert!(case["source_fidelity"].as_f64().is_some_and(|v| v > 12.0), "{case}");
+    assert!(case["retrained"].as_f64().is_some_and(|v| v > 12.0), "{case}");
+    let md = std::fs::read_to_string(out.join("quality.md")).unwrap();
+    assert!(
+        md.contains("| tabletop-trained-recolour-s0 |") && md.contains("retrained on the true edit"),
+        "{md}"
+    );
+    let o = bin().args(["bench", "quality", "--cases", "nope"]).output().unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(text(&o).contains("tabletop-built-recolour-s1"), "{}", text(&o));
+    let o = bin().args(["bench", "quality", "--full", "--quick"]).output().unwrap();
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+}
