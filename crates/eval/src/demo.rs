@@ -146,17 +146,14 @@ pub fn run(
     let truth = sim.ground_truth().clone();
     tracing::info!("demo: scene {} ({} Gaussians), {description}", scene.name, scene.gaussians.len());
     let mut reference = Reference::new(&scene, &truth, &target_labels);
+    // Trains a scene like `scene` from its renders, the run's steps and seed.
+    let mut train = |from: &Scene| {
+        crate::trained::train_from_renders(from, opts.trained, opts.seed, &dir, cancel, &mut |s, n| {
+            on_progress("train", Progress::Step { step: s as usize, steps: n as usize, loss: 0.0 })
+        })
+    };
     let (source, trained) = if opts.trained > 0 {
-        let (g, psnr) = crate::trained::train_from_renders(
-            &scene,
-            opts.trained,
-            opts.seed,
-            &dir,
-            cancel,
-            &mut |s, n| {
-                on_progress("train", Progress::Step { step: s as usize, steps: n as usize, loss: 0.0 })
-            },
-        )?;
+        let (g, psnr) = train(&scene)?;
         let (target, background) = reference.fidelity(&scene, &g);
         tracing::info!(
             "trained scene against the unedited truth: PSNR {target:.2} dB inside the target, {background:.2} dB \
@@ -166,17 +163,7 @@ pub fn run(
         // the trained scene's own error.
         reference = reference.with_source(&scene, &g);
         let retrained = if opts.retrain_truth {
-            let edited = Scene { gaussians: truth.clone(), ..scene.clone() };
-            let (t, _) = crate::trained::train_from_renders(
-                &edited,
-                opts.trained,
-                opts.seed,
-                &dir,
-                cancel,
-                &mut |s, n| {
-                    on_progress("train", Progress::Step { step: s as usize, steps: n as usize, loss: 0.0 })
-                },
-            )?;
+            let (t, _) = train(&Scene { gaussians: truth.clone(), ..scene.clone() })?;
             let r = reference.score(&scene, &t).target_psnr;
             tracing::info!(
                 "scene trained from the true edit's renders: target PSNR {r:.2} dB against the truth"

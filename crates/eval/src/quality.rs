@@ -140,6 +140,13 @@ pub struct CaseResult {
     pub failed: Option<String>,
 }
 
+impl CaseResult {
+    /// A case that failed, with the reason.
+    pub fn failed(case: Case, why: String) -> Self {
+        CaseResult { case, scores: Vec::new(), source_fidelity: None, retrained: None, failed: Some(why) }
+    }
+}
+
 /// Runs the suite; `on_progress(case, method, progress)` reports progress.
 pub fn run(
     opts: &SuiteOptions,
@@ -180,13 +187,7 @@ pub fn run(
             }
             Err(e) => {
                 tracing::warn!("case {} failed: {e}", c.name);
-                CaseResult {
-                    case: c.clone(),
-                    scores: Vec::new(),
-                    source_fidelity: None,
-                    retrained: None,
-                    failed: Some(e.to_string()),
-                }
+                CaseResult::failed(c.clone(), e.to_string())
             }
         };
         results.push(r);
@@ -467,6 +468,11 @@ mod tests {
         }
     }
 
+    /// A case that ran, built-in (no fidelity).
+    fn ran(case: Case, scores: Vec<MethodScore>) -> CaseResult {
+        CaseResult { case, scores, source_fidelity: None, retrained: None, failed: None }
+    }
+
     #[test]
     fn unknown_case_names_are_an_error_listing_the_cases() {
         let e = select(cases(0), &["nope".into()]).unwrap_err();
@@ -508,20 +514,8 @@ mod tests {
         let c = cases(0);
         let global = c.iter().find(|c| c.edit == "global").unwrap().clone();
         let results = vec![
-            CaseResult {
-                case: c[0].clone(),
-                scores: vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)],
-                source_fidelity: None,
-                retrained: None,
-                failed: None,
-            },
-            CaseResult {
-                case: global,
-                scores: vec![score("a", 10.0, f64::NAN), score("b", 14.0, f64::NAN)],
-                source_fidelity: None,
-                retrained: None,
-                failed: None,
-            },
+            ran(c[0].clone(), vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)]),
+            ran(global, vec![score("a", 10.0, f64::NAN), score("b", 14.0, f64::NAN)]),
         ];
         let avg = averages(&results);
         assert_eq!((avg["a"].cases, avg["a"].target_cases, avg["a"].background_cases), (2, 2, 1));
@@ -535,33 +529,18 @@ mod tests {
         assert!(t.contains("| garden-built-global-s0 | a | 10.00 | - | - |"), "{t}");
         assert!(t.contains("| a | 2 | 20.00 (2) | 40.00 (1) | - | 2 |"), "{t}");
         // a method without any value shows "-"
-        let only_nan = vec![CaseResult {
-            case: c[1].clone(),
-            scores: vec![score("a", f64::NAN, f64::NAN)],
-            source_fidelity: None,
-            retrained: None,
-            failed: None,
-        }];
+        let only_nan = vec![ran(c[1].clone(), vec![score("a", f64::NAN, f64::NAN)])];
         let avg = averages(&only_nan);
         assert!(avg["a"].target_psnr.is_nan() && avg["a"].worst_cases == 0);
         assert!(table(&only_nan, &avg).contains("| a | 1 | - (0) | - (0) | - | 0 |"));
         // ties: both methods at the lowest value are worst; when all tie, none is
-        let tied = vec![CaseResult {
-            case: c[1].clone(),
-            scores: vec![score("a", 20.0, 30.0), score("b", 20.0, 35.0), score("c", 25.0, 30.0)],
-            source_fidelity: None,
-            retrained: None,
-            failed: None,
-        }];
+        let tied = vec![ran(
+            c[1].clone(),
+            vec![score("a", 20.0, 30.0), score("b", 20.0, 35.0), score("c", 25.0, 30.0)],
+        )];
         let avg = averages(&tied);
         assert_eq!([avg["a"].worst_cases, avg["b"].worst_cases, avg["c"].worst_cases], [1, 1, 1]);
-        let all_tie = vec![CaseResult {
-            case: c[1].clone(),
-            scores: vec![score("a", 20.0, 30.0), score("b", 20.0, 30.0)],
-            source_fidelity: None,
-            retrained: None,
-            failed: None,
-        }];
+        let all_tie = vec![ran(c[1].clone(), vec![score("a", 20.0, 30.0), score("b", 20.0, 30.0)])];
         let avg = averages(&all_tie);
         assert_eq!((avg["a"].worst_cases, avg["b"].worst_cases), (0, 0));
     }
@@ -570,27 +549,9 @@ mod tests {
     fn averages_skip_failed_cases_and_count_worst_places() {
         let c = cases(0);
         let results = vec![
-            CaseResult {
-                case: c[0].clone(),
-                scores: vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)],
-                source_fidelity: None,
-                retrained: None,
-                failed: None,
-            },
-            CaseResult {
-                case: c[1].clone(),
-                scores: vec![score("a", 10.0, 20.0), score("b", 12.0, 30.0)],
-                source_fidelity: None,
-                retrained: None,
-                failed: None,
-            },
-            CaseResult {
-                case: c[2].clone(),
-                scores: Vec::new(),
-                source_fidelity: None,
-                retrained: None,
-                failed: Some("editor error".into()),
-            },
+            ran(c[0].clone(), vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)]),
+            ran(c[1].clone(), vec![score("a", 10.0, 20.0), score("b", 12.0, 30.0)]),
+            CaseResult::failed(c[2].clone(), "editor error".into()),
         ];
         let avg = averages(&results);
         assert_eq!(avg["a"].cases, 2);
@@ -607,13 +568,7 @@ mod tests {
         let c = cases(500);
         let trained = c.iter().find(|c| c.trained > 0 && c.severity == 0.0).unwrap().clone();
         let results = vec![
-            CaseResult {
-                case: c[0].clone(),
-                scores: vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)],
-                source_fidelity: None,
-                retrained: None,
-                failed: None,
-            },
+            ran(c[0].clone(), vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)]),
             CaseResult {
                 case: trained,
                 scores: vec![score("a", 31.5, 40.0), score("b", 34.25, 50.0)],

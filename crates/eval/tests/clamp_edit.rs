@@ -1,7 +1,7 @@
 //! The edit's colour-clamp rule against ground truth (docs/method.md#m11-colour-clamp):
-//! on the quick tabletop, "make the cone black" with perfect edits needs channels the
-//! built cone holds below the clamp to rise to 0.05. With the exact derivative they
-//! cannot; revived (the default) they do. Measured (naive, 150 steps): 37.64 against 45.92 dB target PSNR.
+//! on the quick tabletop, "make the cone black" with perfect edits drives the cone's
+//! channels toward 0.05, and the edit's own steps overshoot some below 0. With the exact
+//! derivative they stay there; revived (the default) they come back. Measured (naive, 150 steps): 37.64 against 45.92 dB target PSNR.
 
 use transsplat_edit::{ClampGrad, EditConfig, Method};
 use transsplat_eval::demo::{self, DemoOptions};
