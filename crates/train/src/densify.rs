@@ -227,6 +227,10 @@ pub struct DensifyCounts {
     /// How many were pruned by each rule, indexed by [`PruneRule`] (a Gaussian failing
     /// several counts under the first: opacity, then world size, then screen size).
     pub pruned_by: [usize; 3],
+    /// MCMC ([`crate::mcmc`]): dead Gaussians moved onto alive ones.
+    pub relocated: usize,
+    /// MCMC: Gaussians added by growth.
+    pub added: usize,
 }
 
 impl DensifyCounts {
@@ -424,7 +428,13 @@ pub fn plan_densify(
         split_means: kept_means,
         split_log_scales: kept_scales,
         first_split,
-        counts: DensifyCounts { cloned: clone.len(), split: split.len(), deferred, pruned_by },
+        counts: DensifyCounts {
+            cloned: clone.len(),
+            split: split.len(),
+            deferred,
+            pruned_by,
+            ..Default::default()
+        },
     }
 }
 

@@ -9,7 +9,7 @@ use crate::dataset::{Dataset, LoadOptions, View};
 use crate::init::{gaussians_from_points, random_points};
 use crate::loss::{psnr, ssim};
 use crate::model::Model;
-use crate::trainer::{scene_extent, StepReport, TrainConfig, TrainError, Trainer};
+use crate::trainer::{scene_extent, StepReport, Strategy, TrainConfig, TrainError, Trainer};
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -62,7 +62,13 @@ pub fn initial_model(ds: &Dataset, opts: &FitOptions) -> (Model, InitSource) {
             (p, InitSource::Random { count: n })
         }
     };
-    let g = gaussians_from_points(&cloud, opts.max_sh_degree, 0.01 * extent);
+    let mut g = gaussians_from_points(&cloud, opts.max_sh_degree, 0.01 * extent);
+    if let Strategy::Mcmc(m) = opts.config.strategy {
+        // gsplat's MCMC preset: more opaque, smaller initial Gaussians.
+        g.opacity_logits.fill(crate::init::logit(m.init_opacity));
+        let ds = m.init_scale.ln();
+        g.log_scales.iter_mut().flatten().for_each(|s| *s += ds);
+    }
     (Model::new(g, 0), source)
 }
 

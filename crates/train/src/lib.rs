@@ -8,7 +8,8 @@
 //!   exponential position schedule.
 //! - [`loss`]: `0.8 L1 + 0.2 D-SSIM` with its exact image gradient; PSNR.
 //! - [`densify`]: clone / split / prune / opacity reset on INRIA's schedule, with
-//!   an optional per-Gaussian mask.
+//!   an optional per-Gaussian mask; [`mcmc`]: the MCMC strategy (relocation of dead
+//!   Gaussians under a fixed budget, position noise), chosen by [`Strategy`].
 //! - [`trainer`]: [`Trainer`], one optimisation step as a library call, split into
 //!   `begin_step` / `forward_backward` / `finish_step` so other crates can add
 //!   their own gradient terms before the Adam step.
@@ -34,6 +35,7 @@ pub mod densify;
 pub mod fit;
 pub mod init;
 pub mod loss;
+pub mod mcmc;
 pub mod model;
 pub mod points;
 pub mod trainer;
@@ -47,9 +49,10 @@ pub use fit::{
     Progress, ViewScore,
 };
 pub use loss::{image_loss, psnr, ssim, ImageLoss};
+pub use mcmc::McmcConfig;
 pub use model::{Model, Reindex};
 pub use points::PointCloud;
 pub use trainer::{
-    apply_reindex, camera_centre, scene_extent, Downscale, StepReport, TrainConfig, TrainError, Trainer,
-    ViewPass,
+    apply_reindex, camera_centre, scene_extent, Downscale, StepReport, Strategy, TrainConfig, TrainError,
+    Trainer, ViewPass,
 };

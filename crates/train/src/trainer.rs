@@ -23,6 +23,7 @@
 use crate::adam::{Adam, AdamRule, Group, LearningRates, Update};
 use crate::densify::{self, Bounds, DensifyConfig, DensifyCounts, DensifyStats};
 use crate::loss::{image_loss, ImageLoss};
+use crate::mcmc::{self, McmcConfig};
 use crate::model::{Model, Reindex};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -54,6 +55,45 @@ pub struct TrainConfig {
     /// (docs/method.md#m11-colour-clamp): `Exact` by default (INRIA's and gsplat's; in
     /// training, `Revive` lets floaters survive as haze); the edit uses `Revive`.
     pub clamp_grad: ClampGrad,
+    /// How the Gaussians grow: INRIA's adaptive density control (default) or MCMC.
+    pub strategy: Strategy,
+}
+
+/// The densification strategy: one pluggable part of the step.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum Strategy {
+    /// INRIA's clone / split / prune / opacity reset on the mean positional gradient
+    /// ([`crate::densify`]).
+    #[default]
+    Adaptive,
+    /// Relocation of dead Gaussians and growth up to
+    /// [`DensifyConfig::max_gaussians`] (default [`crate::mcmc::DEFAULT_CAP`]), position
+    /// noise and opacity / scale regularisers ([`crate::mcmc`]). Uses the densification
+    /// window and interval of [`DensifyConfig`] and its `min_opacity` as the dead
+    /// threshold; no gradient statistics, no opacity reset, no size pruning.
+    Mcmc(McmcConfig),
+}
+
+impl Strategy {
+    /// Names for the command line, in the order of [`Strategy::from_name`].
+    pub const NAMES: [&'static str; 2] = ["adaptive", "mcmc"];
+
+    /// The strategy called `name`, with default settings.
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "adaptive" => Some(Strategy::Adaptive),
+            "mcmc" => Some(Strategy::Mcmc(McmcConfig::default())),
+            _ => None,
+        }
+    }
+
+    /// Its name.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Strategy::Adaptive => "adaptive",
+            Strategy::Mcmc(_) => "mcmc",
+        }
+    }
 }
 
 /// Coarse-to-fine training as nerfstudio's splatfacto and OpenSplat do it
@@ -93,6 +133,7 @@ impl Default for TrainConfig {
             adam: AdamRule::Dense,
             downscale: Downscale::default(),
             clamp_grad: ClampGrad::Exact,
+            strategy: Strategy::Adaptive,
         }
     }
 }
@@ -358,7 +399,8 @@ impl Trainer {
             });
         }
         let d = self.config.densify.clone();
-        if d.records(step) {
+        let adaptive = self.config.strategy == Strategy::Adaptive;
+        if adaptive && d.records(step) {
             let frame = frame.ok_or_else(|| {
                 TrainError::Mismatch("densification statistics need the step's frame".into())
             })?;
@@ -380,11 +422,21 @@ impl Trainer {
         }
         let mut report = StepReport { step, ..Default::default() };
         if d.densifies(step) {
-            let (r, counts) = self.densify_and_prune(densify_mask);
+            let (r, counts) = match self.config.strategy {
+                Strategy::Adaptive => self.densify_and_prune(densify_mask),
+                Strategy::Mcmc(_) => self.relocate_and_grow(densify_mask),
+            };
             report.reindex = Some(r);
             report.densified = Some(counts);
         }
-        if d.resets_opacity(step, self.config.iterations) {
+        if let Strategy::Mcmc(m) = self.config.strategy {
+            mcmc::inject_noise(
+                &mut self.model.gaussians,
+                m.noise_lr * lr[Group::Position.index()],
+                &mut self.rng,
+            );
+        }
+        if adaptive && d.resets_opacity(step, self.config.iterations) {
             // The mask refers to the rows before densification.
             let mask = match (&report.reindex, densify_mask) {
                 (Some(r), Some(m)) => Some(r.src.iter().map(|&s| m[s as usize]).collect::<Vec<bool>>()),
@@ -413,8 +465,14 @@ impl Trainer {
         if !loss.loss.is_finite() {
             return Err(TrainError::NonFinite { step: self.step, what: "the image loss".into() });
         }
-        let report = self.finish_step(&grads, Some(&rows), Some(&frame), None);
+        // MCMC's regularisers reach every row: then the step visits every row.
+        let regularised = self.add_regularisers(&mut grads);
+        let report = self.finish_step(&grads, (!regularised).then_some(&rows[..]), Some(&frame), None);
         grads.clear_rows(&rows);
+        if regularised {
+            grads.opacity_logits.fill(0.0);
+            grads.log_scales.fill([0.0; 3]);
+        }
         self.scratch = grads;
         Ok(StepReport { loss: loss.loss, ..report? })
     }
@@ -454,6 +512,57 @@ impl Trainer {
             self.model.len()
         );
         (plan.reindex, plan.counts)
+    }
+
+    /// Adds the strategy's regularisers' gradients to every row of `grads` (MCMC's mean
+    /// opacity and scale, [`mcmc::add_regularisers`]); returns whether it added any.
+    pub fn add_regularisers(&self, grads: &mut Grads) -> bool {
+        match self.config.strategy {
+            Strategy::Adaptive => false,
+            Strategy::Mcmc(m) => {
+                mcmc::add_regularisers(&self.model.gaussians, &m, grads);
+                true
+            }
+        }
+    }
+
+    /// MCMC's relocation of dead Gaussians, then its growth toward the budget
+    /// ([`crate::mcmc`]); the moments of every row involved restart at zero. Returns the
+    /// rearrangement (relocation then growth) and the counts.
+    pub fn relocate_and_grow(&mut self, mask: Option<&[bool]>) -> (Reindex, DensifyCounts) {
+        let Strategy::Mcmc(cfg) = self.config.strategy else {
+            return (Reindex::identity(self.model.len()), DensifyCounts::default());
+        };
+        let (min_opacity, cap) =
+            (self.config.densify.min_opacity, self.config.densify.max_gaussians.unwrap_or(mcmc::DEFAULT_CAP));
+        let moved = mcmc::plan_relocate(&mut self.model.gaussians, min_opacity, mask, &mut self.rng);
+        self.apply(&moved.reindex);
+        self.zero_moments(&moved.restart);
+        // Relocation works in place, so the mask still names the same rows.
+        let grown = mcmc::plan_grow(&mut self.model.gaussians, &cfg, min_opacity, cap, mask, &mut self.rng);
+        self.apply(&grown.reindex);
+        self.zero_moments(&grown.restart);
+        self.stats.clear();
+        let counts = DensifyCounts {
+            relocated: moved.reindex.src.iter().enumerate().filter(|&(j, &s)| s as usize != j).count(),
+            added: grown.reindex.len() - grown.reindex.old_len,
+            ..Default::default()
+        };
+        tracing::debug!(
+            "step {}: relocated {} dead Gaussians, added {} -> {} Gaussians",
+            self.step,
+            counts.relocated,
+            counts.added,
+            self.model.len()
+        );
+        (moved.reindex.then(&grown.reindex), counts)
+    }
+
+    /// Restarts the Adam moments of the rows where `rows[i]` is true, in every group.
+    fn zero_moments(&mut self, rows: &[bool]) {
+        for g in Group::ALL {
+            self.adam.zero_moments(g, Some(rows));
+        }
     }
 
     /// Prunes (low opacity; size after the first reset) among the allowed Gaussians.

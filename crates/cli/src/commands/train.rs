@@ -12,7 +12,7 @@ use transsplat_train::fit::{train_run_id, SUMMARY_FILE, TRAIN_FILE};
 use transsplat_train::init::MAX_RANDOM_POINTS;
 use transsplat_train::{
     dataset, fit_with, start, write_output, AdamRule, DensifyConfig, Downscale, FitOptions, FitState,
-    InitSource, LearningRates, LoadOptions, TrainConfig, TrainError, Trainer,
+    InitSource, LearningRates, LoadOptions, Strategy, TrainConfig, TrainError, Trainer,
 };
 
 /// Arguments of `transsplat train`.
@@ -75,11 +75,19 @@ pub struct TrainArgs {
     /// 8 dB of test PSNR and 57 % more Gaussians (README, "Against a reference trainer").
     #[arg(long, value_parser = super::common::finite_f32, default_value_t = DensifyConfig::default().max_screen_radius.unwrap_or(0.0))]
     pub max_screen_radius: f32,
-    /// Never grow past this many Gaussians: densification takes the largest gradients
-    /// first while they fit (gsplat's MCMC strategy has such a cap). Default 0 = no cap,
-    /// as INRIA. For a fixed memory, or to compare with another trainer at equal size.
+    /// Never grow past this many Gaussians. With `--strategy adaptive` densification
+    /// takes the largest gradients first while they fit (default 0 = no cap, as INRIA);
+    /// with `--strategy mcmc` it is the budget the run grows to (default 0 = gsplat's
+    /// 1,000,000). For a fixed memory, or to compare with another trainer at equal size.
     #[arg(long, default_value_t = 0)]
     pub max_gaussians: usize,
+    /// How the Gaussians grow: `adaptive` is INRIA's clone / split / prune on the
+    /// positional gradient with opacity resets (default); `mcmc` is 3DGS-MCMC as gsplat
+    /// runs it: dead Gaussians relocated onto live ones, growth of 5 % per densification
+    /// up to --max-gaussians, position noise, opacity and scale regularisers, starting
+    /// from opacity 0.5 and a tenth of the initial scale (docs/method.md, training).
+    #[arg(long, value_parser = parse_strategy, default_value = "adaptive")]
+    pub strategy: Strategy,
     /// Coarse to fine: the first --downscale-every steps train at 1/2^N resolution, the
     /// next at 1/2^(N-1), and so on (splatfacto's and OpenSplat's num_downscales; they use
     /// 2). Default 0 = full resolution throughout, as INRIA.
@@ -107,6 +115,12 @@ pub struct TrainArgs {
 fn parse_clamp_grad(s: &str) -> Result<ClampGrad, String> {
     let names: Vec<&str> = ClampGrad::ALL.iter().map(|r| r.name()).collect();
     ClampGrad::from_name(s).ok_or_else(|| format!("unknown clamp rule {s:?}; one of: {}", names.join(", ")))
+}
+
+/// A densification strategy by name (`adaptive`, `mcmc`).
+fn parse_strategy(s: &str) -> Result<Strategy, String> {
+    Strategy::from_name(s)
+        .ok_or_else(|| format!("unknown strategy {s:?}; one of: {}", Strategy::NAMES.join(", ")))
 }
 
 /// An Adam rule by name (`dense`, `selective`).
@@ -192,6 +206,7 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
             seed: args.seed,
             adam: args.adam,
             clamp_grad: args.clamp_grad,
+            strategy: args.strategy,
             downscale: Downscale { levels: args.downscales, every: args.downscale_every },
             ..Default::default()
         },
@@ -269,6 +284,7 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
         "train_psnr_sample": train_psnr, "per_test_view": per_view,
         "seconds": started.elapsed().as_secs_f64(), "scene": ply, "adam": trainer.config.adam.name(),
         "clamp_grad": trainer.config.clamp_grad.name(),
+        "strategy": trainer.config.strategy.name(),
     });
     atomic::write_bytes(&staged.path().join(SUMMARY_FILE), format!("{summary:#}\n").as_bytes())?;
     staged.commit()?;
