@@ -53,6 +53,46 @@ fn train_on_a_built_in_scene_writes_an_inria_folder() {
     assert!(renders.join("view_001.png").is_file());
 }
 
+/// `--strategy mcmc` grows to its budget and says so in train.json; an unknown strategy
+/// is refused (status 2) naming the ones there are.
+#[test]
+fn train_with_the_mcmc_strategy_ends_at_its_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let st = bin()
+        .args(["scene", "tabletop", "--quick", "--points", "2000", "--out"])
+        .arg(&data)
+        .output()
+        .unwrap();
+    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    let out = dir.path().join("out");
+    // Densification runs at steps 600 and 700 (5 % growth each, capped at 1,950 (from about 1,820)).
+    let st = bin()
+        .args(["train", "--iters", "700", "--resolution", "4", "--eval-every", "0"])
+        .args(["--strategy", "mcmc", "--max-gaussians", "1950", "--data"])
+        .arg(&data)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("train.json")).unwrap()).unwrap();
+    assert_eq!(summary["strategy"], "mcmc");
+    assert_eq!(summary["gaussians"], 1950, "{summary}");
+    assert!(summary["test_psnr"].as_f64().unwrap() > 15.0, "{summary}");
+    let st = bin()
+        .args(["train", "--strategy", "splatfacto", "--data"])
+        .arg(&data)
+        .arg("--out")
+        .arg(dir.path().join("out2"))
+        .output()
+        .unwrap();
+    assert_eq!(st.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&st.stderr);
+    assert!(err.contains("splatfacto") && err.contains("adaptive, mcmc"), "{err}");
+}
+
 #[test]
 fn bad_datasets_exit_with_status_2_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();

@@ -11,7 +11,7 @@ use transsplat_train::dataset::Dataset;
 use transsplat_train::fit::{train_run_id, TRAIN_FILE};
 use transsplat_train::{
     fit_with, start, Checkpointer, Control, DensifyConfig, FitOptions, FitState, LoadOptions, PointCloud,
-    TrainConfig, TrainError, Trainer,
+    Strategy, TrainConfig, TrainError, Trainer,
 };
 
 const ITERS: u64 = 48;
@@ -77,8 +77,21 @@ fn checkpointer(dir: &std::path::Path, ds: &Dataset, opts: &FitOptions) -> Check
 
 #[test]
 fn stopped_and_resumed_training_is_bit_identical() {
+    resumes_bit_identically(options());
+}
+
+/// The same with the MCMC strategy: relocation, growth and the position noise draw
+/// from the checkpointed generator; a budget the run reaches on the way.
+#[test]
+fn stopped_and_resumed_mcmc_training_is_bit_identical() {
+    let mut opts = options();
+    opts.config.strategy = Strategy::from_name("mcmc").unwrap();
+    opts.config.densify.max_gaussians = Some(dataset().points.unwrap().len() + 3);
+    resumes_bit_identically(opts);
+}
+
+fn resumes_bit_identically(opts: FitOptions) {
     let ds = dataset();
-    let opts = options();
     let (mut whole, mut state) = fresh(&ds, &opts);
     let mut densified = 0;
     fit_with(&ds, &mut whole, &mut state, 0, &mut Control::default(), |p| {
