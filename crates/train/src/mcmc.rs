@@ -26,7 +26,8 @@
 //!
 //! No opacity reset and no size pruning: dead Gaussians are reused instead. The run
 //! starts from opacity 0.5 and a tenth of INRIA's initial scale (gsplat's MCMC
-//! preset), see [`McmcConfig::init_opacity`].
+//! preset), see [`McmcConfig::init_opacity`]. Why it exists and what it measured:
+//! docs/method.md#t1-densification-strategies.
 
 use crate::densify::quat_matrix;
 use rand::Rng;

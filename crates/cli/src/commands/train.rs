@@ -85,7 +85,7 @@ pub struct TrainArgs {
     /// positional gradient with opacity resets (default); `mcmc` is 3DGS-MCMC as gsplat
     /// runs it: dead Gaussians relocated onto live ones, growth of 5 % per densification
     /// up to --max-gaussians, position noise, opacity and scale regularisers, starting
-    /// from opacity 0.5 and a tenth of the initial scale (docs/method.md, training).
+    /// from opacity 0.5 and a tenth of the initial scale (docs/method.md T1).
     #[arg(long, value_parser = parse_strategy, default_value = "adaptive")]
     pub strategy: Strategy,
     /// Coarse to fine: the first --downscale-every steps train at 1/2^N resolution, the
