@@ -25,7 +25,7 @@ fn bench_raster_times_a_given_scene_and_camera() {
     let g = transsplat_scene::ply::read(&ds.join("point_cloud/iteration_0/point_cloud.ply")).unwrap();
     assert_eq!(j["gaussians"].as_u64(), Some(g.len() as u64), "the given scene, not the synthetic one");
     assert_eq!((j["width"].as_u64(), j["height"].as_u64()), (Some(128), Some(96)), "the camera's size");
-    for k in ["forward_s", "backward_s", "splat_back_s"] {
+    for k in ["forward_s", "backward_s", "backward_reused_s", "splat_back_s"] {
         assert!(j[k].as_f64().is_some_and(|v| v > 0.0), "{k}");
     }
     let o = bin().args(["bench", "raster", "--camera", "nope", "--scene"]).arg(&ds).output().unwrap();

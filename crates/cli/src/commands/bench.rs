@@ -62,12 +62,13 @@ pub fn raster(args: &RasterArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.size > 0, "--size must be positive");
     let given = args.scene.as_deref().map(|p| given_scene(args, p)).transpose()?;
     println!(
-        "{:>10} {:>9} {:>10} {:>10} {:>10} {:>10} {:>12} {:>10} {:>9}",
+        "{:>10} {:>9} {:>10} {:>10} {:>10} {:>10} {:>10} {:>12} {:>10} {:>9}",
         "gaussians",
         "size",
         "forward s",
         "(binning)",
         "backward s",
+        "(reused)",
         "splat s",
         "Mpairs/s fwd",
         "saturated",
@@ -81,12 +82,13 @@ pub fn raster(args: &RasterArgs) -> anyhow::Result<()> {
         };
         let n = r.gaussians;
         println!(
-            "{:>10} {:>9} {:>10.4} {:>10.4} {:>10.4} {:>10.4} {:>12.1} {:>9.1}% {:>9}",
+            "{:>10} {:>9} {:>10.4} {:>10.4} {:>10.4} {:>10.4} {:>10.4} {:>12.1} {:>9.1}% {:>9}",
             n,
             format!("{}x{}", r.width, r.height),
             r.forward,
             r.binning,
             r.backward,
+            r.backward_reused,
             r.splat_back,
             r.blended_pairs as f64 / r.forward / 1e6,
             100.0 * r.saturated_fraction,
@@ -96,7 +98,8 @@ pub fn raster(args: &RasterArgs) -> anyhow::Result<()> {
             "{}",
             serde_json::json!({
                 "gaussians": n, "width": r.width, "height": r.height,
-                "forward_s": r.forward, "binning_s": r.binning, "backward_s": r.backward, "splat_back_s": r.splat_back,
+                "forward_s": r.forward, "binning_s": r.binning, "backward_s": r.backward,
+                "backward_reused_s": r.backward_reused, "splat_back_s": r.splat_back,
                 "blended_pairs": r.blended_pairs, "intersections": r.intersections,
                 "saturated_fraction": r.saturated_fraction, "median_traversed": r.median_traversed,
                 "backward_over_forward": r.backward / r.forward,
