@@ -234,6 +234,14 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
                     "no point cloud in the dataset: initialised {count} Gaussians at random in the cameras' view"
                 ),
             }
+            if let (Strategy::Mcmc(_), Some(cap)) = (t.config.strategy, t.config.densify.max_gaussians) {
+                if t.model.len() > cap {
+                    tracing::warn!(
+                        "the initial cloud has {} Gaussians, more than --max-gaussians {cap}: MCMC only relocates, it does not prune down to the budget",
+                        t.model.len()
+                    );
+                }
+            }
             if t.model.is_empty() {
                 bail!(
                     "{}: no initial Gaussians (empty point cloud and --random-points 0)",
