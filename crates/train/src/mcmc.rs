@@ -29,9 +29,10 @@
 //! preset), see [`McmcConfig::init_opacity`]. Why it exists and what it measured:
 //! docs/method.md#t1-densification-strategies.
 
-use crate::densify::quat_matrix;
-use rand::Rng;
+use crate::densify::{normal, quat_matrix};
+use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use transsplat_raster::Grads;
 use transsplat_scene::{sigmoid, Gaussians};
 
@@ -196,22 +197,36 @@ fn noise_gate(o: f32) -> f32 {
 }
 
 /// Moves every mean by Σ ε · `scale` · g(o) (module doc, **Noise**; `scale` = λ lr_μ).
+/// One seed is drawn from `rng`; rows are taken in fixed chunks, each with its own
+/// stream of that seed, so the result does not depend on the thread count.
 pub fn inject_noise(g: &mut Gaussians, scale: f32, rng: &mut ChaCha8Rng) {
-    for i in 0..g.len() {
-        let gate = noise_gate(sigmoid(g.opacity_logits[i]));
-        if !(gate >= 1e-10) {
-            continue;
-        }
-        let r = quat_matrix(g.rotations[i]);
-        let s2 = g.log_scales[i].map(|v| (2.0 * v).exp());
-        let e = [crate::densify::normal(rng), crate::densify::normal(rng), crate::densify::normal(rng)];
-        // Σ e = R S² Rᵀ e.
-        let rte: [f32; 3] = std::array::from_fn(|k| (0..3).map(|a| r[a][k] * e[a]).sum::<f32>() * s2[k]);
-        let m = &mut g.means[i];
-        for a in 0..3 {
-            m[a] += scale * gate * (0..3).map(|k| r[a][k] * rte[k]).sum::<f32>();
-        }
-    }
+    const ROWS: usize = 4096;
+    let seed: u64 = rng.gen();
+    let Gaussians { means, log_scales, rotations, opacity_logits, .. } = g;
+    means
+        .par_chunks_mut(ROWS)
+        .zip(log_scales.par_chunks(ROWS))
+        .zip(rotations.par_chunks(ROWS).zip(opacity_logits.par_chunks(ROWS)))
+        .enumerate()
+        .for_each(|(c, ((means, log_scales), (rotations, logits)))| {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            rng.set_stream(c as u64);
+            for (((m, ls), q), &l) in means.iter_mut().zip(log_scales).zip(rotations).zip(logits) {
+                let gate = noise_gate(sigmoid(l));
+                if !(gate >= 1e-10) {
+                    continue;
+                }
+                let r = quat_matrix(*q);
+                let s2 = ls.map(|v| (2.0 * v).exp());
+                let e = [normal(&mut rng), normal(&mut rng), normal(&mut rng)];
+                // Σ e = R S² Rᵀ e.
+                let rte: [f32; 3] =
+                    std::array::from_fn(|k| (0..3).map(|a| r[a][k] * e[a]).sum::<f32>() * s2[k]);
+                for a in 0..3 {
+                    m[a] += scale * gate * (0..3).map(|k| r[a][k] * rte[k]).sum::<f32>();
+                }
+            }
+        });
 }
 
 /// Adds the gradients of λ_o · mean(o) and λ_s · mean(s) (module doc, **Regularisers**)
@@ -219,21 +234,20 @@ pub fn inject_noise(g: &mut Gaussians, scale: f32, rng: &mut ChaCha8Rng) {
 pub fn add_regularisers(g: &Gaussians, cfg: &McmcConfig, grads: &mut Grads) {
     let n = g.len().max(1) as f32;
     let (wo, ws) = (cfg.opacity_reg / n, cfg.scale_reg / (3.0 * n));
-    for (d, &l) in grads.opacity_logits.iter_mut().zip(&g.opacity_logits) {
+    grads.opacity_logits.par_iter_mut().zip(&g.opacity_logits).with_min_len(4096).for_each(|(d, &l)| {
         let o = sigmoid(l);
         *d += wo * o * (1.0 - o);
-    }
-    for (d, ls) in grads.log_scales.iter_mut().zip(&g.log_scales) {
+    });
+    grads.log_scales.par_iter_mut().zip(&g.log_scales).with_min_len(4096).for_each(|(d, ls)| {
         for k in 0..3 {
             d[k] += ws * ls[k].exp();
         }
-    }
+    });
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rand::SeedableRng;
 
     #[test]
     fn one_copy_is_the_gaussian_itself_and_two_copies_match_eq_9_by_hand() {
@@ -316,6 +330,20 @@ mod tests {
         let d: Vec<f32> = (0..3).map(|k| g.means[0][k] - before[0][k]).collect();
         assert!(d[0].abs() + d[1].abs() > 1e-3, "{d:?}");
         assert!(d[2].abs() < 1e-9, "{d:?}");
+    }
+
+    #[test]
+    fn noise_does_not_depend_on_the_thread_count() {
+        let opacities: Vec<f32> = (0..10_000).map(|i| if i % 3 == 0 { 0.001 } else { 0.6 }).collect();
+        let run = |threads: usize| {
+            let mut g = cloud(&opacities);
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| inject_noise(&mut g, 0.1, &mut ChaCha8Rng::seed_from_u64(9)));
+            g.means
+        };
+        let (one, two) = (run(1), run(2));
+        assert_eq!(one, two);
+        assert_ne!(one, cloud(&opacities).means, "the transparent rows moved");
     }
 
     #[test]
