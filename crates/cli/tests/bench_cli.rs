@@ -80,3 +80,25 @@ fn bench_quality_runs_a_trained_case_and_rejects_bad_cases() {
     let o = bin().args(["bench", "quality", "--full", "--quick"]).output().unwrap();
     assert_eq!(o.status.code(), Some(2), "{}", text(&o));
 }
+
+#[test]
+fn bench_train_times_every_step_rule_and_both_strategies() {
+    let o = bin()
+        .args(["bench", "train", "--gaussians", "3000", "--sizes", "32", "--reps", "1"])
+        .output()
+        .unwrap();
+    ok(&o);
+    let j = json_line(&o);
+    assert_eq!(j["gaussians"].as_u64(), Some(3000));
+    for k in [
+        "forward_backward_s",
+        "step_s",
+        "step_selective_s",
+        "step_mcmc_s",
+        "adam_s",
+        "densify_s",
+        "relocate_s",
+    ] {
+        assert!(j[k].as_f64().is_some_and(|v| v > 0.0), "{k}: {j}");
+    }
+}

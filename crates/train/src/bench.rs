@@ -5,8 +5,9 @@
 use crate::adam::{Adam, AdamRule, Update};
 use crate::densify::{DensifyConfig, DensifyStats};
 use crate::loss::image_loss;
+use crate::mcmc::McmcConfig;
 use crate::model::Model;
-use crate::trainer::{TrainConfig, Trainer};
+use crate::trainer::{Strategy, TrainConfig, Trainer};
 use transsplat_raster::{backward, bench, render, Grads, ImageGrads, RenderOptions};
 use transsplat_scene::timing::best_of;
 
@@ -22,6 +23,9 @@ pub struct TrainBench {
     pub step: f64,
     /// The same step with selective Adam ([`AdamRule::Selective`]).
     pub step_selective: f64,
+    /// The same step with the MCMC strategy ([`Strategy::Mcmc`]): its regularisers reach
+    /// every row, so Adam and the gradient check visit every row, and the position noise.
+    pub step_mcmc: f64,
     /// The loss and its gradient alone (L1 + D-SSIM).
     pub loss: f64,
     /// The Adam update alone (every group, the gradients of one backward, every row's
@@ -29,6 +33,8 @@ pub struct TrainBench {
     pub adam: f64,
     /// One densify-and-prune pass (amortised over `interval` = 100 steps in INRIA's schedule).
     pub densify: f64,
+    /// One MCMC relocation and 5 % growth ([`Trainer::relocate_and_grow`], as often).
+    pub relocate: f64,
 }
 
 /// Gives every row of every group small non-zero moments, as after training on many
@@ -59,11 +65,15 @@ pub fn run(n: usize, width: u32, height: u32, reps: usize) -> TrainBench {
     settle_moments(&mut trainer.adam, trainer.model.len());
     let mut selective = trainer.clone();
     selective.config.adam = AdamRule::Selective;
+    let mut mcmc = trainer.clone();
+    mcmc.config.strategy = Strategy::Mcmc(McmcConfig::default());
+    mcmc.config.densify.max_gaussians = Some(n + n / 20);
     let opts = RenderOptions::default();
 
     let mut forward_backward = f64::INFINITY;
     let mut step = f64::INFINITY;
     let mut step_selective = f64::INFINITY;
+    let mut step_mcmc = f64::INFINITY;
     // Interleaved, best of `reps`: the machine may be shared, and the minimum is the
     // least disturbed measurement of each.
     for _ in 0..reps.max(1) + 1 {
@@ -83,8 +93,16 @@ pub fn run(n: usize, width: u32, height: u32, reps: usize) -> TrainBench {
             selective.step(&cam, &target, None).expect("finite benchmark step");
         });
         step_selective = step_selective.min(t);
+        let (t, ()) = best_of(0, 1, || {
+            mcmc.step(&cam, &target, None).expect("finite benchmark step");
+        });
+        step_mcmc = step_mcmc.min(t);
     }
     drop(selective);
+    let (relocate, ()) = best_of(0, 1, || {
+        let _ = mcmc.relocate_and_grow(None);
+    });
+    drop(mcmc);
     let (img, frame) = trainer.render(&cam);
     let (loss, ()) = best_of(1, reps, || {
         let _ = image_loss(&img.rgb, &target, img.width, img.height, None, 0.2);
@@ -124,8 +142,10 @@ pub fn run(n: usize, width: u32, height: u32, reps: usize) -> TrainBench {
         forward_backward,
         step,
         step_selective,
+        step_mcmc,
         loss,
         adam: adam_t,
         densify,
+        relocate,
     }
 }

@@ -383,23 +383,35 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
         bail!("--sizes and --gaussians must be positive");
     }
     println!(
-        "{:>10} {:>9} {:>12} {:>10} {:>7} {:>11} {:>9} {:>9} {:>10}",
-        "gaussians", "size", "fwd+bwd s", "step s", "ratio", "selective s", "loss s", "adam s", "densify s"
+        "{:>10} {:>9} {:>12} {:>10} {:>7} {:>11} {:>9} {:>9} {:>9} {:>10} {:>10}",
+        "gaussians",
+        "size",
+        "fwd+bwd s",
+        "step s",
+        "ratio",
+        "selective s",
+        "mcmc s",
+        "loss s",
+        "adam s",
+        "densify s",
+        "relocate s"
     );
     for &n in &args.gaussians {
         for &s in &args.sizes {
             let r = transsplat_train::bench::run(n, s, s, args.reps);
             println!(
-                "{:>10} {:>9} {:>12.4} {:>10.4} {:>7.2} {:>11.4} {:>9.4} {:>9.4} {:>10.4}",
+                "{:>10} {:>9} {:>12.4} {:>10.4} {:>7.2} {:>11.4} {:>9.4} {:>9.4} {:>9.4} {:>10.4} {:>10.4}",
                 n,
                 format!("{s}x{s}"),
                 r.forward_backward,
                 r.step,
                 r.step / r.forward_backward,
                 r.step_selective,
+                r.step_mcmc,
                 r.loss,
                 r.adam,
-                r.densify
+                r.densify,
+                r.relocate
             );
             println!(
                 "{}",
@@ -407,8 +419,8 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
                     "gaussians": n, "width": s, "height": s,
                     "forward_backward_s": r.forward_backward, "step_s": r.step,
                     "step_over_forward_backward": r.step / r.forward_backward,
-                    "step_selective_s": r.step_selective,
-                    "loss_s": r.loss, "adam_s": r.adam, "densify_s": r.densify,
+                    "step_selective_s": r.step_selective, "step_mcmc_s": r.step_mcmc,
+                    "loss_s": r.loss, "adam_s": r.adam, "densify_s": r.densify, "relocate_s": r.relocate,
                     "threads": rayon::current_num_threads(),
                 })
             );
