@@ -3,6 +3,7 @@
 
     python3 tools/reference_trainer.py --opensplat /path/to/opensplat --out /tmp/anchor \
         [--size 256] [--iters 7000] [--views 48] [--points 6000] [--scene tabletop]
+        [--transsplat-args "--strategy mcmc --max-gaussians 14000" --transsplat-label mcmc14k]
 
 What it does, in order (every step is skipped when its output already exists, so an
 interrupted run continues):
