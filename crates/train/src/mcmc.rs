@@ -17,9 +17,9 @@
 //!   Σ = R S² Rᵀ its covariance, ε ~ 𝒩(0, I), λ = `noise_lr` (5·10⁵), lr_μ the step's
 //!   position learning rate and g(o) = 1/(1 + e^{−100 (1 − o − 0.995)}) (the paper's
 //!   eq. 10 with gsplat's gate): the Langevin exploration term, large only for nearly
-//!   transparent Gaussians. Where g(o) < 10⁻¹⁰ (o above about 0.27) a row is skipped:
-//!   its move would be below 10⁻¹⁰ Σ lr_μ λ, orders of magnitude under one f32 step of
-//!   its mean.
+//!   transparent Gaussians. Where g(o) < 10⁻¹⁰ (o above about 0.24) a row is skipped
+//!   (a departure from gsplat, which moves every row): the move dropped is 10¹⁰ times
+//!   smaller than a fully transparent Gaussian of the same shape would take.
 //! - **Regularisers** (every step, added to the image loss's gradient): λ_o · mean(o)
 //!   and λ_s · mean(s) over every Gaussian (and every axis), λ_o = λ_s = 0.01, which
 //!   push unused Gaussians towards transparency so that relocation finds them.
