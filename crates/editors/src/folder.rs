@@ -453,17 +453,7 @@ pub(crate) mod tests {
     use super::*;
 
     pub(crate) fn camera(name: &str, w: u32, h: u32) -> Camera {
-        Camera {
-            name: name.into(),
-            width: w,
-            height: h,
-            fx: 10.0,
-            fy: 10.0,
-            cx: w as f32 / 2.0,
-            cy: h as f32 / 2.0,
-            rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-            translation: [0.0; 3],
-        }
+        Camera::pinhole(name, w, h, 10.0)
     }
 
     /// Views of `cams` in order, all showing `src`.

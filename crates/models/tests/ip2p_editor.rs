@@ -19,17 +19,7 @@ fn editor(seed: u64) -> Ip2pEditor<'static> {
 }
 
 fn camera(name: &str, w: u32, h: u32) -> Camera {
-    Camera {
-        name: name.into(),
-        width: w,
-        height: h,
-        fx: w as f32,
-        fy: w as f32,
-        cx: w as f32 / 2.0,
-        cy: h as f32 / 2.0,
-        rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-        translation: [0.0, 0.0, 3.0],
-    }
+    Camera { translation: [0.0, 0.0, 3.0], ..Camera::pinhole(name, w, h, w as f32) }
 }
 
 fn image(w: usize, h: usize, phase: f32) -> Vec<f32> {

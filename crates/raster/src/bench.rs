@@ -12,17 +12,7 @@ use transsplat_scene::{rng::SplitMix64, Camera, Gaussians};
 /// The benchmark camera: at the origin looking down +z, 60° horizontal field of view.
 pub fn bench_camera(width: u32, height: u32) -> Camera {
     let fx = 0.5 * width as f32 / (30f32.to_radians()).tan();
-    Camera {
-        name: "bench".into(),
-        width,
-        height,
-        fx,
-        fy: fx,
-        cx: width as f32 / 2.0,
-        cy: height as f32 / 2.0,
-        rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-        translation: [0.0; 3],
-    }
+    Camera::pinhole("bench", width, height, fx)
 }
 
 /// `n` Gaussians filling the frustum of [`bench_camera`] (resolution-independent).

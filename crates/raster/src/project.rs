@@ -485,17 +485,7 @@ mod tests {
     const C0: f32 = 0.282_094_8;
 
     fn view() -> View {
-        View::new(&Camera {
-            name: "c".into(),
-            width: 8,
-            height: 8,
-            fx: 8.0,
-            fy: 8.0,
-            cx: 4.0,
-            cy: 4.0,
-            rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-            translation: [0.0; 3],
-        })
+        View::new(&Camera::pinhole("c", 8, 8, 8.0))
     }
 
     fn params(sh: &[f32], degree: u32) -> GaussianParams<'_> {

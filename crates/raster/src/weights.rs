@@ -238,17 +238,7 @@ mod tests {
                 g.sh.push(0.4 * ((f + 1.0) * (c as f32 + 1.0) * 0.13).sin());
             }
         }
-        let cam = Camera {
-            name: "c".into(),
-            width: 40,
-            height: 30,
-            fx: 40.0,
-            fy: 40.0,
-            cx: 20.0,
-            cy: 15.0,
-            rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-            translation: [0.0, 0.0, 0.0],
-        };
+        let cam = Camera::pinhole("c", 40, 30, 40.0);
         (g, cam)
     }
 

@@ -38,6 +38,23 @@ impl Camera {
         c
     }
 
+    /// A camera at the world origin looking down +z (identity rotation, zero
+    /// translation) with focal length `focal` in pixels and the principal point at the
+    /// image centre; set `translation` on the result to move the world in front of it.
+    pub fn pinhole(name: &str, width: u32, height: u32, focal: f32) -> Self {
+        Camera {
+            name: name.into(),
+            width,
+            height,
+            fx: focal,
+            fy: focal,
+            cx: width as f32 / 2.0,
+            cy: height as f32 / 2.0,
+            rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            translation: [0.0; 3],
+        }
+    }
+
     /// Builds a camera from a camera-to-world rotation and the camera centre.
     #[allow(clippy::too_many_arguments)]
     pub fn from_c2w(
@@ -178,17 +195,7 @@ mod tests {
     use super::*;
 
     fn cam() -> Camera {
-        Camera {
-            name: "images/a.png".into(),
-            width: 40,
-            height: 30,
-            fx: 50.0,
-            fy: 50.0,
-            cx: 20.0,
-            cy: 15.0,
-            rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-            translation: [0.0, 0.0, 3.0],
-        }
+        Camera { translation: [0.0, 0.0, 3.0], ..Camera::pinhole("images/a.png", 40, 30, 50.0) }
     }
 
     #[test]

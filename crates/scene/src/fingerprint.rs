@@ -47,17 +47,7 @@ mod tests {
     use super::*;
 
     fn cam() -> Camera {
-        Camera {
-            name: "0001.png".into(),
-            width: 4,
-            height: 3,
-            fx: 2.0,
-            fy: 2.0,
-            cx: 2.0,
-            cy: 1.5,
-            rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-            translation: [0.0, 0.0, 1.0],
-        }
+        Camera { translation: [0.0, 0.0, 1.0], ..Camera::pinhole("0001.png", 4, 3, 2.0) }
     }
 
     fn scene_of(x: f32) -> Gaussians {

@@ -66,8 +66,8 @@ pub fn initial_model(ds: &Dataset, opts: &FitOptions) -> (Model, InitSource) {
     if let Strategy::Mcmc(m) = opts.config.strategy {
         // gsplat's MCMC preset: more opaque, smaller initial Gaussians.
         g.opacity_logits.fill(crate::init::logit(m.init_opacity));
-        let ds = m.init_scale.ln();
-        g.log_scales.iter_mut().flatten().for_each(|s| *s += ds);
+        let shift = m.init_scale.ln();
+        g.log_scales.iter_mut().flatten().for_each(|s| *s += shift);
     }
     (Model::new(g, 0), source)
 }

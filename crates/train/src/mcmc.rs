@@ -333,6 +333,18 @@ mod tests {
     }
 
     #[test]
+    fn draws_are_proportional_to_the_weights_of_the_allowed_rows() {
+        let weights = [1.0, 3.0, 0.0, 100.0];
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let drawn = draw(&weights, &[0, 1, 2], 40_000, &mut rng);
+        let count = |r: u32| drawn.iter().filter(|&&d| d == r).count() as f64;
+        assert_eq!(count(2) + count(3), 0.0, "zero weight, or not allowed");
+        let ratio = count(1) / count(0);
+        assert!((ratio - 3.0).abs() < 0.1, "{ratio}");
+        assert!(draw(&[0.0, 0.0], &[0, 1], 5, &mut rng).is_empty(), "nothing to draw from");
+    }
+
+    #[test]
     fn noise_does_not_depend_on_the_thread_count() {
         let opacities: Vec<f32> = (0..10_000).map(|i| if i % 3 == 0 { 0.001 } else { 0.6 }).collect();
         let run = |threads: usize| {

@@ -75,16 +75,14 @@ pub enum Strategy {
 }
 
 impl Strategy {
-    /// Names for the command line, in the order of [`Strategy::from_name`].
-    pub const NAMES: [&'static str; 2] = ["adaptive", "mcmc"];
+    /// Every strategy, with default settings.
+    pub fn all() -> [Strategy; 2] {
+        [Strategy::Adaptive, Strategy::Mcmc(McmcConfig::default())]
+    }
 
     /// The strategy called `name`, with default settings.
     pub fn from_name(name: &str) -> Option<Self> {
-        match name {
-            "adaptive" => Some(Strategy::Adaptive),
-            "mcmc" => Some(Strategy::Mcmc(McmcConfig::default())),
-            _ => None,
-        }
+        Self::all().into_iter().find(|s| s.name() == name)
     }
 
     /// Its name.

@@ -10,17 +10,7 @@ use transsplat_train::{DensifyConfig, LearningRates, Model, TrainConfig, Trainer
 const C0: f32 = 0.282_094_8;
 
 fn camera() -> Camera {
-    Camera {
-        name: "v".into(),
-        width: 16,
-        height: 16,
-        fx: 16.0,
-        fy: 16.0,
-        cx: 8.0,
-        cy: 8.0,
-        rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-        translation: [0.0; 3],
-    }
+    Camera::pinhole("v", 16, 16, 16.0)
 }
 
 /// Trains one large opaque Gaussian, colours only, towards a flat (0.2, 0.8, 0.5)

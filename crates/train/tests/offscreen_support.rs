@@ -8,17 +8,7 @@ use transsplat_scene::{Camera, Gaussians};
 
 #[test]
 fn faint_gaussian_beyond_the_right_edge_renders() {
-    let cam = Camera {
-        name: "c".into(),
-        width: 64,
-        height: 48,
-        fx: 50.0,
-        fy: 50.0,
-        cx: 32.0,
-        cy: 24.0,
-        rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-        translation: [0.0; 3],
-    };
+    let cam = Camera::pinhole("c", 64, 48, 50.0);
     // At depth 5: pixel x = 50 * x / 5 + 32 = 95 for x = 6.3; sigma 10 px = 1.0 world.
     let g = Gaussians {
         means: vec![[6.3, 0.0, 5.0]],

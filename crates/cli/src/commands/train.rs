@@ -119,8 +119,8 @@ fn parse_clamp_grad(s: &str) -> Result<ClampGrad, String> {
 
 /// A densification strategy by name (`adaptive`, `mcmc`).
 fn parse_strategy(s: &str) -> Result<Strategy, String> {
-    Strategy::from_name(s)
-        .ok_or_else(|| format!("unknown strategy {s:?}; one of: {}", Strategy::NAMES.join(", ")))
+    let names: Vec<&str> = Strategy::all().iter().map(|r| r.name()).collect();
+    Strategy::from_name(s).ok_or_else(|| format!("unknown strategy {s:?}; one of: {}", names.join(", ")))
 }
 
 /// An Adam rule by name (`dense`, `selective`).
