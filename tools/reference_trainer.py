@@ -24,6 +24,10 @@ interrupted run continues):
    (11×11 Gaussian window, σ = 1.5, zero padding, C1 = 0.01², C2 = 0.03²) over whole
    images, every view, the worst view and the spread. transsplat's own `train.json`
    figures are printed beside the numpy ones as a cross-check of both evaluators.
+   `--score-ply LABEL=PLY` adds a scene trained elsewhere on the same capture, rendered
+   and scored the same way (black background): `tools/gsplat_reference.py` trains
+   gsplat on a GPU and writes one, so its own figures are checked by this evaluator and
+   by transsplat's rasterizer.
 5. Writes `OUT/anchor.json` and prints one table: test PSNR / SSIM, worst view, views
    more than 3 dB below the mean, Gaussian count, wall time.
 
@@ -237,7 +241,7 @@ def render(ts, scene, capture, out, background, log):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--opensplat", required=True, help="an OpenSplat binary built for the CPU")
+    ap.add_argument("--opensplat", help="an OpenSplat binary built for the CPU (unless --skip opensplat)")
     ap.add_argument("--transsplat", default=os.path.join(os.path.dirname(__file__), "..", "target", "release", "transsplat"))
     ap.add_argument("--out", required=True, help="work folder (reused: finished steps are skipped)")
     ap.add_argument("--scene", default="tabletop")
@@ -251,11 +255,16 @@ def main():
     ap.add_argument("--transsplat-args", default="", help="extra arguments for `transsplat train`")
     ap.add_argument("--transsplat-label", default="transsplat", help="name of transsplat's run (see --opensplat-label)")
     ap.add_argument("--skip", default="", help="comma-separated trainers not to run: opensplat, transsplat")
+    ap.add_argument("--score-ply", action="append", default=[], metavar="LABEL=PLY",
+                    help="also render and score a scene trained elsewhere on this capture (black "
+                         "background), e.g. one that tools/gsplat_reference.py wrote on a GPU; repeatable")
     a = ap.parse_args()
     ts = os.path.abspath(a.transsplat)
     out = os.path.abspath(a.out)
     os.makedirs(out, exist_ok=True)
     skip = set(filter(None, a.skip.split(",")))
+    if "opensplat" not in skip and not a.opensplat:
+        ap.error("--opensplat is needed unless --skip opensplat")
 
     capture = os.path.join(out, "capture")
     if not os.path.exists(capture):
@@ -307,6 +316,15 @@ def main():
         own = json.load(open(os.path.join(t_dir, "train.json")))
         results[tl]["seconds"] = own.get("seconds")
         results[tl]["train_json"] = own
+
+    for spec in a.score_ply:
+        name, sep, ply = spec.partition("=")
+        if not sep or not name or not os.path.isfile(ply):
+            sys.exit(f"--score-ply {spec}: expected LABEL=PLY naming an existing file")
+        r_dir = os.path.join(out, f"{name}_render")
+        render(ts, os.path.abspath(ply), capture, r_dir, (0, 0, 0), os.path.join(out, f"render_{name}.log"))
+        results[name] = score(r_dir, capture, test)
+        results[name]["gaussians"] = ply_count(ply)
 
     with open(os.path.join(out, f"anchor_{label}_{tl}.json"), "w") as f:
         json.dump({"settings": vars(a), "results": results}, f, indent=2)
