@@ -51,7 +51,6 @@ import sys
 import time
 
 import numpy as np
-from PIL import Image
 
 LLFF_HOLD = 8
 SH_C0 = 0.28209479177387814
@@ -134,6 +133,8 @@ def read_capture(capture):
 
 
 def load_image(capture, name):
+    from PIL import Image
+
     return np.asarray(Image.open(os.path.join(capture, "images", name)).convert("RGB"), np.float32) / 255.0
 
 
@@ -159,21 +160,26 @@ def ssim(torch, x, y, window, padding):
 
 
 def write_ply(path, splats):
-    """The scene in INRIA's layout: SH rest channel-major, raw logit opacity, log scale."""
+    """The trained `splats` (torch parameters, on any device) as an INRIA PLY."""
     import torch
 
     with torch.no_grad():
-        means = splats["means"].cpu().numpy()
-        n = len(means)
-        sh0 = splats["sh0"].reshape(n, 3).cpu().numpy()
-        shn = splats["shN"].transpose(1, 2).reshape(n, -1).cpu().numpy()
-        q = splats["quats"]
-        q = (q / q.norm(dim=-1, keepdim=True)).cpu().numpy()
-        cols = [means, np.zeros_like(means), sh0, shn, splats["opacities"].reshape(n, 1).cpu().numpy(),
-                splats["scales"].cpu().numpy(), q]
+        sh = torch.cat([splats["sh0"], splats["shN"]], 1)
+        arrays = [splats[k].detach().cpu().numpy() for k in ("means", "quats", "scales", "opacities")]
+        write_inria_ply(path, *arrays, sh.cpu().numpy())
+
+
+def write_inria_ply(path, means, quats, log_scales, opacity_logits, sh):
+    """INRIA's layout: SH DC, then the rest channel-major (all of red's coefficients
+    first), raw logit opacity, log scales, unit quaternions (w, x, y, z). Written to a
+    temporary name and renamed. `sh` is (N, K, 3) with the DC term at k = 0."""
+    n = len(means)
+    q = quats / np.linalg.norm(quats, axis=-1, keepdims=True)
+    rest = sh[:, 1:].transpose(0, 2, 1).reshape(n, -1)
+    cols = [means, np.zeros_like(means), sh[:, 0], rest, opacity_logits.reshape(n, 1), log_scales, q]
     data = np.concatenate(cols, axis=1).astype("<f4")
     names = ["x", "y", "z", "nx", "ny", "nz"] + [f"f_dc_{i}" for i in range(3)]
-    names += [f"f_rest_{i}" for i in range(shn.shape[1])] + ["opacity"]
+    names += [f"f_rest_{i}" for i in range(rest.shape[1])] + ["opacity"]
     names += [f"scale_{i}" for i in range(3)] + [f"rot_{i}" for i in range(4)]
     assert data.shape[1] == len(names)
     tmp = path + ".partial"

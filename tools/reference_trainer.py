@@ -50,7 +50,6 @@ import sys
 import time
 
 import numpy as np
-from PIL import Image
 
 LLFF_HOLD = 8
 # OpenSplat's fixed background colour (nerfstudio's default, `model.hpp`).
@@ -214,6 +213,8 @@ def psnr(x, y):
 
 
 def score(render_dir, capture, names):
+    from PIL import Image
+
     views = []
     for n in sorted(names):
         stem = os.path.splitext(n)[0]
