@@ -39,7 +39,8 @@ transsplat at the same cameras, a cross-check of both rasterizers and both evalu
 
 `--build-only` compiles gsplat's CUDA extension (`torch.utils.cpp_extension.load` over
 the wheel's sources; set TORCH_CUDA_ARCH_LIST to the one GPU's architecture to cut the
-time) and exits. Needs torch with CUDA, numpy, Pillow, and gsplat (1.5.3 measured).
+time) and exits. Needs torch with CUDA, numpy, Pillow, gsplat (1.5.3 measured) and
+`reference_trainer.py` beside it (its COLMAP reader and split).
 """
 
 import argparse
@@ -52,7 +53,9 @@ import time
 
 import numpy as np
 
-LLFF_HOLD = 8
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from reference_trainer import LLFF_HOLD, read_colmap_text, read_points  # noqa: E402
+
 SH_C0 = 0.28209479177387814
 
 
@@ -87,49 +90,21 @@ def build_extension():
     print(f"gsplat CUDA extension ready in {time.time() - t0:.0f} s", flush=True)
 
 
-def qvec_to_rot(q):
-    w, x, y, z = q
-    return np.array(
-        [
-            [1 - 2 * y * y - 2 * z * z, 2 * x * y - 2 * w * z, 2 * x * z + 2 * w * y],
-            [2 * x * y + 2 * w * z, 1 - 2 * x * x - 2 * z * z, 2 * y * z - 2 * w * x],
-            [2 * x * z - 2 * w * y, 2 * y * z + 2 * w * x, 1 - 2 * x * x - 2 * y * y],
-        ]
-    )
-
-
 def read_capture(capture):
-    """Views sorted by name: (name, 4×4 world-to-camera (OpenCV), K, w, h), and the points."""
+    """Views sorted by name: (name, 4×4 world-to-camera (OpenCV), K, w, h), and the
+    points (xyz, rgb in [0, 1]), read by `reference_trainer.py`'s COLMAP text reader."""
     sparse = os.path.join(capture, "sparse", "0")
-    cams = {}
-    for line in open(os.path.join(sparse, "cameras.txt")):
-        if line.startswith("#") or not line.strip():
-            continue
-        p = line.split()
-        if p[1] != "PINHOLE":
-            sys.exit(f"{sparse}/cameras.txt: camera model {p[1]} (only PINHOLE is read)")
-        cams[int(p[0])] = (int(p[2]), int(p[3])) + tuple(float(v) for v in p[4:8])
+    cams, images = read_colmap_text(sparse)
     views = []
-    lines = [l for l in open(os.path.join(sparse, "images.txt")) if not l.startswith("#")]
-    for i in range(0, len(lines), 2):
-        p = lines[i].split()
-        if not p:
-            continue
-        w, h, fx, fy, cx, cy = cams[int(p[8])]
+    for name, r_wc, t_wc, cid in images:
+        w, h, fx, fy, cx, cy = cams[cid]
         vm = np.eye(4)
-        vm[:3, :3] = qvec_to_rot([float(v) for v in p[1:5]])
-        vm[:3, 3] = [float(v) for v in p[5:8]]
-        k = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
-        views.append((p[9], vm, k, w, h))
+        vm[:3, :3] = r_wc
+        vm[:3, 3] = t_wc
+        views.append((name, vm, np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]]), w, h))
     views.sort(key=lambda v: v[0])
-    xyz, rgb = [], []
-    for line in open(os.path.join(sparse, "points3D.txt")):
-        if line.startswith("#") or not line.strip():
-            continue
-        p = line.split()
-        xyz.append([float(v) for v in p[1:4]])
-        rgb.append([int(v) for v in p[4:7]])
-    return views, np.array(xyz, np.float32), np.array(rgb, np.float32) / 255.0
+    xyz, rgb = read_points(sparse)
+    return views, xyz, rgb.astype(np.float32) / 255.0
 
 
 def load_image(capture, name):
