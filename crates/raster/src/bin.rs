@@ -7,7 +7,6 @@
 use crate::project::{project, Splat2d, View};
 use crate::Splats;
 use rayon::prelude::*;
-use transsplat_scene::cpu::prefetch_bytes;
 
 /// Tile edge in pixels.
 pub const TILE: usize = 16;
@@ -189,9 +188,6 @@ fn project_chunk_dispatch(
     project_chunk(splats, view, i0, out)
 }
 
-/// How far ahead the depth-order gather prefetches.
-const GATHER_AHEAD: usize = 16;
-
 /// Projects, sorts and bins the splats for `view`.
 pub fn bin(splats: &Splats, view: &View) -> Binned {
     let n = splats.len();
@@ -225,15 +221,8 @@ pub fn bin(splats: &Splats, view: &View) -> Binned {
     let slot = |v: u32| (v as usize >> PCH_BITS, v as usize & (PCH - 1));
     let (ids, packed): (Vec<u32>, Vec<Packed>) = keys
         .par_iter()
-        .enumerate()
         .with_min_len(4096)
-        .map(|(j, k)| {
-            // Depth order visits the slots at random: fetch a few ahead.
-            if let Some(ahead) = keys.get(j + GATHER_AHEAD) {
-                let (c, i) = slot(ahead.1);
-                prefetch_bytes(&parts[c].1[i] as *const Packed as usize, std::mem::size_of::<Packed>());
-                prefetch_bytes(&parts[c].0[i] as *const u32 as usize, 4);
-            }
+        .map(|k| {
             let (c, i) = slot(k.1);
             (parts[c].0[i], parts[c].1[i])
         })
