@@ -2,27 +2,29 @@
 //! trained briefly into an INRIA folder that `transsplat render` opens, and bad input
 //! (exit status 2, one-line error naming the file).
 
-use std::process::Command;
+mod common;
 
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_transsplat"))
+use common::{bin, ok, quick_scene_in};
+use std::path::Path;
+use std::process::Output;
+
+/// `transsplat train ARGS --data DATA --out OUT`.
+fn train(data: &Path, out: &Path, args: &[&str]) -> Output {
+    bin().arg("train").args(args).arg("--data").arg(data).arg("--out").arg(out).output().unwrap()
+}
+
+/// The `train.json` of a finished run.
+fn summary(out: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(out.join("train.json")).unwrap()).unwrap()
 }
 
 #[test]
 fn train_on_a_built_in_scene_writes_an_inria_folder() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    let st = bin().args(["scene", "tabletop", "--quick", "--out"]).arg(&data).output().unwrap();
-    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    let data = quick_scene_in(dir.path(), "data");
     let out = dir.path().join("out");
-    let st = bin()
-        .args(["train", "--iters", "60", "--resolution", "4", "--eval-every", "30", "--data"])
-        .arg(&data)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    let st = train(&data, &out, &["--iters", "60", "--resolution", "4", "--eval-every", "30"]);
+    ok(&st);
     let stdout = String::from_utf8_lossy(&st.stdout);
     let last: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
     assert_eq!(last["steps"], 60);
@@ -30,8 +32,7 @@ fn train_on_a_built_in_scene_writes_an_inria_folder() {
     assert!(out.join("point_cloud/iteration_60/point_cloud.ply").is_file());
     assert!(out.join("cameras.json").is_file());
     // Every test view is scored (whole image) and rendered; the mean is their mean.
-    let summary: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("train.json")).unwrap()).unwrap();
+    let summary = summary(&out);
     let views = summary["per_test_view"].as_array().unwrap();
     assert_eq!(views.len() as u64, summary["test_views"].as_u64().unwrap());
     assert!(views.len() >= 2, "{summary}");
@@ -48,8 +49,7 @@ fn train_on_a_built_in_scene_writes_an_inria_folder() {
     assert!(views.iter().all(|v| v["psnr"].as_f64().unwrap() >= worst));
     assert!(summary["train_psnr_sample"].as_f64().unwrap().is_finite());
     let renders = dir.path().join("renders");
-    let st = bin().args(["render", "--scene"]).arg(&out).arg("--out").arg(&renders).output().unwrap();
-    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    ok(&bin().args(["render", "--scene"]).arg(&out).arg("--out").arg(&renders).output().unwrap());
     assert!(renders.join("view_001.png").is_file());
 }
 
@@ -59,35 +59,35 @@ fn train_on_a_built_in_scene_writes_an_inria_folder() {
 fn train_with_the_mcmc_strategy_ends_at_its_budget() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
-    let st = bin()
+    ok(&bin()
         .args(["scene", "tabletop", "--quick", "--points", "2000", "--out"])
         .arg(&data)
         .output()
-        .unwrap();
-    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+        .unwrap());
     let out = dir.path().join("out");
     // Densification runs at steps 600 and 700 (5 % growth each, capped at 1,950 (from about 1,820)).
-    let st = bin()
-        .args(["train", "--iters", "700", "--resolution", "4", "--eval-every", "0"])
-        .args(["--strategy", "mcmc", "--max-gaussians", "1950", "--data"])
-        .arg(&data)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
-    let summary: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("train.json")).unwrap()).unwrap();
+    let st = train(
+        &data,
+        &out,
+        &[
+            "--iters",
+            "700",
+            "--resolution",
+            "4",
+            "--eval-every",
+            "0",
+            "--strategy",
+            "mcmc",
+            "--max-gaussians",
+            "1950",
+        ],
+    );
+    ok(&st);
+    let summary = summary(&out);
     assert_eq!(summary["strategy"], "mcmc");
     assert_eq!(summary["gaussians"], 1950, "{summary}");
     assert!(summary["test_psnr"].as_f64().unwrap() > 15.0, "{summary}");
-    let st = bin()
-        .args(["train", "--strategy", "splatfacto", "--data"])
-        .arg(&data)
-        .arg("--out")
-        .arg(dir.path().join("out2"))
-        .output()
-        .unwrap();
+    let st = train(&data, &dir.path().join("out2"), &["--strategy", "splatfacto"]);
     assert_eq!(st.status.code(), Some(2));
     let err = String::from_utf8_lossy(&st.stderr);
     assert!(err.contains("splatfacto") && err.contains("adaptive, mcmc"), "{err}");
@@ -96,29 +96,19 @@ fn train_with_the_mcmc_strategy_ends_at_its_budget() {
 #[test]
 fn bad_datasets_exit_with_status_2_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    let st = bin().args(["scene", "tabletop", "--quick", "--out"]).arg(&data).output().unwrap();
-    assert!(st.status.success());
+    let data = quick_scene_in(dir.path(), "data");
     let victim = data.join("images/view_003.png");
     std::fs::write(&victim, b"not an image").unwrap();
     let out = dir.path().join("out");
-    let st =
-        bin().args(["train", "--iters", "5", "--data"]).arg(&data).arg("--out").arg(&out).output().unwrap();
+    let st = train(&data, &out, &["--iters", "5"]);
     assert_eq!(st.status.code(), Some(2));
     let err = String::from_utf8_lossy(&st.stderr);
     assert!(err.contains("view_003.png") && err.contains("not a PNG or JPEG"), "{err}");
     std::fs::remove_file(&victim).unwrap();
-    let st =
-        bin().args(["train", "--iters", "5", "--data"]).arg(&data).arg("--out").arg(&out).output().unwrap();
+    let st = train(&data, &out, &["--iters", "5"]);
     assert_eq!(st.status.code(), Some(2));
     let err = String::from_utf8_lossy(&st.stderr);
     assert!(err.contains("view_003") && err.contains("missing"), "{err}");
-    let st = bin()
-        .args(["train", "--data"])
-        .arg(dir.path().join("nowhere"))
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
+    let st = train(&dir.path().join("nowhere"), &out, &[]);
     assert_eq!(st.status.code(), Some(2));
 }

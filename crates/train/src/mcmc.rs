@@ -30,6 +30,7 @@
 //! docs/method.md#t1-densification-strategies.
 
 use crate::densify::{normal, quat_matrix};
+use crate::init::logit;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -127,7 +128,7 @@ fn apply_relocation(g: &mut Gaussians, drawn: &[u32], min_opacity: f32) {
         let i = i as usize;
         let (o, f) = relocation(sigmoid(g.opacity_logits[i]), k + 1);
         let o = o.clamp(min_opacity, 1.0 - f32::EPSILON);
-        g.opacity_logits[i] = (o / (1.0 - o)).ln();
+        g.opacity_logits[i] = logit(o);
         g.log_scales[i] = g.log_scales[i].map(|s| s + f.ln());
     }
 }
@@ -142,6 +143,13 @@ pub struct McmcPlan {
     pub restart: Vec<bool>,
 }
 
+/// Every row's opacity, and the rows with `mask[i]` (all when there is no mask).
+fn opacities_and_allowed(g: &Gaussians, mask: Option<&[bool]>) -> (Vec<f32>, Vec<u32>) {
+    let opacity = g.opacity_logits.iter().map(|&l| sigmoid(l)).collect();
+    let allowed = (0..g.len() as u32).filter(|&i| mask.is_none_or(|m| m[i as usize])).collect();
+    (opacity, allowed)
+}
+
 /// Relocation (module doc): moves every dead row (opacity ≤ `min_opacity`) onto an alive
 /// one drawn ∝ opacity, after setting the drawn rows' eq. 9 opacity and scale in `g`.
 /// Only rows with `mask[i]` may die or be drawn. In place: no row is added or removed.
@@ -152,10 +160,9 @@ pub fn plan_relocate(
     rng: &mut ChaCha8Rng,
 ) -> McmcPlan {
     let n = g.len();
-    let allowed = |i: usize| mask.is_none_or(|m| m[i]);
-    let opacity: Vec<f32> = g.opacity_logits.iter().map(|&l| sigmoid(l)).collect();
+    let (opacity, allowed) = opacities_and_allowed(g, mask);
     let (dead, alive): (Vec<u32>, Vec<u32>) =
-        (0..n as u32).filter(|&i| allowed(i as usize)).partition(|&i| opacity[i as usize] <= min_opacity);
+        allowed.into_iter().partition(|&i| opacity[i as usize] <= min_opacity);
     let drawn = draw(&opacity, &alive, dead.len(), rng);
     apply_relocation(g, &drawn, min_opacity);
     let mut src: Vec<u32> = (0..n as u32).collect();
@@ -180,8 +187,7 @@ pub fn plan_grow(
     rng: &mut ChaCha8Rng,
 ) -> McmcPlan {
     let n = g.len();
-    let opacity: Vec<f32> = g.opacity_logits.iter().map(|&l| sigmoid(l)).collect();
-    let pool: Vec<u32> = (0..n as u32).filter(|&i| mask.is_none_or(|m| m[i as usize])).collect();
+    let (opacity, pool) = opacities_and_allowed(g, mask);
     let target = cap.min(((1.0 + cfg.growth as f64) * n as f64) as usize);
     let drawn = draw(&opacity, &pool, target.saturating_sub(n), rng);
     apply_relocation(g, &drawn, min_opacity);
@@ -273,7 +279,7 @@ mod tests {
             means: (0..n).map(|i| [i as f32, 0.0, 0.0]).collect(),
             log_scales: vec![[-2.0; 3]; n],
             rotations: vec![[1.0, 0.0, 0.0, 0.0]; n],
-            opacity_logits: opacities.iter().map(|&o| (o / (1.0 - o)).ln()).collect(),
+            opacity_logits: opacities.iter().map(|&o| logit(o)).collect(),
             sh_degree: 0,
             sh: vec![0.0; n * 3],
             ..Default::default()
