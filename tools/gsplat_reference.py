@@ -166,6 +166,12 @@ def write_inria_ply(path, means, quats, log_scales, opacity_logits, sh):
     os.rename(tmp, path)
 
 
+def outside(folder, path):
+    """Whether `path` lies outside `folder` (links resolved), so writing it cannot touch an input."""
+    f, p = os.path.realpath(folder), os.path.realpath(path)
+    return os.path.commonpath([f, p]) != f
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--capture", help="a capture written by `transsplat scene --open`")
@@ -177,6 +183,9 @@ def main():
     ap.add_argument("--ply", help="also write the trained scene here (INRIA layout)")
     ap.add_argument("--build-only", action="store_true", help="compile gsplat's CUDA extension and exit")
     a = ap.parse_args()
+    for path in (a.out, a.ply):
+        if path and a.capture and not outside(a.capture, path):
+            ap.error(f"{path}: an output may not lie inside the capture {a.capture} (inputs are never written)")
 
     import torch
     import torch.nn.functional as F

@@ -44,6 +44,7 @@ import argparse
 import json
 import math
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -320,10 +321,18 @@ def main():
 
     for spec in a.score_ply:
         name, sep, ply = spec.partition("=")
-        if not sep or not name or not os.path.isfile(ply):
-            sys.exit(f"--score-ply {spec}: expected LABEL=PLY naming an existing file")
-        r_dir = os.path.join(out, f"{name}_render")
+        if not sep or not re.fullmatch(r"[A-Za-z0-9.-]+", name) or name in (".", "..") or not os.path.isfile(ply):
+            sys.exit(f"--score-ply {spec}: expected LABEL=PLY (LABEL of letters, digits, '.' and '-') "
+                     "naming an existing file")
+        r_dir = os.path.join(out, f"scored_{name}")
+        # Renders of an earlier PLY under the same label are not reused for another.
+        source = json.dumps([os.path.abspath(ply), os.path.getsize(ply), os.path.getmtime(ply)])
+        stamp = r_dir + ".source"
+        if os.path.exists(r_dir) and (not os.path.exists(stamp) or open(stamp).read() != source):
+            shutil.rmtree(r_dir)
         render(ts, os.path.abspath(ply), capture, r_dir, (0, 0, 0), os.path.join(out, f"render_{name}.log"))
+        with open(stamp, "w") as f:
+            f.write(source)
         results[name] = score(r_dir, capture, test)
         results[name]["gaussians"] = ply_count(ply)
 

@@ -3,6 +3,8 @@ writes: their COLMAP reader against the library's, their PLY writer against its 
 reader, and both scripts' held-out split (the GPU side of them cannot run here)."""
 
 import importlib.util
+import subprocess
+import sys
 
 import numpy as np
 import transsplat
@@ -63,8 +65,6 @@ def test_reference_trainer_scores_a_scene_trained_elsewhere(tmp_path):
     transsplat at the held-out cameras and scored in numpy, matches its images (to 8-bit
     rounding); a file that is not there is refused."""
     import json
-    import subprocess
-    import sys
 
     from conftest import cli_binary
 
@@ -80,5 +80,32 @@ def test_reference_trainer_scores_a_scene_trained_elsewhere(tmp_path):
     res = json.loads((tmp_path / "a" / "anchor_opensplat_transsplat.json").read_text())["results"]["truth"]
     assert len(res["per_view"]) == 2 and res["psnr"] > 40.0, res
     assert res["gaussians"] > 0
-    bad = subprocess.run(base + ["--score-ply", f"x={tmp_path / 'none.ply'}"], capture_output=True, text=True)
-    assert bad.returncode != 0 and "--score-ply" in bad.stderr
+    # Another scene under the same label is rendered afresh, not scored from the old renders.
+    g = transsplat.load_ply(gt)
+    g["sh"][:, 0] += 0.5
+    other = tmp_path / "other.ply"
+    transsplat.save_ply(other, g)
+    r = subprocess.run(base + ["--score-ply", f"truth={other}"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    res2 = json.loads((tmp_path / "a" / "anchor_opensplat_transsplat.json").read_text())["results"]["truth"]
+    assert res2["psnr"] < res["psnr"] - 10.0, (res["psnr"], res2["psnr"])
+    for spec in [f"x={tmp_path / 'none.ply'}", f"../up={gt}", f"a/b={gt}"]:
+        bad = subprocess.run(base + ["--score-ply", spec], capture_output=True, text=True)
+        assert bad.returncode != 0 and "--score-ply" in bad.stderr, spec
+    assert not (tmp_path / "up").exists() and not (tmp_path / "a" / "scored_..").exists()
+
+
+def test_gsplat_reference_refuses_outputs_inside_the_capture(tmp_path):
+    g = tool("gsplat_reference")
+    cap = tmp_path / "cap"
+    (cap / "images").mkdir(parents=True)
+    assert g.outside(cap, tmp_path / "out.json")
+    assert not g.outside(cap, cap / "out.json")
+    assert not g.outside(cap, cap / "images" / "view_000.png")
+    assert not g.outside(cap, cap)
+    # Through a link to the capture, too.
+    (tmp_path / "link").symlink_to(cap)
+    assert not g.outside(cap, tmp_path / "link" / "out.json")
+    r = subprocess.run([sys.executable, str(ROOT / "tools" / "gsplat_reference.py"), "--capture", str(cap),
+                        "--out", str(cap / "r.json")], capture_output=True, text=True)
+    assert r.returncode == 2 and "inside the capture" in r.stderr, r.stderr
