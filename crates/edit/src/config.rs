@@ -75,6 +75,7 @@ impl Method {
                 cfg.loss.colour_gate = 0.0;
                 cfg.semantic_init = SemanticInit::Source;
                 cfg.prototypes.close_radius = 0.0;
+                cfg.schedule.colour_lift = false;
             }
             Method::Geometric => {
                 cfg.transport.lambda_sem = 0.0;
@@ -175,6 +176,10 @@ pub struct ScheduleConfig {
     /// of the Gaussians that can change (`delta`): the same edit up to float
     /// rounding, in a fraction of the time. Off: every step renders in full.
     pub delta_render: bool,
+    /// Before the first step, move the colour of every Gaussian the method lets
+    /// change by the blend-weighted mean of the edited views' residuals over the
+    /// pixels it blends (docs/method.md#m9-the-edit-loop); off in `paper`.
+    pub colour_lift: bool,
 }
 
 impl Default for ScheduleConfig {
@@ -185,6 +190,7 @@ impl Default for ScheduleConfig {
             densify_every: 0,
             densify_gate: 0.5,
             delta_render: true,
+            colour_lift: true,
         }
     }
 }

@@ -109,6 +109,11 @@ pub fn run_with(
         let t = Instant::now();
         renderer.follow(method.colour_mask(), &tr, job.gaussians, &view_cams);
         ls.stages.weights += t.elapsed().as_secs_f64();
+        if step == 0 && cfg.schedule.colour_lift {
+            let t = Instant::now();
+            optimise::colour_lift(&mut tr, job.cameras, &views, method.colour_mask());
+            ls.stages.lift += t.elapsed().as_secs_f64();
+        }
         let k = ls.order.next(views.len());
         let stages = &mut ls.stages;
         optimise_step(step, &mut tr, method.as_mut(), &mut renderer, k, &ctx, cfg, &mut ls.losses, stages)?;

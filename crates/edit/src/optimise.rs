@@ -4,12 +4,15 @@
 
 use crate::config::EditConfig;
 use crate::delta::Delta;
+use crate::edits::ViewData;
 use crate::error::EditError;
+use crate::lift;
 use crate::round::RoundStats;
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
+use std::borrow::Cow;
 use std::time::Instant;
 use transsplat_raster::{Frame, Grads, ImageGrads};
 use transsplat_scene::{Camera, Gaussians};
@@ -96,9 +99,26 @@ pub struct StageTimes {
     pub optimiser: f64,
     /// Checkpoint writes.
     pub checkpoint: f64,
+    /// The colour lift before the first step.
+    pub lift: f64,
     /// Building the blend weights of the Gaussians that can change colour (frozen
     /// geometry with a colour mask, [`crate::delta`]).
     pub weights: f64,
+}
+
+/// The colour lift (docs/method.md#m9-the-edit-loop): before the first step, each
+/// Gaussian inside the colour mask `mask` (every Gaussian without one) takes the
+/// blend-weighted mean of the usable views' residuals over the pixels it blends,
+/// Δc_i = Σ_v Σ_p w_i^v(p) (E_v(p) − I_v(p)) / Σ_v Σ_p w_i^v(p), with E_v the edited
+/// view and I_v the current render, added to its DC colour ([`lift::shift_dc`]).
+pub fn colour_lift(tr: &mut Trainer, cameras: &[Camera], views: &[ViewData], mask: Option<&[bool]>) {
+    let cams: Vec<&Camera> = views.iter().map(|v| &cameras[v.cam]).collect();
+    let delta = lift::lift_each(&tr.model.gaussians, &cams, 3, |v| {
+        let (img, _) = tr.render(cams[v]);
+        Cow::Owned(views[v].target.iter().zip(&img.rgb).map(|(e, i)| e - i).collect())
+    });
+    let k = tr.model.gaussians.sh_coeffs() * 3;
+    lift::shift_dc(&mut tr.model.gaussians.sh, k, &delta, mask);
 }
 
 /// Seconds since `t`, restarting it.
@@ -310,6 +330,47 @@ impl LoopState {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Edited views that are the renders plus a constant d: every blended Gaussian
+    /// lifts Δ = d, so each pixel moves by Σ_i w_i d = α(p) d, with α the renderer's
+    /// own opacity (an independent oracle); a masked-out Gaussian keeps its colour.
+    #[test]
+    fn the_colour_lift_moves_each_pixel_by_its_opacity_times_a_uniform_residual() {
+        use transsplat_scenes::{build, SceneConfig};
+        let scene =
+            build("tabletop", &SceneConfig { width: 40, height: 32, views: 3, ..SceneConfig::quick() })
+                .unwrap();
+        let (g, cams) = (&scene.gaussians, &scene.cameras);
+        let cfg = EditConfig::default();
+        let latents = vec![0.0; g.len() * cfg.semantic_dim];
+        let mut tr = trainer(g, latents.clone(), &cfg, cams, [0.0; 3]).unwrap();
+        let d = [0.1f32, -0.05, 0.2];
+        let before: Vec<_> = cams.iter().map(|c| tr.render(c).0).collect();
+        let views: Vec<ViewData> = (0..cams.len())
+            .map(|v| ViewData {
+                cam: v,
+                target: before[v].rgb.iter().enumerate().map(|(j, x)| x + d[j % 3]).collect(),
+                appearance: Vec::new(),
+                d_app: 0,
+            })
+            .collect();
+        colour_lift(&mut tr, cams, &views, None);
+        let mut worst = 0.0f32;
+        for (c, b) in cams.iter().zip(&before) {
+            let after = tr.render(c).0;
+            for (j, (x, y)) in after.rgb.iter().zip(&b.rgb).enumerate() {
+                worst = worst.max((x - y - b.alpha[j / 3] * d[j % 3]).abs());
+            }
+        }
+        assert!(worst < 1e-4, "largest error {worst}");
+        let mut tr = trainer(g, latents, &cfg, cams, [0.0; 3]).unwrap();
+        let mask: Vec<bool> = (0..g.len()).map(|i| i % 2 == 0).collect();
+        colour_lift(&mut tr, cams, &views, Some(&mask));
+        let k = g.sh_coeffs() * 3;
+        let moved = |i: usize| tr.model.gaussians.sh[i * k..i * k + 3] != g.sh[i * k..i * k + 3];
+        assert!((0..g.len()).filter(|&i| i % 2 == 1).all(|i| !moved(i)));
+        assert!((0..g.len()).filter(|&i| i % 2 == 0).filter(|&i| moved(i)).count() > g.len() / 4);
+    }
 
     #[test]
     fn every_view_once_per_epoch() {
