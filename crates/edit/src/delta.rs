@@ -121,6 +121,28 @@ impl Delta {
         rgb
     }
 
+    /// The colour lift's Δ_i (docs/method.md#m9-the-edit-loop) from the views' weights:
+    /// Σ_v Σ_p w_i^v(p) r_v(p) / Σ_v Σ_p w_i^v(p), with r_v = `targets[v]` minus the
+    /// view's current render; `N × 3`, 0 outside the covered set (the same values as
+    /// [`crate::lift::lift_each`] of the residuals, without binning every Gaussian).
+    pub fn lift(&self, splats: &Splats, cams: &[&Camera], targets: &[&[f32]]) -> Vec<f32> {
+        let n = self.covered.len();
+        let (mut num, mut den) = (vec![0.0f64; n * 3], vec![0.0f64; n]);
+        for (k, (v, cam)) in self.views.iter().zip(cams).enumerate() {
+            let rgb = self.render(k, splats, cam);
+            let residual: Vec<f32> = targets[k].iter().zip(&rgb).map(|(t, c)| t - c).collect();
+            let sums = v.weights.transpose(&vec![1.0; residual.len()]);
+            for ((&i, r), w) in v.weights.ids.iter().zip(v.weights.transpose(&residual)).zip(sums) {
+                let i = i as usize;
+                den[i] += w[0] as f64;
+                for c in 0..3 {
+                    num[i * 3 + c] += r[c] as f64;
+                }
+            }
+        }
+        (0..n * 3).map(|j| if den[j / 3] > 0.0 { (num[j] / den[j / 3]) as f32 } else { 0.0 }).collect()
+    }
+
     /// Adds the SH gradients of the Gaussians in `mask` from the image gradient
     /// `grad_rgb` of usable view `k` into `grad_sh`, through the colour clamp as
     /// `clamp` says.

@@ -111,7 +111,7 @@ pub fn run_with(
         ls.stages.weights += t.elapsed().as_secs_f64();
         if step == 0 && cfg.schedule.colour_lift {
             let t = Instant::now();
-            optimise::colour_lift(&mut tr, job.cameras, &views, method.colour_mask());
+            optimise::colour_lift(&mut tr, &renderer, job.cameras, &views, method.colour_mask());
             ls.stages.lift += t.elapsed().as_secs_f64();
         }
         let k = ls.order.next(views.len());

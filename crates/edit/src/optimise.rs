@@ -111,12 +111,26 @@ pub struct StageTimes {
 /// blend-weighted mean of the usable views' residuals over the pixels it blends,
 /// Δc_i = Σ_v Σ_p w_i^v(p) (E_v(p) − I_v(p)) / Σ_v Σ_p w_i^v(p), with E_v the edited
 /// view and I_v the current render, added to its DC colour ([`lift::shift_dc`]).
-pub fn colour_lift(tr: &mut Trainer, cameras: &[Camera], views: &[ViewData], mask: Option<&[bool]>) {
+/// With [`Renderer::Delta`] the views' blend weights of the covered Gaussians give it
+/// ([`Delta::lift`]); otherwise a splat-back of each view's residual.
+pub fn colour_lift(
+    tr: &mut Trainer,
+    renderer: &Renderer,
+    cameras: &[Camera],
+    views: &[ViewData],
+    mask: Option<&[bool]>,
+) {
     let cams: Vec<&Camera> = views.iter().map(|v| &cameras[v.cam]).collect();
-    let delta = lift::lift_each(&tr.model.gaussians, &cams, 3, |v| {
-        let (img, _) = tr.render(cams[v]);
-        Cow::Owned(views[v].target.iter().zip(&img.rgb).map(|(e, i)| e - i).collect())
-    });
+    let delta = match renderer {
+        Renderer::Delta(d, _) => {
+            let targets: Vec<&[f32]> = views.iter().map(|v| v.target.as_slice()).collect();
+            d.lift(&tr.splats(), &cams, &targets)
+        }
+        _ => lift::lift_each(&tr.model.gaussians, &cams, 3, |v| {
+            let (img, _) = tr.render(cams[v]);
+            Cow::Owned(views[v].target.iter().zip(&img.rgb).map(|(e, i)| e - i).collect())
+        }),
+    };
     let k = tr.model.gaussians.sh_coeffs() * 3;
     lift::shift_dc(&mut tr.model.gaussians.sh, k, &delta, mask);
 }
@@ -354,7 +368,7 @@ mod tests {
                 d_app: 0,
             })
             .collect();
-        colour_lift(&mut tr, cams, &views, None);
+        colour_lift(&mut tr, &Renderer::Full, cams, &views, None);
         let mut worst = 0.0f32;
         for (c, b) in cams.iter().zip(&before) {
             let after = tr.render(c).0;
@@ -365,11 +379,27 @@ mod tests {
         assert!(worst < 1e-4, "largest error {worst}");
         let mut tr = trainer(g, latents, &cfg, cams, [0.0; 3]).unwrap();
         let mask: Vec<bool> = (0..g.len()).map(|i| i % 2 == 0).collect();
-        colour_lift(&mut tr, cams, &views, Some(&mask));
+        colour_lift(&mut tr, &Renderer::Full, cams, &views, Some(&mask));
         let k = g.sh_coeffs() * 3;
         let moved = |i: usize| tr.model.gaussians.sh[i * k..i * k + 3] != g.sh[i * k..i * k + 3];
         assert!((0..g.len()).filter(|&i| i % 2 == 1).all(|i| !moved(i)));
         assert!((0..g.len()).filter(|&i| i % 2 == 0).filter(|&i| moved(i)).count() > g.len() / 4);
+
+        // With frozen geometry and a small mask the loop's Delta renderer gives the
+        // lift from its blend weights: the same colours as the splat-back path.
+        let mask: Vec<bool> = (0..g.len()).map(|i| i % 5 == 0).collect();
+        let cam_refs: Vec<&Camera> = cams.iter().collect();
+        let bases = before.iter().map(|b| b.rgb.clone()).collect();
+        let mut renderer = Renderer::new(true, || bases);
+        let mut by_delta = trainer(g, vec![0.0; g.len() * cfg.semantic_dim], &cfg, cams, [0.0; 3]).unwrap();
+        renderer.follow(Some(&mask), &by_delta, g, &cam_refs);
+        assert!(matches!(renderer, Renderer::Delta(..)));
+        colour_lift(&mut by_delta, &renderer, cams, &views, Some(&mask));
+        let mut by_splat = trainer(g, vec![0.0; g.len() * cfg.semantic_dim], &cfg, cams, [0.0; 3]).unwrap();
+        colour_lift(&mut by_splat, &Renderer::Full, cams, &views, Some(&mask));
+        let (a, b) = (&by_delta.model.gaussians.sh, &by_splat.model.gaussians.sh);
+        let diff = a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+        assert!(diff < 1e-4 && a != &g.sh, "largest difference {diff}");
     }
 
     #[test]
