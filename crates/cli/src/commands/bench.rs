@@ -207,6 +207,7 @@ pub fn edit(args: &EditArgs, cancel: &AtomicBool) -> anyhow::Result<()> {
             ("    optimiser + densification", st.optimiser),
             ("    checkpoints", st.checkpoint),
             ("    blend weights", st.weights),
+            ("    colour lift", st.lift),
             ("write PLY", r.write_s),
         ];
         for (name, s) in rows {
