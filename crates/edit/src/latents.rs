@@ -91,7 +91,7 @@ impl Latents {
                         // SAFETY: AVX2 and FMA detected at run time.
                         return unsafe { batch.run_avx2(c * ROWS, s, m, v) };
                     }
-                    batch.run(c * ROWS, s, m, v)
+                    batch.run_any(c * ROWS, s, m, v)
                 })
                 .collect();
         let mut loss = vec![0.0f64; steps.len()];
@@ -131,19 +131,38 @@ impl Batch<'_> {
         m: &mut [f32],
         v: &mut [f32],
     ) -> (Vec<f64>, Option<usize>) {
-        self.run(r0, s, m, v)
+        self.run_any(r0, s, m, v)
+    }
+
+    /// [`Self::run`] with the row width known to the compiler for the default d = 16
+    /// (its row loops then unroll into vector instructions; the same operations in
+    /// the same order, so the same bits).
+    #[inline(always)]
+    fn run_any(&self, r0: usize, s: &mut [f32], m: &mut [f32], v: &mut [f32]) -> (Vec<f64>, Option<usize>) {
+        match self.d {
+            16 => self.run::<16>(r0, s, m, v),
+            _ => self.run::<0>(r0, s, m, v),
+        }
     }
 
     /// Takes rows `r0..` (the chunk `s`, `m`, `v`) through every recorded step; returns
     /// each step's L_sem sum over the chunk and the first step with a non-finite latent.
+    /// `D` is the row width when it is known at compile time (0: `self.d`).
     #[inline(always)]
-    fn run(&self, r0: usize, s: &mut [f32], m: &mut [f32], v: &mut [f32]) -> (Vec<f64>, Option<usize>) {
+    fn run<const D: usize>(
+        &self,
+        r0: usize,
+        s: &mut [f32],
+        m: &mut [f32],
+        v: &mut [f32],
+    ) -> (Vec<f64>, Option<usize>) {
         let Batch { d, terms, steps, hyper } = *self;
+        let d = if D > 0 { D } else { d };
         let rows = s.len() / d;
         let mut loss = vec![0.0f64; steps.len()];
         let mut bad = None;
-        let mut g = vec![0.0f32; d];
-        let mut prow = vec![0.0f32; d];
+        let (mut gbuf, mut prow) = (vec![0.0f32; d], vec![0.0f32; d]);
+        let g = &mut gbuf[..d];
         for (k, (&(_, plan), h)) in steps.iter().zip(hyper).enumerate() {
             // This chunk's entries of the step's plan (its rows ascend).
             let (idx, plan, lo) = match plan.map(|p| &terms.plans[p]) {
@@ -165,27 +184,34 @@ impl Batch<'_> {
                 if let Some(z) = terms.zbar {
                     let gm = terms.gamma[i];
                     let zi = &z[i * d..(i + 1) * d];
-                    for ((gj, &sj), &zj) in g.iter_mut().zip(si.iter()).zip(zi) {
-                        let diff = sj - zj;
-                        *gj += terms.l_sem * 2.0 * gm * diff;
+                    // Index loops, not iterator adapters: inside the AVX2 copy the
+                    // adapters were left as calls (a quarter of the time, by perf).
+                    for j in 0..d {
+                        let diff = si[j] - zi[j];
+                        g[j] += terms.l_sem * 2.0 * gm * diff;
                     }
                     // The loss in eight partial sums, so it does not serialise the row.
                     let mut lanes = [0.0f32; 8];
-                    for (a, b) in si.chunks_exact(8).zip(zi.chunks_exact(8)) {
+                    let tail = (d / 8) * 8;
+                    for c in (0..tail).step_by(8) {
                         for l in 0..8 {
-                            let diff = a[l] - b[l];
+                            let diff = si[c + l] - zi[c + l];
                             lanes[l] += gm * diff * diff;
                         }
                     }
-                    let tail = (d / 8) * 8;
-                    let rest: f32 =
-                        si[tail..].iter().zip(&zi[tail..]).map(|(a, b)| gm * (a - b) * (a - b)).sum();
-                    loss[k] += (lanes.iter().sum::<f32>() + rest) as f64;
+                    let (mut rest, mut sum) = (-0.0f32, -0.0f32);
+                    for j in tail..d {
+                        rest += gm * (si[j] - zi[j]) * (si[j] - zi[j]);
+                    }
+                    for lane in lanes {
+                        sum += lane;
+                    }
+                    loss[k] += (sum + rest) as f64;
                 }
                 // L_uot through the plan (losses::transport_semantic, same expressions).
                 if next < idx.len() && idx[next] as usize == i {
                     plan.expect("a plan holds idx").plan_row(lo + next, &mut prow);
-                    let p = &prow[..];
+                    let p = &prow[..d];
                     next += 1;
                     let n = si.iter().map(|x| x * x).sum::<f32>().sqrt();
                     // NaN takes this branch, as in losses::transport_semantic.
@@ -198,9 +224,9 @@ impl Batch<'_> {
                 }
                 // The trainer's Adam update, element by element.
                 let (mr, vr) = (&mut m[r * d..(r + 1) * d], &mut v[r * d..(r + 1) * d]);
-                for (((pj, mj), vj), &gk) in si.iter_mut().zip(mr.iter_mut()).zip(vr.iter_mut()).zip(&g) {
-                    h.update(pj, mj, vj, gk);
-                    nonfinite |= !pj.is_finite();
+                for j in 0..d {
+                    h.update(&mut si[j], &mut mr[j], &mut vr[j], g[j]);
+                    nonfinite |= !si[j].is_finite();
                 }
             }
             if nonfinite && bad.is_none() {
@@ -220,7 +246,14 @@ mod tests {
     /// step, over rows that span several batches and plans that hold some of them.
     #[test]
     fn advancing_in_a_batch_is_bit_identical_to_stepping() {
-        let (n, d) = (2500, 3);
+        // d = 16 takes the copy with the row width fixed at compile time, d = 3 the other.
+        for d in [3, 16] {
+            batch_equals_stepping(d);
+        }
+    }
+
+    fn batch_equals_stepping(d: usize) {
+        let n = 2500;
         let s0: Vec<f32> = (0..n * d).map(|k| ((k as f32) * 0.37).sin()).collect();
         let z: Vec<f32> = (0..n * d).map(|k| ((k as f32) * 0.11).cos()).collect();
         let gamma: Vec<f32> = (0..n).map(|i| (i % 7) as f32 / 7.0).collect();
