@@ -2,7 +2,8 @@
 //! bottom as the pipeline: edit the views once → semantic space → each view's
 //! evidence handed to the method → optimiser → per step: the method's round (a
 //! transport round for TransSplat: view statistics, prototypes' transport, fusion,
-//! gate), L_img plus the method's terms, Adam, densification → the edited scene.
+//! gate), at the first step the colour lift inside the method's colour mask, L_img
+//! plus the method's terms, Adam, densification → the edited scene.
 //!
 //! The method is one pluggable part ([`crate::methods`]); [`run_with`] adds
 //! checkpoints, resuming ([`crate::checkpoint`]) and Ctrl-C.
