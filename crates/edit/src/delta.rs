@@ -140,7 +140,7 @@ impl Delta {
                 }
             }
         }
-        (0..n * 3).map(|j| if den[j / 3] > 0.0 { (num[j] / den[j / 3]) as f32 } else { 0.0 }).collect()
+        crate::lift::weighted_means(&num, &den, 3)
     }
 
     /// Adds the SH gradients of the Gaussians in `mask` from the image gradient

@@ -7,7 +7,8 @@
 
 use rayon::prelude::*;
 use std::borrow::Cow;
-use transsplat_raster::{gaussian_stats, sh::C0, Splats};
+use transsplat_raster::{gaussian_stats, Splats};
+use transsplat_scene::SH_C0 as C0;
 use transsplat_scene::{Camera, Gaussians};
 
 /// Lifts `planes` (`H × W × channels` each, aligned with `cams`) onto the Gaussians of
@@ -45,7 +46,13 @@ pub fn lift_each<'a>(
                 }
             });
     }
-    (0..n * channels)
+    weighted_means(&num, &den, channels)
+}
+
+/// The means Σ w x / Σ w of `channels` values per Gaussian from their weighted sums
+/// `num` and weight sums `den`; 0 where the weight is 0.
+pub fn weighted_means(num: &[f64], den: &[f64], channels: usize) -> Vec<f32> {
+    (0..num.len())
         .map(|j| if den[j / channels] > 0.0 { (num[j] / den[j / channels]) as f32 } else { 0.0 })
         .collect()
 }

@@ -1,8 +1,7 @@
 //! Real spherical harmonics up to degree 3 in the 3DGS / gsplat ordering and signs,
 //! with the Jacobian of the basis for the view-direction → mean gradient path.
 
-/// The degree-0 basis constant: a DC coefficient f shows as colour C0·f + ½.
-pub const C0: f32 = 0.282_094_8;
+use transsplat_scene::SH_C0 as C0;
 const C1: f32 = 0.488_602_5;
 const C2: [f32; 5] = [1.092_548_4, -1.092_548_4, 0.315_391_57, -1.092_548_4, 0.546_274_2];
 const C3: [f32; 7] =

@@ -1,5 +1,8 @@
 //! The in-memory 3DGS scene: a struct of arrays, one entry per Gaussian.
 
+/// The degree-0 SH basis constant: a DC coefficient f shows as colour `SH_C0·f + ½`.
+pub const SH_C0: f32 = 0.282_094_8;
+
 /// Number of SH coefficients per colour channel for a degree (1, 4, 9, 16).
 pub const fn sh_coeffs(degree: u32) -> usize {
     ((degree + 1) * (degree + 1)) as usize

@@ -37,4 +37,4 @@ pub mod timing;
 
 pub use camera::Camera;
 pub use error::{Error, Result};
-pub use gaussians::{opacity_logit_of_byte, sh_coeffs, sigmoid, Extra, Gaussians};
+pub use gaussians::{opacity_logit_of_byte, sh_coeffs, sigmoid, Extra, Gaussians, SH_C0};

@@ -11,10 +11,7 @@
 //! some view dependence.
 
 use crate::rng::{seeded, Rng};
-use transsplat_scene::Gaussians;
-
-/// The SH DC basis constant: colour = `SH_C0 * f_dc + 0.5`.
-pub const SH_C0: f32 = 0.282_094_8;
+use transsplat_scene::{Gaussians, SH_C0};
 
 /// SH degree of every built-in scene.
 pub const SH_DEGREE: u32 = 1;

@@ -7,10 +7,11 @@
 //! [`random_points`] samples points inside the cameras' common view.
 
 use crate::densify::normal;
-use crate::points::{PointCloud, SH_C0};
+use crate::points::PointCloud;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
+use transsplat_scene::SH_C0;
 use transsplat_scene::{sh_coeffs, Camera, Gaussians};
 
 /// Mean squared distance from each point to its `k` nearest other points (fewer

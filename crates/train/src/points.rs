@@ -12,7 +12,7 @@
 
 use std::path::Path;
 use transsplat_scene::ply::Scalar;
-use transsplat_scene::{atomic, Error, Result};
+use transsplat_scene::{atomic, Error, Result, SH_C0};
 
 /// Points with colours in [0, 1].
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -31,9 +31,6 @@ impl PointCloud {
         self.positions.is_empty()
     }
 }
-
-/// Zeroth-order SH constant.
-pub const SH_C0: f32 = 0.282_094_8;
 
 /// Scale that maps an integer type's range to [0, 1] for colours (floats as they are).
 fn colour_scale(t: Scalar) -> f32 {

@@ -19,12 +19,11 @@
 //! order so callers can permute per-Gaussian data alongside.
 
 use super::{parse_header, Element, Format, Header, Kind, Scalar};
-use crate::{atomic, opacity_logit_of_byte, Gaussians};
+use crate::{atomic, opacity_logit_of_byte, Gaussians, SH_C0};
 
 /// Gaussians per chunk.
 pub const CHUNK: usize = 256;
 /// The DC SH basis constant.
-const SH_C0: f32 = 0.282_094_8;
 const SH_C0_F64: f64 = 0.282_094_791_773_878_14;
 /// Log-scales are clamped to this range before quantising (a larger |log σ| is a
 /// degenerate Gaussian anyway).
