@@ -10,6 +10,7 @@
 use crate::bin::{Binned, Packed, TILE};
 use crate::fastexp::exp_neg;
 use crate::project::Splat2dGrads;
+use transsplat_scene::cpu::prefetch_bytes;
 
 pub(crate) const ALPHA_MIN: f32 = 1.0 / 255.0;
 pub(crate) const T_MIN: f32 = 1e-4;
@@ -380,6 +381,10 @@ fn backward_tile_impl(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads
     for li in (0..max_last as usize).rev() {
         if li >= PREFETCH {
             prefetch(b, list, li - PREFETCH);
+            // The accumulator row it will add to: depth order scatters them over a
+            // buffer of every splat, so each would otherwise be a miss to memory.
+            let ahead = list[li - PREFETCH] as usize;
+            prefetch_bytes(buf.as_ptr() as usize + ahead * stride * 4, stride * 4);
         }
         let j = list[li] as usize;
         let s = &b.splats[j];

@@ -259,21 +259,27 @@ pub struct Grads {
 }
 
 impl Grads {
-    /// Sets the rows `rows` (as returned by [`backward`]) back to zero.
+    /// Sets the rows `rows` (as returned by [`backward`]) back to zero: the SH rows
+    /// (most of the bytes) on one thread, the rest on another.
     pub fn clear_rows(&mut self, rows: &[u32]) {
         let n = self.means.len();
         let kc = self.sh.len().checked_div(n).unwrap_or(0);
         let f = self.features.len().checked_div(n).unwrap_or(0);
-        for &i in rows {
-            let i = i as usize;
-            self.means[i] = [0.0; 3];
-            self.log_scales[i] = [0.0; 3];
-            self.rotations[i] = [0.0; 4];
-            self.opacity_logits[i] = 0.0;
-            self.sh[i * kc..(i + 1) * kc].fill(0.0);
-            self.features[i * f..(i + 1) * f].fill(0.0);
-            self.means2d[i] = [0.0; 2];
-        }
+        let Grads { means, log_scales, rotations, opacity_logits, sh, features, means2d } = self;
+        rayon::join(
+            || rows.iter().for_each(|&i| sh[i as usize * kc..][..kc].fill(0.0)),
+            || {
+                for &i in rows {
+                    let i = i as usize;
+                    means[i] = [0.0; 3];
+                    log_scales[i] = [0.0; 3];
+                    rotations[i] = [0.0; 4];
+                    opacity_logits[i] = 0.0;
+                    features[i * f..(i + 1) * f].fill(0.0);
+                    means2d[i] = [0.0; 2];
+                }
+            },
+        );
     }
 
     /// All-zero gradients for `n` Gaussians.

@@ -293,11 +293,23 @@ impl Adam {
     /// step in which few Gaussians can change (an edit with frozen geometry) touches
     /// only those.
     ///
-    /// Returns the first group in which an updated parameter is NaN or infinite (checked
-    /// in the same pass as the update, so the numerical-health check costs no extra pass
-    /// over the parameters); the update is still applied in full.
+    /// Numerical health is checked in the same pass as the update, so it costs no extra
+    /// pass over the gradients or the parameters: a NaN or infinite gradient makes its
+    /// parameter NaN (m turns NaN or infinite, and with it p), so only a row whose updated
+    /// parameters are not all finite has its gradient looked at. Returns the first group
+    /// with a NaN or infinite gradient ([`NonFinite::Gradient`]), else the first in
+    /// which an updated parameter is NaN or infinite ([`NonFinite::Parameter`]); the
+    /// update is applied in full either way (the caller stops). Rows the step does not
+    /// visit (selective, or dense with zero gradient and moments) have a zero gradient,
+    /// so every row where a gradient can be non-finite is checked.
     #[must_use]
-    pub fn step(&mut self, model: &mut Model, grads: &Grads, lr: &[f32; 7], update: Update) -> Option<Group> {
+    pub fn step(
+        &mut self,
+        model: &mut Model,
+        grads: &Grads,
+        lr: &[f32; 7],
+        update: Update,
+    ) -> Option<NonFinite> {
         let n = model.len();
         let kc = model.gaussians.sh_coeffs() * 3;
         let f = model.num_features;
@@ -311,7 +323,7 @@ impl Adam {
             "gradients do not match the model ({n} Gaussians, {kc} SH values, {f} features each)"
         );
         let (b1, b2, eps) = (self.betas.0, self.betas.1, self.eps);
-        let mut first_bad = None;
+        let (mut bad_grad, mut bad_param) = (None, None);
         for group in Group::ALL {
             let rate = lr[group.index()];
             let st = &mut self.groups[group.index()];
@@ -349,11 +361,14 @@ impl Adam {
                 Update::Selective(None) => update_block(params, grad, moments, block, true, &h),
                 Update::Selective(Some(rows)) => update_rows(params, grad, moments, block, rows, true, &h),
             };
-            if bad && first_bad.is_none() {
-                first_bad = Some(group);
+            if bad & BAD_GRAD != 0 {
+                bad_grad = bad_grad.or(Some(group));
+            }
+            if bad & BAD_PARAM != 0 {
+                bad_param = bad_param.or(Some(group));
             }
         }
-        first_bad
+        bad_grad.map(NonFinite::Gradient).or(bad_param.map(NonFinite::Parameter))
     }
 }
 
@@ -386,6 +401,20 @@ impl Hyper {
     }
 }
 
+/// What [`Adam::step`] found NaN or infinite, and in which group.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NonFinite {
+    /// A gradient (its rows were left as they were).
+    Gradient(Group),
+    /// A parameter after its update.
+    Parameter(Group),
+}
+
+/// [`update_row`]'s verdict bits: an updated parameter is not finite.
+const BAD_PARAM: u8 = 1;
+/// [`update_row`]'s verdict bits: the gradient is not finite.
+const BAD_GRAD: u8 = 2;
+
 /// One group's moments and their live rows.
 struct Moments<'a> {
     m: &'a mut [f32],
@@ -404,28 +433,33 @@ struct Block {
 
 /// Updates one row (`p`, `g`: the Gaussian's whole parameter and gradient rows; `mo`:
 /// its moments, one live flag) unless its gradient is zero and either the rule is
-/// selective or its moments are zero ([`Adam::step`]). Returns whether an updated value
-/// is NaN or infinite.
+/// selective or its moments are zero ([`Adam::step`]). Returns 0 when every updated
+/// value is finite, else [`BAD_GRAD`] when the gradient has a NaN or infinite value
+/// (which always makes an updated value NaN), else [`BAD_PARAM`].
 #[inline(always)]
-fn update_row(p: &mut [f32], g: &[f32], mo: Moments, b: Block, selective: bool, h: &Hyper) -> bool {
+fn update_row(p: &mut [f32], g: &[f32], mo: Moments, b: Block, selective: bool, h: &Hyper) -> u8 {
     let Moments { m, v, live: [live] } = mo else { unreachable!("one row has one live flag") };
-    if (selective || !*live) && g[b.off..b.off + b.w].iter().all(|&x| x == 0.0) {
-        return false;
+    let g = &g[b.off..b.off + b.w];
+    if (selective || !*live) && g.iter().all(|&x| x == 0.0) {
+        return 0;
     }
     let (mut bad, mut nonzero) = (false, false);
     for k in 0..b.w {
         let pk = &mut p[b.off + k];
-        h.update(pk, &mut m[k], &mut v[k], g[b.off + k]);
+        h.update(pk, &mut m[k], &mut v[k], g[k]);
         bad |= !pk.is_finite();
         nonzero |= (m[k] != 0.0) | (v[k] != 0.0);
     }
     *live = nonzero;
-    bad
+    match bad {
+        false => 0,
+        true if g.iter().any(|x| !x.is_finite()) => BAD_GRAD,
+        true => BAD_PARAM,
+    }
 }
 
-/// [`update_row`] over every row, in parallel; true if any updated value is NaN or
-/// infinite.
-fn update_block(p: &mut [f32], g: &[f32], mo: Moments, b: Block, selective: bool, h: &Hyper) -> bool {
+/// [`update_row`] over every row, in parallel; the union of the rows' verdicts.
+fn update_block(p: &mut [f32], g: &[f32], mo: Moments, b: Block, selective: bool, h: &Hyper) -> u8 {
     const ROWS: usize = 2048;
     let (row, w) = (b.row, b.w);
     p.par_chunks_mut(row * ROWS)
@@ -433,7 +467,7 @@ fn update_block(p: &mut [f32], g: &[f32], mo: Moments, b: Block, selective: bool
         .zip(mo.m.par_chunks_mut(w * ROWS).zip(mo.v.par_chunks_mut(w * ROWS)))
         .zip(mo.live.par_chunks_mut(ROWS))
         .map(|(((p, g), (m, v)), live)| {
-            let mut bad = false;
+            let mut bad = 0;
             for (((pr, gr), (mr, vr)), lv) in p
                 .chunks_exact_mut(row)
                 .zip(g.chunks_exact(row))
@@ -445,7 +479,7 @@ fn update_block(p: &mut [f32], g: &[f32], mo: Moments, b: Block, selective: bool
             }
             bad
         })
-        .reduce(|| false, |a, b| a || b)
+        .reduce(|| 0, |a, b| a | b)
 }
 
 /// The ascending union of `rows` (ascending) and the rows whose moments are live: the
@@ -486,7 +520,7 @@ fn update_rows(
     rows: &[u32],
     selective: bool,
     h: &Hyper,
-) -> bool {
+) -> u8 {
     const ROWS: usize = 2048;
     let n = mo.live.len();
     let runs: Vec<&[u32]> = rows.chunks(ROWS).collect();
@@ -506,7 +540,7 @@ fn update_rows(
         .into_par_iter()
         .zip(runs.into_par_iter().zip(starts.par_iter()))
         .map(|((p, m, v, live), (run, &start))| {
-            let mut bad = false;
+            let mut bad = 0;
             // The rows are scattered: fetch each a few rows ahead (raster::backward does too).
             const AHEAD: usize = 8;
             let addr = |s: &[f32], row: usize, i: usize| s.as_ptr() as usize + i * row * 4;
@@ -529,7 +563,7 @@ fn update_rows(
             }
             bad
         })
-        .reduce(|| false, |a, b| a || b)
+        .reduce(|| 0, |a, b| a | b)
 }
 
 /// Cuts a row-major array (`width` values a row) into the pieces of rows
@@ -604,6 +638,39 @@ mod tests {
         let want = 2.1 - 0.1 / (1.0 - b1 * b1) * m / (v.sqrt() / (1.0 - b2 * b2).sqrt());
         assert!((model.gaussians.means[0][1] as f64 - want).abs() < 1e-6);
         assert_eq!(adam.groups[Group::Position.index()].step, 2);
+    }
+
+    #[test]
+    fn non_finite_gradients_and_parameters_are_named_by_group_in_every_rule() {
+        let lr = [0.1, 0.01, 0.001, 0.05, 0.1, 0.1, 0.2];
+        for update in [Update::Dense(None), Update::Dense(Some(&[0])), Update::Selective(None)] {
+            // An infinite opacity gradient; then also a NaN on a higher SH band, which
+            // comes first in state order.
+            for (sh_nan, want) in
+                [(false, NonFinite::Gradient(Group::Opacity)), (true, NonFinite::Gradient(Group::ShRest))]
+            {
+                let mut model = one_gaussian();
+                let mut grads = Grads::zeros(1, 1, 2);
+                grads.means[0] = [1.0, 0.0, 0.0];
+                grads.opacity_logits[0] = f32::INFINITY;
+                if sh_nan {
+                    grads.sh[7] = f32::NAN;
+                }
+                assert_eq!(Adam::new(&model).step(&mut model, &grads, &lr, update), Some(want));
+            }
+            // A finite gradient whose step overflows: the parameter is named.
+            let mut model = one_gaussian();
+            let mut grads = Grads::zeros(1, 1, 2);
+            grads.log_scales[0] = [1.0, 0.0, 0.0];
+            let mut huge = lr;
+            huge[Group::Scaling.index()] = f32::MAX;
+            model.gaussians.log_scales[0] = [-f32::MAX, 0.0, 0.0];
+            let got = Adam::new(&model).step(&mut model, &grads, &huge, update);
+            assert_eq!(got, Some(NonFinite::Parameter(Group::Scaling)));
+            // Finite everywhere: nothing.
+            let mut model = one_gaussian();
+            assert_eq!(Adam::new(&model).step(&mut model, &grads, &lr, update), None);
+        }
     }
 
     #[test]

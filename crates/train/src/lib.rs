@@ -40,7 +40,7 @@ pub mod model;
 pub mod points;
 pub mod trainer;
 
-pub use adam::{Adam, AdamRule, Group, LearningRates, Update};
+pub use adam::{Adam, AdamRule, Group, LearningRates, NonFinite, Update};
 pub use checkpoint::{Checkpointer, Control, RunId};
 pub use dataset::{Dataset, LoadOptions, View};
 pub use densify::{Bounds, DensifyConfig, DensifyCounts, DensifyStats};

@@ -20,14 +20,13 @@
 //! are applied to the model, the Adam moments and the statistics by
 //! [`apply_reindex`].
 
-use crate::adam::{Adam, AdamRule, Group, LearningRates, Update};
+use crate::adam::{Adam, AdamRule, Group, LearningRates, NonFinite, Update};
 use crate::densify::{self, Bounds, DensifyConfig, DensifyCounts, DensifyStats};
 use crate::loss::{image_loss, ImageLoss};
 use crate::mcmc::{self, McmcConfig};
 use crate::model::{Model, Reindex};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use rayon::prelude::*;
 use transsplat_raster::{
     backward, render, ClampGrad, Frame, Grads, Image, ImageGrads, RenderOptions, Splats,
 };
@@ -366,12 +365,13 @@ impl Trainer {
     /// geometry), takes the Adam step, then
     /// densifies / prunes / resets opacity on schedule. `densify_mask` restricts
     /// which Gaussians may be cloned, split, pruned or reset. A NaN or infinite
-    /// gradient (before the update) or parameter (after it) is a
-    /// [`TrainError::NonFinite`] naming the step and the parameter group.
+    /// gradient (found by the Adam step, which leaves those rows as they were) or
+    /// parameter (after its update) is a [`TrainError::NonFinite`] naming the step and
+    /// the parameter group.
     ///
     /// `rows`, when known, lists (ascending) every row where `grads` may be non-zero (what
-    /// the backward passes returned): the gradient check and selective Adam then visit
-    /// only those.
+    /// the backward passes returned): Adam then visits only those (selective) or those
+    /// and the rows whose moments are live (dense).
     pub fn finish_step(
         &mut self,
         grads: &Grads,
@@ -390,12 +390,6 @@ impl Trainer {
         }
         let step = self.step;
         let lr = self.learning_rates();
-        if let Some(group) = first_non_finite(grads, rows, &lr) {
-            return Err(TrainError::NonFinite {
-                step,
-                what: format!("the gradient of the {}", group.name()),
-            });
-        }
         let d = self.config.densify.clone();
         let adaptive = self.config.strategy == Strategy::Adaptive;
         if adaptive && d.records(step) {
@@ -415,8 +409,12 @@ impl Trainer {
             AdamRule::Dense => Update::Dense(rows),
             AdamRule::Selective => Update::Selective(rows),
         };
-        if let Some(group) = self.adam.step(&mut self.model, grads, &lr, update) {
-            return Err(TrainError::NonFinite { step, what: format!("the {}", group.name()) });
+        if let Some(bad) = self.adam.step(&mut self.model, grads, &lr, update) {
+            let what = match bad {
+                NonFinite::Gradient(g) => format!("the gradient of the {}", g.name()),
+                NonFinite::Parameter(g) => format!("the {}", g.name()),
+            };
+            return Err(TrainError::NonFinite { step, what });
         }
         let mut report = StepReport { step, ..Default::default() };
         if d.densifies(step) {
@@ -597,36 +595,6 @@ impl Trainer {
             densify::reset_opacity(&mut self.model.gaussians, self.config.densify.opacity_reset_value, mask);
         self.adam.zero_moments(Group::Opacity, Some(&touched));
     }
-}
-
-/// The first parameter group (with a non-zero learning rate) whose gradient has a
-/// NaN or infinite value, looking only at `rows` when given.
-fn first_non_finite(grads: &Grads, rows: Option<&[u32]>, lr: &[f32; 7]) -> Option<Group> {
-    let n = grads.means.len().max(1);
-    let bad = |v: &[f32]| match rows {
-        None => v.par_iter().with_min_len(1 << 14).any(|x| !x.is_finite()),
-        Some(rows) => {
-            let w = v.len() / n;
-            rows.par_iter()
-                .with_min_len(1 << 12)
-                .any(|&i| v[i as usize * w..][..w].iter().any(|x| !x.is_finite()))
-        }
-    };
-    let checks: [(Group, &[f32]); 6] = [
-        (Group::Position, grads.means.as_flattened()),
-        (Group::ShDc, &grads.sh),
-        (Group::Opacity, &grads.opacity_logits),
-        (Group::Scaling, grads.log_scales.as_flattened()),
-        (Group::Rotation, grads.rotations.as_flattened()),
-        (Group::Features, &grads.features),
-    ];
-    checks
-        .into_iter()
-        .find(|(g, v)| {
-            let on = lr[g.index()] != 0.0 || (*g == Group::ShDc && lr[Group::ShRest.index()] != 0.0);
-            on && bad(v)
-        })
-        .map(|(g, _)| g)
 }
 
 #[cfg(test)]
