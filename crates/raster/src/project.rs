@@ -219,7 +219,12 @@ fn view_dir(view: &View, mean: [f32; 3]) -> ([f32; 3], f32) {
 /// SH colour before the clamp (`Σ_k sh_k Y_k(d) + 0.5`).
 fn sh_color(view: &View, p: &GaussianParams) -> [f32; 3] {
     let (d, _) = view_dir(view, p.mean);
-    let b = sh::basis(p.active_degree, d);
+    sh_color_from(&sh::basis(p.active_degree, d), p)
+}
+
+/// [`sh_color`] from the SH basis `b` of the view direction.
+#[inline(always)]
+fn sh_color_from(b: &[f32; 16], p: &GaussianParams) -> [f32; 3] {
     let k = crate::sh_coeffs(p.active_degree);
     let mut c = [0.5f32; 3];
     for (kk, bk) in b.iter().enumerate().take(k) {
@@ -285,14 +290,25 @@ pub fn colour_backward(
     v_sh: &mut [f32],
     clamp: ClampGrad,
 ) -> [f32; 3] {
-    let raw = sh_color(view, p);
+    let (d, _) = view_dir(view, p.mean);
+    colour_backward_from(&sh::basis(p.active_degree, d), p, v_colour, v_sh, clamp)
+}
+
+/// [`colour_backward`] from the SH basis `b` of the view direction (the caller has it).
+#[inline(always)]
+fn colour_backward_from(
+    b: &[f32; 16],
+    p: &GaussianParams,
+    v_colour: [f32; 3],
+    v_sh: &mut [f32],
+    clamp: ClampGrad,
+) -> [f32; 3] {
+    let raw = sh_color_from(b, p);
     let vcol: [f32; 3] = std::array::from_fn(|c| if raw[c] < 0.0 { 0.0 } else { v_colour[c] });
     let vsh: [f32; 3] = match clamp {
         ClampGrad::Exact => vcol,
         ClampGrad::Revive => std::array::from_fn(|c| if v_colour[c] < 0.0 { v_colour[c] } else { vcol[c] }),
     };
-    let (d, _) = view_dir(view, p.mean);
-    let b = sh::basis(p.active_degree, d);
     for kk in 0..crate::sh_coeffs(p.active_degree) {
         for c in 0..3 {
             v_sh[kk * 3 + c] = b[kk] * vsh[c];
@@ -453,8 +469,8 @@ pub fn project_backward(
     let v_quat: [f32; 4] = std::array::from_fn(|k| (vqn[k] - f.qn[k] * dot) / f.qnorm);
 
     // Colour: c = max(Σ_k sh_k Y_k(d) + 0.5, 0).
-    let vcol = colour_backward(view, p, g.color, v_sh, clamp);
     let (d, dn) = view_dir(view, p.mean);
+    let vcol = colour_backward_from(&sh::basis(p.active_degree, d), p, g.color, v_sh, clamp);
     let k = crate::sh_coeffs(p.active_degree);
     let mut gk = [0.0f32; 16];
     for kk in 0..k {
