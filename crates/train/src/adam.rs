@@ -404,7 +404,7 @@ impl Hyper {
 /// What [`Adam::step`] found NaN or infinite, and in which group.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum NonFinite {
-    /// A gradient (its rows were left as they were).
+    /// A gradient (which turned its parameters NaN: the step stops there).
     Gradient(Group),
     /// A parameter after its update.
     Parameter(Group),
