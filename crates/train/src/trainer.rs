@@ -365,9 +365,9 @@ impl Trainer {
     /// geometry), takes the Adam step, then
     /// densifies / prunes / resets opacity on schedule. `densify_mask` restricts
     /// which Gaussians may be cloned, split, pruned or reset. A NaN or infinite
-    /// gradient (found by the Adam step, which leaves those rows as they were) or
-    /// parameter (after its update) is a [`TrainError::NonFinite`] naming the step and
-    /// the parameter group.
+    /// gradient or parameter (both found in the Adam step's own pass, after the update:
+    /// the model is then not fit to continue from) is a [`TrainError::NonFinite`] naming
+    /// the step and the parameter group.
     ///
     /// `rows`, when known, lists (ascending) every row where `grads` may be non-zero (what
     /// the backward passes returned): Adam then visits only those (selective) or those
