@@ -8,8 +8,7 @@
 use rayon::prelude::*;
 use std::borrow::Cow;
 use transsplat_raster::{gaussian_stats, Splats};
-use transsplat_scene::SH_C0 as C0;
-use transsplat_scene::{Camera, Gaussians};
+use transsplat_scene::{Camera, Gaussians, SH_C0 as C0};
 
 /// Lifts `planes` (`H × W × channels` each, aligned with `cams`) onto the Gaussians of
 /// `g`: `N × channels`, 0 for a Gaussian that no view blends.

@@ -21,8 +21,7 @@
 
 use crate::texture::{checker, fbm, marble_vein, mix_rgb, shade, stripes, wood_grain};
 use crate::Error;
-use transsplat_scene::Gaussians;
-use transsplat_scene::SH_C0;
+use transsplat_scene::{Gaussians, SH_C0};
 
 /// Procedural materials for [`retexture`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

@@ -11,8 +11,7 @@ use crate::points::PointCloud;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
-use transsplat_scene::SH_C0;
-use transsplat_scene::{sh_coeffs, Camera, Gaussians};
+use transsplat_scene::{sh_coeffs, Camera, Gaussians, SH_C0};
 
 /// Mean squared distance from each point to its `k` nearest other points (fewer
 /// when there are fewer points; `fallback` when alone).
