@@ -189,8 +189,8 @@ impl GroupState {
 pub enum Update<'a> {
     /// Every row, as INRIA (rows with zero gradient and zero moments are skipped, an
     /// exact shortcut). `Some(rows)` lists, ascending, every row whose gradient may be
-    /// non-zero, so the step visits only those and the rows with live moments instead
-    /// of scanning every row's gradient; `None` scans. Both give the same result.
+    /// non-zero, so the step touches only those and the rows with live moments instead
+    /// of reading every row's gradient; `None` reads them. Both give the same result.
     Dense(Option<&'a [u32]>),
     /// Only rows with a non-zero gradient. `Some(rows)` lists, ascending, every row
     /// whose gradient may be non-zero (what [`transsplat_raster::backward`] returns), so
@@ -323,49 +323,80 @@ impl Adam {
             "gradients do not match the model ({n} Gaussians, {kc} SH values, {f} features each)"
         );
         let (b1, b2, eps) = (self.betas.0, self.betas.1, self.eps);
-        let (mut bad_grad, mut bad_param) = (None, None);
-        for group in Group::ALL {
-            let rate = lr[group.index()];
-            let st = &mut self.groups[group.index()];
-            if rate == 0.0 || st.width == 0 || n == 0 {
-                continue;
-            }
-            if st.m.len() != n * st.width {
-                assert!(st.m.is_empty(), "Adam moments of {} are out of step with the model", group.name());
-                st.m = vec![0.0; n * st.width];
-                st.v = vec![0.0; n * st.width];
-            }
-            if st.live.len() != n {
-                st.rebuild_live(n);
-            }
-            st.step += 1;
-            let h = Hyper::at(rate, (b1, b2), eps, st.step);
-            let gs = &mut model.gaussians;
-            let (params, grad, row, off): (&mut [f32], &[f32], usize, usize) = match group {
-                Group::Position => (gs.means.as_flattened_mut(), grads.means.as_flattened(), 3, 0),
-                Group::ShDc => (&mut gs.sh, &grads.sh, kc, 0),
-                Group::ShRest => (&mut gs.sh, &grads.sh, kc, 3),
-                Group::Opacity => (&mut gs.opacity_logits, &grads.opacity_logits, 1, 0),
-                Group::Scaling => (gs.log_scales.as_flattened_mut(), grads.log_scales.as_flattened(), 3, 0),
-                Group::Rotation => (gs.rotations.as_flattened_mut(), grads.rotations.as_flattened(), 4, 0),
-                Group::Features => (&mut model.features, &grads.features, f, 0),
-            };
-            let moments = Moments { m: &mut st.m, v: &mut st.v, live: &mut st.live };
-            let block = Block { row, off, w: st.width };
-            let bad = match update {
-                Update::Dense(None) => update_block(params, grad, moments, block, false, &h),
-                Update::Dense(Some(rows)) => {
-                    let rows = live_or_listed(rows, moments.live);
-                    update_rows(params, grad, moments, block, &rows, false, &h)
+        // Dense with the rows known: every other row's gradient is zero, so a row neither
+        // listed nor live is left as it is without reading it (the update would not change it).
+        let listed = match update {
+            Update::Dense(Some(rows)) => {
+                let mut listed = vec![false; n];
+                for &r in rows {
+                    listed[r as usize] = true;
                 }
-                Update::Selective(None) => update_block(params, grad, moments, block, true, &h),
-                Update::Selective(Some(rows)) => update_rows(params, grad, moments, block, rows, true, &h),
-            };
-            if bad & BAD_GRAD != 0 {
-                bad_grad = bad_grad.or(Some(group));
+                Some(listed)
             }
-            if bad & BAD_PARAM != 0 {
-                bad_param = bad_param.or(Some(group));
+            _ => None,
+        };
+        let (mut bad_grad, mut bad_param) = (None, None);
+        // One pass per parameter array: the SH DC and rest groups share the SH rows, so
+        // they are updated together and the rows are streamed once.
+        let [pos, dc, rest, op, sc, rot, ft] = &mut self.groups;
+        let gs = &mut model.gaussians;
+        let arrays: [(&mut [f32], &[f32], usize, Vec<(Group, &mut GroupState, usize)>); 6] = [
+            (gs.means.as_flattened_mut(), grads.means.as_flattened(), 3, vec![(Group::Position, pos, 0)]),
+            (&mut gs.sh, &grads.sh, kc, vec![(Group::ShDc, dc, 0), (Group::ShRest, rest, 3)]),
+            (&mut gs.opacity_logits, &grads.opacity_logits, 1, vec![(Group::Opacity, op, 0)]),
+            (
+                gs.log_scales.as_flattened_mut(),
+                grads.log_scales.as_flattened(),
+                3,
+                vec![(Group::Scaling, sc, 0)],
+            ),
+            (
+                gs.rotations.as_flattened_mut(),
+                grads.rotations.as_flattened(),
+                4,
+                vec![(Group::Rotation, rot, 0)],
+            ),
+            (&mut model.features, &grads.features, f, vec![(Group::Features, ft, 0)]),
+        ];
+        for (params, grad, row, groups) in arrays {
+            let mut parts = Vec::with_capacity(groups.len());
+            for (group, st, off) in groups {
+                let rate = lr[group.index()];
+                if rate == 0.0 || st.width == 0 || n == 0 {
+                    continue;
+                }
+                if st.m.len() != n * st.width {
+                    assert!(
+                        st.m.is_empty(),
+                        "Adam moments of {} are out of step with the model",
+                        group.name()
+                    );
+                    st.m = vec![0.0; n * st.width];
+                    st.v = vec![0.0; n * st.width];
+                }
+                if st.live.len() != n {
+                    st.rebuild_live(n);
+                }
+                st.step += 1;
+                let h = Hyper::at(rate, (b1, b2), eps, st.step);
+                let mo = Moments { m: &mut st.m, v: &mut st.v, live: &mut st.live };
+                parts.push((group, Part { b: Block { row, off, w: st.width }, h, mo }));
+            }
+            let (names, parts): (Vec<Group>, Vec<Part>) = parts.into_iter().unzip();
+            let verdicts = match update {
+                Update::Dense(_) => update_block(params, grad, parts, Rule::Dense(listed.as_deref())),
+                Update::Selective(None) => update_block(params, grad, parts, Rule::Selective),
+                Update::Selective(Some(rows)) => {
+                    parts.into_iter().map(|part| update_rows(params, grad, part, rows)).collect()
+                }
+            };
+            for (group, bad) in names.into_iter().zip(verdicts) {
+                if bad & BAD_GRAD != 0 {
+                    bad_grad = bad_grad.or(Some(group));
+                }
+                if bad & BAD_PARAM != 0 {
+                    bad_param = bad_param.or(Some(group));
+                }
             }
         }
         bad_grad.map(NonFinite::Gradient).or(bad_param.map(NonFinite::Parameter))
@@ -431,6 +462,14 @@ struct Block {
     w: usize,
 }
 
+/// One group's share of a parameter array: its columns, its constants this step and
+/// its moments.
+struct Part<'a> {
+    b: Block,
+    h: Hyper,
+    mo: Moments<'a>,
+}
+
 /// Updates one row (`p`, `g`: the Gaussian's whole parameter and gradient rows; `mo`:
 /// its moments, one live flag) unless its gradient is zero and either the rule is
 /// selective or its moments are zero ([`Adam::step`]). Returns 0 when every updated
@@ -458,69 +497,80 @@ fn update_row(p: &mut [f32], g: &[f32], mo: Moments, b: Block, selective: bool, 
     }
 }
 
-/// [`update_row`] over every row, in parallel; the union of the rows' verdicts.
-fn update_block(p: &mut [f32], g: &[f32], mo: Moments, b: Block, selective: bool, h: &Hyper) -> u8 {
+/// Which rows [`update_block`] moves: dense ([`Update::Dense`], with the rows whose
+/// gradient may be non-zero flagged when known) or selective.
+#[derive(Clone, Copy)]
+enum Rule<'a> {
+    Dense(Option<&'a [bool]>),
+    Selective,
+}
+
+/// [`update_row`] over every row of every part (groups sharing the array's rows: each
+/// row is updated for all of them while it is in cache), in parallel; each part's
+/// verdict, the union over its rows. Under [`Rule::Dense`] with flagged rows, a row
+/// neither flagged nor live (in that part) is not touched, and a run of such rows is
+/// skipped after a scan of the flags: a step in which few Gaussians can change (an edit
+/// with frozen geometry) costs little more than that scan.
+fn update_block(p: &mut [f32], g: &[f32], parts: Vec<Part>, rule: Rule) -> Vec<u8> {
     const ROWS: usize = 2048;
-    let (row, w) = (b.row, b.w);
-    p.par_chunks_mut(row * ROWS)
+    let Some(row) = parts.first().map(|part| part.b.row) else { return Vec::new() };
+    let (selective, listed) = match rule {
+        Rule::Dense(listed) => (false, listed),
+        Rule::Selective => (true, None),
+    };
+    let chunks = (p.len() / row).div_ceil(ROWS);
+    let heads: Vec<(Block, Hyper)> = parts.iter().map(|part| (part.b, part.h)).collect();
+    // Each chunk's moments, part by part.
+    type Chunk<'a> = Vec<(&'a mut [f32], &'a mut [f32], &'a mut [bool])>;
+    let mut moments: Vec<Chunk> = (0..chunks).map(|_| Vec::with_capacity(parts.len())).collect();
+    for Part { b, mo, .. } in parts {
+        let pieces =
+            mo.m.chunks_mut(b.w * ROWS).zip(mo.v.chunks_mut(b.w * ROWS)).zip(mo.live.chunks_mut(ROWS));
+        for (c, ((m, v), live)) in pieces.enumerate() {
+            moments[c].push((m, v, live));
+        }
+    }
+    let verdicts = p
+        .par_chunks_mut(row * ROWS)
         .zip(g.par_chunks(row * ROWS))
-        .zip(mo.m.par_chunks_mut(w * ROWS).zip(mo.v.par_chunks_mut(w * ROWS)))
-        .zip(mo.live.par_chunks_mut(ROWS))
-        .map(|(((p, g), (m, v)), live)| {
-            let mut bad = 0;
-            for (((pr, gr), (mr, vr)), lv) in p
-                .chunks_exact_mut(row)
-                .zip(g.chunks_exact(row))
-                .zip(m.chunks_exact_mut(w).zip(v.chunks_exact_mut(w)))
-                .zip(live.iter_mut())
-            {
-                let mo = Moments { m: mr, v: vr, live: std::slice::from_mut(lv) };
-                bad |= update_row(pr, gr, mo, b, selective, h);
+        .zip(moments.into_par_iter())
+        .enumerate()
+        .map(|(c, ((p, g), mut mos))| {
+            let rows = p.len() / row;
+            let listed = listed.map(|l| &l[c * ROWS..c * ROWS + rows]);
+            let idle = |l: &[bool]| !l.iter().fold(false, |a, &x| a | x);
+            if listed.is_some_and(|l| idle(l) && mos.iter().all(|(_, _, live)| idle(live))) {
+                return 0;
+            }
+            let mut bad = 0u32;
+            for r in 0..rows {
+                let (pr, gr) = (&mut p[r * row..(r + 1) * row], &g[r * row..(r + 1) * row]);
+                let flagged = listed.is_none_or(|l| l[r]);
+                for (k, ((m, v, live), (b, h))) in mos.iter_mut().zip(&heads).enumerate() {
+                    let lv = &mut live[r];
+                    if !flagged && !*lv {
+                        continue; // gradient and moments zero: the update would change nothing
+                    }
+                    let w = b.w;
+                    let mo = Moments {
+                        m: &mut m[r * w..(r + 1) * w],
+                        v: &mut v[r * w..(r + 1) * w],
+                        live: std::slice::from_mut(lv),
+                    };
+                    bad |= u32::from(update_row(pr, gr, mo, *b, selective, h)) << (2 * k);
+                }
             }
             bad
         })
-        .reduce(|| 0, |a, b| a | b)
+        .reduce(|| 0, |a, b| a | b);
+    (0..heads.len()).map(|k| (verdicts >> (2 * k)) as u8 & (BAD_GRAD | BAD_PARAM)).collect()
 }
 
-/// The ascending union of `rows` (ascending) and the rows whose moments are live: the
-/// rows a dense step must visit when every other row's gradient is zero.
-fn live_or_listed(rows: &[u32], live: &[bool]) -> Vec<u32> {
-    const C: usize = 256;
-    let mut out = Vec::with_capacity(rows.len());
-    let mut k = 0;
-    for (c, chunk) in live.chunks(C).enumerate() {
-        let (base, end) = (c * C, c * C + chunk.len());
-        if !chunk.iter().fold(false, |a, &l| a | l) {
-            while k < rows.len() && (rows[k] as usize) < end {
-                out.push(rows[k]);
-                k += 1;
-            }
-            continue;
-        }
-        for (o, &l) in chunk.iter().enumerate() {
-            let i = base + o;
-            let listed = k < rows.len() && rows[k] as usize == i;
-            k += listed as usize;
-            if l || listed {
-                out.push(i as u32);
-            }
-        }
-    }
-    out.extend_from_slice(&rows[k..]);
-    out
-}
-
-/// [`update_row`] (selective or not) over the listed rows only (ascending), in
+/// Selective [`update_row`] over the listed rows only (ascending), in
 /// parallel: the arrays are cut at row boundaries into one piece per run of listed rows.
-fn update_rows(
-    p: &mut [f32],
-    g: &[f32],
-    mo: Moments,
-    b: Block,
-    rows: &[u32],
-    selective: bool,
-    h: &Hyper,
-) -> u8 {
+fn update_rows(p: &mut [f32], g: &[f32], part: Part, rows: &[u32]) -> u8 {
+    let Part { b, h, mo } = part;
+    let h = &h;
     const ROWS: usize = 2048;
     let n = mo.live.len();
     let runs: Vec<&[u32]> = rows.chunks(ROWS).collect();
@@ -559,7 +609,7 @@ fn update_rows(
                     v: &mut v[k * b.w..(k + 1) * b.w],
                     live: &mut live[k..k + 1],
                 };
-                bad |= update_row(pr, gr, mo, b, selective, h);
+                bad |= update_row(pr, gr, mo, b, true, h);
             }
             bad
         })
@@ -795,6 +845,33 @@ mod tests {
                     );
                     assert_eq!(dense.features[i * 2..(i + 1) * 2], sel.features[i * 2..(i + 1) * 2]);
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn dense_adam_skips_untouched_runs_of_rows_exactly() {
+        // Runs of 2048 rows with nothing listed and nothing live are skipped whole: rows
+        // reached first only in the first run, then only in the last, then nowhere.
+        let n = 3 * 2048 + 5;
+        let lr = [1e-3, 2e-3, 1e-4, 0.05, 5e-3, 1e-3, 2e-3];
+        let (mut scanned, mut listed) = (varied_model(n), varied_model(n));
+        let (mut a_scanned, mut a_listed) = (Adam::new(&scanned), Adam::new(&listed));
+        let first: Vec<u32> = (0..2048).step_by(7).collect();
+        let last: Vec<u32> = (3 * 2048..n as u32).collect();
+        for (step, rows) in [&first, &last, &vec![]].into_iter().enumerate() {
+            let g = grads_on(n, rows, step as u64 + 1);
+            let before = listed.clone();
+            assert!(a_scanned.step(&mut scanned, &g, &lr, Update::Dense(None)).is_none());
+            assert!(a_listed.step(&mut listed, &g, &lr, Update::Dense(Some(rows))).is_none());
+            assert_eq!((&scanned, &a_scanned), (&listed, &a_listed), "step {step}");
+            // The middle runs were never reached: untouched; the first keeps moving.
+            assert_eq!(
+                listed.gaussians.sh[2048 * 12..2 * 2048 * 12],
+                before.gaussians.sh[2048 * 12..2 * 2048 * 12]
+            );
+            if step > 0 {
+                assert_ne!(listed.gaussians.means[0], before.gaussians.means[0], "step {step}");
             }
         }
     }
