@@ -340,7 +340,7 @@ impl Adam {
         // they are updated together and the rows are streamed once.
         let [pos, dc, rest, op, sc, rot, ft] = &mut self.groups;
         let gs = &mut model.gaussians;
-        let arrays: [(&mut [f32], &[f32], usize, Vec<(Group, &mut GroupState, usize)>); 6] = [
+        let arrays: [SharedRows; 6] = [
             (gs.means.as_flattened_mut(), grads.means.as_flattened(), 3, vec![(Group::Position, pos, 0)]),
             (&mut gs.sh, &grads.sh, kc, vec![(Group::ShDc, dc, 0), (Group::ShRest, rest, 3)]),
             (&mut gs.opacity_logits, &grads.opacity_logits, 1, vec![(Group::Opacity, op, 0)]),
@@ -402,6 +402,10 @@ impl Adam {
         bad_grad.map(NonFinite::Gradient).or(bad_param.map(NonFinite::Parameter))
     }
 }
+
+/// A parameter array, its gradients, its row width and the groups that share its rows
+/// (with their first column).
+type SharedRows<'a> = (&'a mut [f32], &'a [f32], usize, Vec<(Group, &'a mut GroupState, usize)>);
 
 /// Adam's constants at one step: β₁, β₂, eps and the bias corrections folded into
 /// `step_size = lr / (1 − β₁ᵗ)` and `sqrt_bc2 = √(1 − β₂ᵗ)`.
