@@ -23,7 +23,9 @@ pub mod bench;
 pub mod bin;
 pub mod fastexp;
 pub mod kernel;
+pub mod lanes;
 mod par;
+mod per_gaussian;
 pub mod project;
 pub mod sh;
 pub mod weights;
@@ -32,9 +34,7 @@ use bin::Binned;
 use kernel::{Accum, ForwardState, PixelGrads, TileOut};
 pub use project::ClampGrad;
 use project::{GaussianParams, View};
-use rayon::iter::Either;
 use rayon::prelude::*;
-use transsplat_scene::cpu::prefetch_bytes;
 pub use transsplat_scene::sh_coeffs;
 use transsplat_scene::{Camera, Gaussians};
 
@@ -360,64 +360,43 @@ pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, gr
     prof.lap("backward reached");
     let view = View::new(cam);
     let kc = sh_coeffs(splats.sh_degree) * 3;
-    let active = splats.active_sh_degree.min(splats.sh_degree);
-    let nsh = sh_coeffs(active) * 3;
-    // Walk the Gaussians in index order (not depth order): parameter reads and gradient
-    // writes then stream through memory, and only the accumulator row is a random read.
     let pos = depth_positions(&b.ids, n);
-    let features = match f {
-        0 => Either::Right((0..n).into_par_iter().map(|_| <&mut [f32]>::default())),
-        _ => Either::Left(grads.features[..n * f].par_chunks_mut(f)),
+    let inputs = per_gaussian::Inputs { splats, view: &view, acc: &acc, stride, pos: &pos, clamp: g.clamp };
+    // Runs of rows in index order (per_gaussian's module doc), one unit of work each.
+    let rows = per_gaussian::ROWS;
+    let Grads { means, log_scales, rotations, opacity_logits, sh, features, means2d } = grads;
+    let features: Vec<&mut [f32]> = match f {
+        0 => (0..n.div_ceil(rows)).map(|_| <&mut [f32]>::default()).collect(),
+        _ => features[..n * f].chunks_mut(f * rows).collect(),
     };
-    let (sh_at, gsh_at) = (splats.sh.as_ptr() as usize, grads.sh.as_ptr() as usize);
-    let rows = (
-        (&mut grads.means, &mut grads.log_scales, &mut grads.rotations, &mut grads.opacity_logits),
-        grads.sh.par_chunks_mut(kc),
-        features,
-        &mut grads.means2d,
-        &written,
-    );
-    // The reached rows are scattered (a third of them at 1M Gaussians, 256²), so the
-    // hardware cannot guess the next one: fetch the SH rows (read and written) and the
-    // accumulator row of a reached Gaussian a few reached rows ahead.
-    const AHEAD: usize = 24;
-    let ahead = |i: usize| {
-        if written.get(i + AHEAD) == Some(&true) {
-            let a = i + AHEAD;
-            prefetch_bytes(sh_at + a * kc * 4, kc * 4);
-            prefetch_bytes(gsh_at + a * kc * 4, kc * 4);
-            prefetch_bytes(acc.as_ptr() as usize + pos[a] as usize * stride * 4, stride * 4);
-        }
-    };
-    rows.into_par_iter().enumerate().with_min_len(2048).for_each(
-        |(i, ((mean, ls, quat, op), sh, ft, m2, &wr))| {
-            ahead(i);
-            if !wr {
-                return;
-            }
-            let j = pos[i] as usize;
-            let a = &acc[j * stride..(j + 1) * stride];
-            let sg = kernel::splat_grads(a);
-            let mut vsh = [0.0f32; 48];
-            let gg = project::project_backward(&view, &splats.params(i), &sg, &mut vsh[..nsh], g.clamp);
-            for k in 0..3 {
-                mean[k] += gg.mean[k];
-                ls[k] += gg.log_scale[k];
-            }
-            for (r, g) in quat.iter_mut().zip(gg.quat) {
-                *r += g;
-            }
-            *op += gg.opacity_logit;
-            for (s, v) in sh.iter_mut().zip(&vsh[..nsh]) {
-                *s += v;
-            }
-            for (d, g) in ft.iter_mut().zip(&a[kernel::slot::FEATURES..]) {
-                *d += g;
-            }
-            m2[0] += sg.xy[0];
-            m2[1] += sg.xy[1];
-        },
-    );
+    let runs: Vec<per_gaussian::Run> = means
+        .chunks_mut(rows)
+        .zip(log_scales.chunks_mut(rows))
+        .zip(rotations.chunks_mut(rows).zip(opacity_logits.chunks_mut(rows)))
+        .zip(sh.chunks_mut(kc * rows).zip(means2d.chunks_mut(rows)))
+        .zip(features.into_iter().zip(written.chunks(rows)))
+        .enumerate()
+        .map(
+            |(
+                c,
+                ((((means, log_scales), (rotations, opacity_logits)), (sh, means2d)), (features, written)),
+            )| {
+                per_gaussian::Run {
+                    first: c * rows,
+                    written,
+                    means,
+                    log_scales,
+                    rotations,
+                    opacity_logits,
+                    sh,
+                    features,
+                    means2d,
+                }
+            },
+        )
+        .collect();
+    let avx2 = transsplat_scene::cpu::has_avx2();
+    runs.into_par_iter().for_each(|run| per_gaussian::run(avx2, &inputs, run));
     prof.lap("backward per-Gaussian");
     written.par_iter().enumerate().filter(|(_, &w)| w).map(|(i, _)| i as u32).collect()
 }

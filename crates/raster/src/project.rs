@@ -6,6 +6,7 @@
 //! the 1.3× tan-fov clamp; Σ₂ = J R_w Σ R_wᵀ Jᵀ + 0.3 I; conic = Σ₂⁻¹; per-axis
 //! radius ⌈3.33 √diag Σ₂⌉; colour = SH(x − camera centre) + 0.5, clamped at 0.
 
+use crate::lanes::Real;
 use crate::sh;
 use transsplat_scene::Camera;
 
@@ -17,7 +18,7 @@ pub const EPS2D: f32 = 0.3;
 /// Bounding-box extent in standard deviations.
 pub const EXTENT: f32 = 3.33;
 
-type M3 = [[f32; 3]; 3];
+type M3<T = f32> = [[T; 3]; 3];
 
 /// Camera quantities shared by every Gaussian of a view.
 #[derive(Clone, Debug)]
@@ -61,9 +62,10 @@ impl View {
     }
 
     /// World point to camera coordinates.
-    pub fn to_camera(&self, p: [f32; 3]) -> [f32; 3] {
-        let r = &self.rot;
-        std::array::from_fn(|i| r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + self.trans[i])
+    #[inline(always)]
+    pub fn to_camera<T: Real>(&self, p: [T; 3]) -> [T; 3] {
+        let r = lanes_m3::<T>(&self.rot);
+        std::array::from_fn(|i| r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + T::from(self.trans[i]))
     }
 }
 
@@ -82,35 +84,36 @@ pub struct Splat2d {
     pub depth: f32,
 }
 
-/// Parameters of one Gaussian as stored (unactivated).
+/// Parameters of one Gaussian as stored (unactivated); of eight in the lanes of
+/// [`crate::lanes::F8`].
 #[derive(Clone, Copy, Debug)]
-pub struct GaussianParams<'a> {
-    pub mean: [f32; 3],
-    pub log_scale: [f32; 3],
-    pub quat: [f32; 4],
-    pub opacity_logit: f32,
+pub struct GaussianParams<'a, T = f32> {
+    pub mean: [T; 3],
+    pub log_scale: [T; 3],
+    pub quat: [T; 4],
+    pub opacity_logit: T,
     /// `[coefficient][channel]`, at least `(active_degree+1)²` coefficients.
-    pub sh: &'a [f32],
+    pub sh: &'a [T],
     pub active_degree: u32,
 }
 
 /// Gradients of one Gaussian's parameters.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct GaussianGrads {
-    pub mean: [f32; 3],
-    pub log_scale: [f32; 3],
-    pub quat: [f32; 4],
-    pub opacity_logit: f32,
+pub struct GaussianGrads<T = f32> {
+    pub mean: [T; 3],
+    pub log_scale: [T; 3],
+    pub quat: [T; 4],
+    pub opacity_logit: T,
 }
 
 /// Gradients arriving at a projected Gaussian from compositing.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Splat2dGrads {
-    pub xy: [f32; 2],
-    pub conic: [f32; 3],
-    pub opacity: f32,
-    pub color: [f32; 3],
-    pub depth: f32,
+pub struct Splat2dGrads<T = f32> {
+    pub xy: [T; 2],
+    pub conic: [T; 3],
+    pub opacity: T,
+    pub color: [T; 3],
+    pub depth: T,
 }
 
 /// Rotation matrix of a (w, x, y, z) quaternion after normalisation (the identity
@@ -124,71 +127,97 @@ pub fn rotation_matrix(q: [f32; 4]) -> M3 {
     }
 }
 
-fn quat_to_rotmat(q: [f32; 4]) -> ([f32; 4], f32, M3) {
+#[inline(always)]
+fn quat_to_rotmat<T: Real>(q: [T; 4]) -> ([T; 4], T, M3<T>) {
+    let (one, two) = (T::from(1.0), T::from(2.0));
     let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
     let [w, x, y, z] = [q[0] / n, q[1] / n, q[2] / n, q[3] / n];
     let r = [
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+        [one - two * (y * y + z * z), two * (x * y - w * z), two * (x * z + w * y)],
+        [two * (x * y + w * z), one - two * (x * x + z * z), two * (y * z - w * x)],
+        [two * (x * z - w * y), two * (y * z + w * x), one - two * (x * x + y * y)],
     ];
     ([w, x, y, z], n, r)
 }
 
-fn matmul(a: &M3, b: &M3) -> M3 {
+#[inline(always)]
+fn matmul<T: Real>(a: &M3<T>, b: &M3<T>) -> M3<T> {
     std::array::from_fn(|i| {
         std::array::from_fn(|j| a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j])
     })
 }
 
-fn transpose(a: &M3) -> M3 {
+#[inline(always)]
+fn transpose<T: Real>(a: &M3<T>) -> M3<T> {
     std::array::from_fn(|i| std::array::from_fn(|j| a[j][i]))
 }
 
-/// Intermediate quantities of the projection, recomputed by the backward pass.
-struct Fwd {
-    qn: [f32; 4],
-    qnorm: f32,
-    rot: M3,
-    scale: [f32; 3],
-    m: M3,
-    cov_cam: M3,
-    t: [f32; 3],
-    tx_c: f32,
-    ty_c: f32,
-    clamped_x: bool,
-    clamped_y: bool,
-    j: [[f32; 3]; 2],
-    cov2d: [f32; 3],
-    det: f32,
+/// A view matrix in every lane.
+#[inline(always)]
+fn lanes_m3<T: Real>(a: &M3) -> M3<T> {
+    a.map(|r| r.map(T::from))
 }
 
-fn forward_internals(view: &View, p: &GaussianParams) -> Fwd {
+/// `a + b + c`: what `[a, b, c].into_iter().sum()` computes (its fold starts at −0.0,
+/// which leaves the first term as it is).
+#[inline(always)]
+fn sum3<T: Real>(a: T, b: T, c: T) -> T {
+    a + b + c
+}
+
+/// Intermediate quantities of the projection, recomputed by the backward pass.
+struct Fwd<T: Real> {
+    qn: [T; 4],
+    qnorm: T,
+    rot: M3<T>,
+    scale: [T; 3],
+    m: M3<T>,
+    cov_cam: M3<T>,
+    t: [T; 3],
+    tx_c: T,
+    ty_c: T,
+    clamped_x: T::Mask,
+    clamped_y: T::Mask,
+    j: [[T; 3]; 2],
+    cov2d: [T; 3],
+    det: T,
+}
+
+#[inline(always)]
+fn forward_internals<T: Real>(view: &View, p: &GaussianParams<T>) -> Fwd<T> {
     let (qn, qnorm, rot) = quat_to_rotmat(p.quat);
-    let scale = p.log_scale.map(f32::exp);
+    let scale = p.log_scale.map(T::exp);
     // M = R S
-    let m: M3 = std::array::from_fn(|i| std::array::from_fn(|j| rot[i][j] * scale[j]));
+    let m: M3<T> = std::array::from_fn(|i| std::array::from_fn(|j| rot[i][j] * scale[j]));
     let cov = matmul(&m, &transpose(&m));
-    let wc = matmul(&view.rot, &cov);
-    let cov_cam = matmul(&wc, &transpose(&view.rot));
+    let vrot = lanes_m3::<T>(&view.rot);
+    let wc = matmul(&vrot, &cov);
+    let cov_cam = matmul(&wc, &transpose(&vrot));
     let t = view.to_camera(p.mean);
     let tz = t[2];
     let rx = t[0] / tz;
     let ry = t[1] / tz;
-    let cx_ = rx.clamp(-view.lim_x_neg, view.lim_x_pos);
-    let cy_ = ry.clamp(-view.lim_y_neg, view.lim_y_pos);
-    let clamped_x = cx_ != rx;
-    let clamped_y = cy_ != ry;
+    let cx_ = rx.clamp(T::from(-view.lim_x_neg), T::from(view.lim_x_pos));
+    let cy_ = ry.clamp(T::from(-view.lim_y_neg), T::from(view.lim_y_pos));
+    let clamped_x = cx_.ne(rx);
+    let clamped_y = cy_.ne(ry);
     let tx_c = tz * cx_;
     let ty_c = tz * cy_;
-    let j =
-        [[view.fx / tz, 0.0, -view.fx * tx_c / (tz * tz)], [0.0, view.fy / tz, -view.fy * ty_c / (tz * tz)]];
+    let (fx, fy, zero) = (T::from(view.fx), T::from(view.fy), T::from(0.0));
+    let j = [
+        [fx / tz, zero, T::from(-view.fx) * tx_c / (tz * tz)],
+        [zero, fy / tz, T::from(-view.fy) * ty_c / (tz * tz)],
+    ];
     // cov2d = J cov_cam Jᵀ (symmetric 2x2: a, b, c)
-    let jc: [[f32; 3]; 2] =
-        std::array::from_fn(|i| std::array::from_fn(|k| (0..3).map(|l| j[i][l] * cov_cam[l][k]).sum()));
-    let c00 = (0..3).map(|l| jc[0][l] * j[0][l]).sum::<f32>() + EPS2D;
-    let c01 = (0..3).map(|l| jc[0][l] * j[1][l]).sum::<f32>();
-    let c11 = (0..3).map(|l| jc[1][l] * j[1][l]).sum::<f32>() + EPS2D;
+    let jc: [[T; 3]; 2] = std::array::from_fn(|i| {
+        std::array::from_fn(|k| {
+            sum3(j[i][0] * cov_cam[0][k], j[i][1] * cov_cam[1][k], j[i][2] * cov_cam[2][k])
+        })
+    });
+    let eps = T::from(EPS2D);
+    let c00 = sum3(jc[0][0] * j[0][0], jc[0][1] * j[0][1], jc[0][2] * j[0][2]) + eps;
+    let c01 = sum3(jc[0][0] * j[1][0], jc[0][1] * j[1][1], jc[0][2] * j[1][2]);
+    let c11 = sum3(jc[1][0] * j[1][0], jc[1][1] * j[1][1], jc[1][2] * j[1][2]) + eps;
     let det = c00 * c11 - c01 * c01;
     Fwd {
         qn,
@@ -209,9 +238,10 @@ fn forward_internals(view: &View, p: &GaussianParams) -> Fwd {
 }
 
 #[inline(always)]
-fn view_dir(view: &View, mean: [f32; 3]) -> ([f32; 3], f32) {
-    let d = [mean[0] - view.centre[0], mean[1] - view.centre[1], mean[2] - view.centre[2]];
-    let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-12);
+fn view_dir<T: Real>(view: &View, mean: [T; 3]) -> ([T; 3], T) {
+    let c = view.centre.map(T::from);
+    let d = [mean[0] - c[0], mean[1] - c[1], mean[2] - c[2]];
+    let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(T::from(1e-12));
     ([d[0] / n, d[1] / n, d[2] / n], n)
 }
 
@@ -224,12 +254,12 @@ fn sh_color(view: &View, p: &GaussianParams) -> [f32; 3] {
 
 /// [`sh_color`] from the SH basis `b` of the view direction.
 #[inline(always)]
-fn sh_color_from(b: &[f32; 16], p: &GaussianParams) -> [f32; 3] {
+fn sh_color_from<T: Real>(b: &[T; 16], p: &GaussianParams<T>) -> [T; 3] {
     let k = crate::sh_coeffs(p.active_degree);
-    let mut c = [0.5f32; 3];
+    let mut c = [T::from(0.5); 3];
     for (kk, bk) in b.iter().enumerate().take(k) {
         for (ch, cc) in c.iter_mut().enumerate() {
-            *cc += bk * p.sh[kk * 3 + ch];
+            *cc += *bk * p.sh[kk * 3 + ch];
         }
     }
     c
@@ -296,18 +326,19 @@ pub fn colour_backward(
 
 /// [`colour_backward`] from the SH basis `b` of the view direction (the caller has it).
 #[inline(always)]
-fn colour_backward_from(
-    b: &[f32; 16],
-    p: &GaussianParams,
-    v_colour: [f32; 3],
-    v_sh: &mut [f32],
+fn colour_backward_from<T: Real>(
+    b: &[T; 16],
+    p: &GaussianParams<T>,
+    v_colour: [T; 3],
+    v_sh: &mut [T],
     clamp: ClampGrad,
-) -> [f32; 3] {
+) -> [T; 3] {
     let raw = sh_color_from(b, p);
-    let vcol: [f32; 3] = std::array::from_fn(|c| if raw[c] < 0.0 { 0.0 } else { v_colour[c] });
-    let vsh: [f32; 3] = match clamp {
+    let zero = T::from(0.0);
+    let vcol: [T; 3] = std::array::from_fn(|c| T::select(raw[c].lt(zero), zero, v_colour[c]));
+    let vsh: [T; 3] = match clamp {
         ClampGrad::Exact => vcol,
-        ClampGrad::Revive => std::array::from_fn(|c| if v_colour[c] < 0.0 { v_colour[c] } else { vcol[c] }),
+        ClampGrad::Revive => std::array::from_fn(|c| T::select(v_colour[c].lt(zero), v_colour[c], vcol[c])),
     };
     for kk in 0..crate::sh_coeffs(p.active_degree) {
         for c in 0..3 {
@@ -372,110 +403,116 @@ pub fn project(view: &View, p: &GaussianParams) -> Option<(Splat2d, [u32; 2])> {
 /// Backward of [`project`] for a visible Gaussian: from the gradients on its
 /// splat to the gradients on its parameters. SH coefficient gradients are written
 /// into `v_sh` (`[coefficient][channel]`, the active coefficients only), through the
-/// colour clamp as `clamp` says.
-pub fn project_backward(
+/// colour clamp as `clamp` says. Generic over [`Real`]: one Gaussian (`f32`) or eight
+/// in lanes, with the same bits per Gaussian.
+#[inline(always)]
+pub fn project_backward<T: Real>(
     view: &View,
-    p: &GaussianParams,
-    g: &Splat2dGrads,
-    v_sh: &mut [f32],
+    p: &GaussianParams<T>,
+    g: &Splat2dGrads<T>,
+    v_sh: &mut [T],
     clamp: ClampGrad,
-) -> GaussianGrads {
+) -> GaussianGrads<T> {
+    let c = T::from;
     let f = forward_internals(view, p);
     let [c00, c01, c11] = f.cov2d;
-    let inv = 1.0 / f.det;
+    let inv = c(1.0) / f.det;
     let q = [[c11 * inv, -c01 * inv], [-c01 * inv, c00 * inv]];
     // σ = ½ dᵀ Q d with Q = [[a, b], [b, c]]: dL/dQ = [[va, vb/2], [vb/2, vc]].
-    let vq = [[g.conic[0], 0.5 * g.conic[1]], [0.5 * g.conic[1], g.conic[2]]];
+    let vq = [[g.conic[0], c(0.5) * g.conic[1]], [c(0.5) * g.conic[1], g.conic[2]]];
     // Q = C⁻¹ ⇒ dL/dC = −Q (dL/dQ) Q.
-    let qv: [[f32; 2]; 2] =
+    let qv: [[T; 2]; 2] =
         std::array::from_fn(|i| std::array::from_fn(|k| q[i][0] * vq[0][k] + q[i][1] * vq[1][k]));
-    let vc: [[f32; 2]; 2] =
+    let vc: [[T; 2]; 2] =
         std::array::from_fn(|i| std::array::from_fn(|k| -(qv[i][0] * q[0][k] + qv[i][1] * q[1][k])));
 
     // C = J Σc Jᵀ: dΣc = Jᵀ dC J; dJ = dC J Σc + dCᵀ J Σcᵀ = 2 dC J Σc (dC, Σc symmetric).
     let j = &f.j;
-    let mut v_cov_cam = [[0.0f32; 3]; 3];
-    for (a, row) in v_cov_cam.iter_mut().enumerate() {
-        for (b, v) in row.iter_mut().enumerate() {
-            *v = (0..2).map(|i| (0..2).map(|k| j[i][a] * vc[i][k] * j[k][b]).sum::<f32>()).sum();
-        }
-    }
-    let jsc: [[f32; 3]; 2] =
-        std::array::from_fn(|i| std::array::from_fn(|k| (0..3).map(|l| j[i][l] * f.cov_cam[l][k]).sum()));
-    let vj: [[f32; 3]; 2] =
-        std::array::from_fn(|i| std::array::from_fn(|k| (vc[i][0] * jsc[0][k] + vc[i][1] * jsc[1][k]) * 2.0));
+    let v_cov_cam: M3<T> = std::array::from_fn(|a| {
+        std::array::from_fn(|b| {
+            let term = |i: usize| j[i][a] * vc[i][0] * j[0][b] + j[i][a] * vc[i][1] * j[1][b];
+            term(0) + term(1)
+        })
+    });
+    let jsc: [[T; 3]; 2] = std::array::from_fn(|i| {
+        std::array::from_fn(|k| {
+            sum3(j[i][0] * f.cov_cam[0][k], j[i][1] * f.cov_cam[1][k], j[i][2] * f.cov_cam[2][k])
+        })
+    });
+    let vj: [[T; 3]; 2] = std::array::from_fn(|i| {
+        std::array::from_fn(|k| (vc[i][0] * jsc[0][k] + vc[i][1] * jsc[1][k]) * c(2.0))
+    });
 
     // Camera-space mean gradient: from the 2D mean, the depth and the Jacobian.
     let [tx, ty, tz] = f.t;
-    let (fx, fy) = (view.fx, view.fy);
-    let mut vt = [0.0f32; 3];
+    let (fx, fy) = (c(view.fx), c(view.fy));
+    let (nfx, nfy) = (c(-view.fx), c(-view.fy));
+    let mut vt = [c(0.0); 3];
     vt[0] += fx / tz * g.xy[0];
     vt[1] += fy / tz * g.xy[1];
-    vt[2] += -fx * tx / (tz * tz) * g.xy[0] - fy * ty / (tz * tz) * g.xy[1];
+    vt[2] += nfx * tx / (tz * tz) * g.xy[0] - fy * ty / (tz * tz) * g.xy[1];
     vt[2] += g.depth;
     let tz2 = tz * tz;
     let tz3 = tz2 * tz;
     // J00 = fx/tz, J11 = fy/tz, J02 = -fx tx'/tz², J12 = -fy ty'/tz² with
     // tx' = tz·clamp(tx/tz): unclamped ∂tx'/∂tx = 1; clamped ∂tx'/∂tz = tx'/tz.
-    vt[2] += -fx / tz2 * vj[0][0] - fy / tz2 * vj[1][1];
-    vt[2] += 2.0 * fx * f.tx_c / tz3 * vj[0][2] + 2.0 * fy * f.ty_c / tz3 * vj[1][2];
-    let v_txc = -fx / tz2 * vj[0][2];
-    let v_tyc = -fy / tz2 * vj[1][2];
-    if f.clamped_x {
-        vt[2] += v_txc * f.tx_c / tz;
-    } else {
-        vt[0] += v_txc;
-    }
-    if f.clamped_y {
-        vt[2] += v_tyc * f.ty_c / tz;
-    } else {
-        vt[1] += v_tyc;
-    }
+    vt[2] += nfx / tz2 * vj[0][0] - fy / tz2 * vj[1][1];
+    vt[2] += c(2.0) * fx * f.tx_c / tz3 * vj[0][2] + c(2.0) * fy * f.ty_c / tz3 * vj[1][2];
+    let v_txc = nfx / tz2 * vj[0][2];
+    let v_tyc = nfy / tz2 * vj[1][2];
+    vt[2] = T::select(f.clamped_x, vt[2] + v_txc * f.tx_c / tz, vt[2]);
+    vt[0] = T::select(f.clamped_x, vt[0], vt[0] + v_txc);
+    vt[2] = T::select(f.clamped_y, vt[2] + v_tyc * f.ty_c / tz, vt[2]);
+    vt[1] = T::select(f.clamped_y, vt[1], vt[1] + v_tyc);
     // t = R_w x + t_w
-    let w = &view.rot;
-    let mut v_mean: [f32; 3] = std::array::from_fn(|k| w[0][k] * vt[0] + w[1][k] * vt[1] + w[2][k] * vt[2]);
+    let w = lanes_m3::<T>(&view.rot);
+    let mut v_mean: [T; 3] = std::array::from_fn(|k| w[0][k] * vt[0] + w[1][k] * vt[1] + w[2][k] * vt[2]);
 
     // Σc = W Σ Wᵀ ⇒ dΣ = Wᵀ dΣc W.
-    let wt = transpose(w);
-    let v_cov = matmul(&matmul(&wt, &v_cov_cam), w);
+    let wt = transpose(&w);
+    let v_cov = matmul(&matmul(&wt, &v_cov_cam), &w);
     // Σ = M Mᵀ ⇒ dM = (dΣ + dΣᵀ) M.
-    let v_m: M3 = std::array::from_fn(|i| {
-        std::array::from_fn(|k| (0..3).map(|l| (v_cov[i][l] + v_cov[l][i]) * f.m[l][k]).sum())
+    let v_m: M3<T> = std::array::from_fn(|i| {
+        std::array::from_fn(|k| {
+            let term = |l: usize| (v_cov[i][l] + v_cov[l][i]) * f.m[l][k];
+            sum3(term(0), term(1), term(2))
+        })
     });
     // M = R S.
-    let mut v_log_scale = [0.0f32; 3];
-    for (k, v) in v_log_scale.iter_mut().enumerate() {
-        *v = (0..3).map(|i| v_m[i][k] * f.rot[i][k]).sum::<f32>() * f.scale[k];
-    }
-    let gr: M3 = std::array::from_fn(|i| std::array::from_fn(|k| v_m[i][k] * f.scale[k]));
+    let v_log_scale: [T; 3] = std::array::from_fn(|k| {
+        sum3(v_m[0][k] * f.rot[0][k], v_m[1][k] * f.rot[1][k], v_m[2][k] * f.rot[2][k]) * f.scale[k]
+    });
+    let gr: M3<T> = std::array::from_fn(|i| std::array::from_fn(|k| v_m[i][k] * f.scale[k]));
     let [qw, qx, qy, qz] = f.qn;
+    let two = c(2.0);
     let vqn = [
-        2.0 * (-qz * gr[0][1] + qy * gr[0][2] + qz * gr[1][0] - qx * gr[1][2] - qy * gr[2][0]
+        two * (-qz * gr[0][1] + qy * gr[0][2] + qz * gr[1][0] - qx * gr[1][2] - qy * gr[2][0]
             + qx * gr[2][1]),
-        2.0 * (qy * gr[0][1] + qz * gr[0][2] + qy * gr[1][0] - 2.0 * qx * gr[1][1] - qw * gr[1][2]
+        two * (qy * gr[0][1] + qz * gr[0][2] + qy * gr[1][0] - two * qx * gr[1][1] - qw * gr[1][2]
             + qz * gr[2][0]
             + qw * gr[2][1]
-            - 2.0 * qx * gr[2][2]),
-        2.0 * (-2.0 * qy * gr[0][0] + qx * gr[0][1] + qw * gr[0][2] + qx * gr[1][0] + qz * gr[1][2]
+            - two * qx * gr[2][2]),
+        two * (-two * qy * gr[0][0] + qx * gr[0][1] + qw * gr[0][2] + qx * gr[1][0] + qz * gr[1][2]
             - qw * gr[2][0]
             + qz * gr[2][1]
-            - 2.0 * qy * gr[2][2]),
-        2.0 * (-2.0 * qz * gr[0][0] - qw * gr[0][1] + qx * gr[0][2] + qw * gr[1][0] - 2.0 * qz * gr[1][1]
+            - two * qy * gr[2][2]),
+        two * (-two * qz * gr[0][0] - qw * gr[0][1] + qx * gr[0][2] + qw * gr[1][0] - two * qz * gr[1][1]
             + qy * gr[1][2]
             + qx * gr[2][0]
             + qy * gr[2][1]),
     ];
-    let dot = (0..4).map(|k| vqn[k] * f.qn[k]).sum::<f32>();
-    let v_quat: [f32; 4] = std::array::from_fn(|k| (vqn[k] - f.qn[k] * dot) / f.qnorm);
+    // The four-term sum, as `Iterator::sum` folds it from −0.0.
+    let dot = vqn[0] * f.qn[0] + vqn[1] * f.qn[1] + vqn[2] * f.qn[2] + vqn[3] * f.qn[3];
+    let v_quat: [T; 4] = std::array::from_fn(|k| (vqn[k] - f.qn[k] * dot) / f.qnorm);
 
     // Colour: c = max(Σ_k sh_k Y_k(d) + 0.5, 0).
     let (d, dn) = view_dir(view, p.mean);
     let vcol = colour_backward_from(&sh::basis(p.active_degree, d), p, g.color, v_sh, clamp);
     let k = crate::sh_coeffs(p.active_degree);
-    let mut gk = [0.0f32; 16];
+    let mut gk = [c(0.0); 16];
     for kk in 0..k {
-        for c in 0..3 {
-            gk[kk] += p.sh[kk * 3 + c] * vcol[c];
+        for ch in 0..3 {
+            gk[kk] += p.sh[kk * 3 + ch] * vcol[ch];
         }
     }
     let vd = sh::basis_vjp(p.active_degree, d, &gk);
@@ -484,12 +521,13 @@ pub fn project_backward(
         v_mean[a] += (vd[a] - d[a] * dd) / dn;
     }
 
-    let o = transsplat_scene::sigmoid(p.opacity_logit);
+    // sigmoid(x) = 1 / (1 + exp(−x)), as transsplat_scene::sigmoid.
+    let o = c(1.0) / (c(1.0) + (-p.opacity_logit).exp());
     GaussianGrads {
         mean: v_mean,
         log_scale: v_log_scale,
         quat: v_quat,
-        opacity_logit: g.opacity * o * (1.0 - o),
+        opacity_logit: g.opacity * o * (c(1.0) - o),
     }
 }
 
@@ -560,6 +598,92 @@ mod tests {
             assert_ne!(revive[kk * 3], 0.0);
             assert_eq!(revive[kk * 3 + 1], exact[kk * 3 + 1], "coefficient {kk}, live channel");
             assert_eq!(revive[kk * 3 + 2], 0.0, "coefficient {kk}, channel asked to fall");
+        }
+    }
+
+    #[test]
+    fn eight_lanes_give_each_gaussian_the_bits_of_the_scalar_backward() {
+        use crate::lanes::F8;
+        // A camera whose frustum clamp some Gaussians pass (x or y far outside the
+        // image), colours below 0 in some channels, every degree, both clamp rules.
+        let mut cam = Camera::pinhole("c", 64, 48, 40.0);
+        cam.rotation = rotation_matrix([0.9, 0.1, -0.2, 0.3]);
+        cam.translation = [0.2, -0.1, 4.0];
+        let view = View::new(&cam);
+        let wave = |k: usize, a: f32| (k as f32 * a).sin();
+        for degree in 0..=3u32 {
+            for clamp in ClampGrad::ALL {
+                let nsh = crate::sh_coeffs(degree) * 3;
+                let (mut seen_clamped, mut seen_black) = (false, false);
+                for base in (0..64).step_by(8) {
+                    let ps: Vec<(GaussianParams, Vec<f32>, Splat2dGrads)> = (base..base + 8)
+                        .map(|i| {
+                            let sh: Vec<f32> = (0..48).map(|k| 2.5 * wave(i * 48 + k, 0.71)).collect();
+                            let wide = if i % 5 == 0 { 9.0 } else { 1.0 };
+                            let p = GaussianParams {
+                                mean: [wide * wave(i, 0.37), wave(i, 0.91), 0.5 * wave(i, 1.3)],
+                                log_scale: [wave(i, 0.2) - 2.0, wave(i, 0.5) - 1.5, wave(i, 0.8) - 2.5],
+                                quat: [1.0 + wave(i, 0.3), wave(i, 0.6), wave(i, 1.1), wave(i, 1.7)],
+                                opacity_logit: 2.0 * wave(i, 0.45),
+                                sh: &[],
+                                active_degree: degree,
+                            };
+                            let g = Splat2dGrads {
+                                xy: [wave(i, 2.1), wave(i, 2.3)],
+                                conic: [wave(i, 2.7), wave(i, 2.9), wave(i, 3.1)],
+                                opacity: wave(i, 3.7),
+                                color: [wave(i, 4.1), wave(i, 4.3), wave(i, 4.7)],
+                                depth: wave(i, 5.3),
+                            };
+                            (p, sh, g)
+                        })
+                        .collect();
+                    let one: Vec<(GaussianGrads, Vec<f32>)> = ps
+                        .iter()
+                        .map(|(p, sh, g)| {
+                            let p = GaussianParams { sh, ..*p };
+                            let f = forward_internals(&view, &p);
+                            seen_clamped |= f.clamped_x || f.clamped_y;
+                            seen_black |= sh_color(&view, &p).iter().any(|&c| c < 0.0);
+                            let mut vsh = vec![0.0; nsh];
+                            (project_backward(&view, &p, g, &mut vsh, clamp), vsh)
+                        })
+                        .collect();
+                    let lanes = |f: &dyn Fn(usize) -> f32| F8(std::array::from_fn(f));
+                    let sh: Vec<F8> = (0..nsh).map(|t| lanes(&|l| ps[l].1[t])).collect();
+                    let p = GaussianParams {
+                        mean: std::array::from_fn(|c| lanes(&|l| ps[l].0.mean[c])),
+                        log_scale: std::array::from_fn(|c| lanes(&|l| ps[l].0.log_scale[c])),
+                        quat: std::array::from_fn(|c| lanes(&|l| ps[l].0.quat[c])),
+                        opacity_logit: lanes(&|l| ps[l].0.opacity_logit),
+                        sh: &sh,
+                        active_degree: degree,
+                    };
+                    let g = Splat2dGrads {
+                        xy: std::array::from_fn(|c| lanes(&|l| ps[l].2.xy[c])),
+                        conic: std::array::from_fn(|c| lanes(&|l| ps[l].2.conic[c])),
+                        opacity: lanes(&|l| ps[l].2.opacity),
+                        color: std::array::from_fn(|c| lanes(&|l| ps[l].2.color[c])),
+                        depth: lanes(&|l| ps[l].2.depth),
+                    };
+                    let mut vsh = vec![F8::default(); nsh];
+                    let eight = project_backward(&view, &p, &g, &mut vsh, clamp);
+                    for (l, (gg, vs)) in one.iter().enumerate() {
+                        let bits = |x: &[f32]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                        let lane = |x: &[F8]| x.iter().map(|v| v.0[l]).collect::<Vec<_>>();
+                        let what = format!("degree {degree}, {clamp:?}, Gaussian {}", base + l);
+                        assert_eq!(bits(&lane(&eight.mean)), bits(&gg.mean), "{what}");
+                        assert_eq!(bits(&lane(&eight.log_scale)), bits(&gg.log_scale), "{what}");
+                        assert_eq!(bits(&lane(&eight.quat)), bits(&gg.quat), "{what}");
+                        assert_eq!(eight.opacity_logit.0[l].to_bits(), gg.opacity_logit.to_bits(), "{what}");
+                        assert_eq!(bits(&lane(&vsh)), bits(vs), "{what}");
+                    }
+                }
+                assert!(
+                    seen_clamped && seen_black,
+                    "the cases must include clamped means and black channels"
+                );
+            }
         }
     }
 
