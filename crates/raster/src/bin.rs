@@ -4,7 +4,9 @@
 //! are monotonic for positive depths) and then distributed over 16×16 tiles by a
 //! counting sort that keeps depth order, so every tile list is front to back.
 
-use crate::project::{project, Splat2d, View};
+use crate::lanes::Real;
+use crate::lanes::F8;
+use crate::project::{cull, geometry, project, sigmoid, view_colour, GaussianParams, Splat2d, View};
 use crate::Splats;
 use rayon::prelude::*;
 
@@ -35,17 +37,24 @@ pub struct Packed {
 /// Used only to skip work: every pair it excludes has α < 1/255 and would be skipped
 /// by the compositing rule anyway.
 fn support(s: &Splat2d) -> Option<(f32, f32, f32)> {
-    let thr = (255.0 * s.opacity).ln();
-    if !(thr > 0.0) {
-        return None;
-    }
-    let thr = thr * (1.0 + 1e-4) + 1e-4;
-    let [a, b, c] = s.conic;
-    let det = a * c - b * b;
-    let ext = (2.0 * thr).sqrt().min(crate::project::EXTENT);
-    let ex = ext * (c / det).sqrt() * (1.0 + 1e-4) + 1e-3;
-    let ey = ext * (a / det).sqrt() * (1.0 + 1e-4) + 1e-3;
-    Some((ex, ey, thr))
+    let (thr, ex, ey) = support_lanes(s.conic, s.opacity);
+    (thr > 0.0).then_some((ex, ey, thr))
+}
+
+/// [`support`] lane-wise: (thr, ex, ey), the splat blending somewhere where `thr > 0`
+/// (the same bits as [`support`] per lane where it does).
+#[inline(always)]
+fn support_lanes<T: Real>(conic: [T; 3], opacity: T) -> (T, T, T) {
+    let c = T::from;
+    let thr = (c(255.0) * opacity).ln();
+    let inflated = thr * c(1.0 + 1e-4) + c(1e-4);
+    let [a, b, cc] = conic;
+    let det = a * cc - b * b;
+    let ext = (c(2.0) * inflated).sqrt().min(c(crate::project::EXTENT));
+    let ex = ext * (cc / det).sqrt() * c(1.0 + 1e-4) + c(1e-3);
+    let ey = ext * (a / det).sqrt() * c(1.0 + 1e-4) + c(1e-3);
+    // Where ln(255 o) is not positive (or NaN) the splat blends nowhere: thr = 0 says so.
+    (T::select(c(0.0).lt(thr), inflated, c(0.0)), ex, ey)
 }
 
 fn pack(s: &Splat2d, ex: f32, ey: f32, thr: f32) -> Packed {
@@ -152,7 +161,46 @@ struct Slots<'a> {
 fn project_chunk(splats: &Splats, view: &View, i0: usize, out: Slots) -> (Vec<u32>, Vec<Packed>) {
     let len = out.depths.len();
     let (mut ids, mut pk) = (Vec::with_capacity(len), Vec::with_capacity(len));
-    for k in 0..len {
+    // Eight at a time, one per lane, then the culls per Gaussian: the same bits as one
+    // at a time (crate::lanes), which takes the remainder.
+    let active_degree = splats.active_sh_degree.min(splats.sh_degree);
+    let (kc, nsh) = (crate::sh_coeffs(splats.sh_degree) * 3, crate::sh_coeffs(active_degree) * 3);
+    let full = len / 8 * 8;
+    for k0 in (0..full).step_by(8) {
+        let i = i0 + k0;
+        let mut sh = [F8::default(); 48];
+        for (t, v) in sh[..nsh].iter_mut().enumerate() {
+            *v = F8::from_fn(|l| splats.sh[(i + l) * kc + t]);
+        }
+        let p = GaussianParams {
+            mean: std::array::from_fn(|c| F8::from_fn(|l| splats.means[i + l][c])),
+            log_scale: std::array::from_fn(|c| F8::from_fn(|l| splats.log_scales[i + l][c])),
+            quat: std::array::from_fn(|c| F8::from_fn(|l| splats.rotations[i + l][c])),
+            opacity_logit: F8::from_fn(|l| splats.opacity_logits[i + l]),
+            sh: &sh[..nsh],
+            active_degree,
+        };
+        let g = geometry(view, &p);
+        let (color, opacity) = (view_colour(view, &p), sigmoid(p.opacity_logit));
+        let (thr, ex, ey) = support_lanes(g.conic, opacity);
+        for l in 0..8 {
+            let k = k0 + l;
+            let Some((xy, depth, r)) = cull(view, &g.lane(l)) else { continue };
+            (out.means2d[k], out.depths[k], out.radii[k]) = (xy, depth, r);
+            if thr.0[l] > 0.0 {
+                ids.push((i0 + k) as u32);
+                let s = Splat2d {
+                    xy,
+                    conic: g.conic.map(|v| v.0[l]),
+                    opacity: opacity.0[l],
+                    color: color.map(|v| v.0[l]),
+                    depth,
+                };
+                pk.push(pack(&s, ex.0[l], ey.0[l], thr.0[l]));
+            }
+        }
+    }
+    for k in full..len {
         let i = i0 + k;
         let Some((s, r)) = project(view, &splats.params(i)) else { continue };
         (out.means2d[k], out.depths[k], out.radii[k]) = (s.xy, s.depth, r);
@@ -346,6 +394,65 @@ fn radix_sort(v: &mut Vec<(u32, u32)>) {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+    use transsplat_scene::{Camera, Gaussians};
+
+    #[test]
+    fn eight_lanes_project_each_gaussian_as_one_at_a_time() {
+        // 61 Gaussians (seven groups of eight and a remainder): some behind the camera,
+        // off the image, faint (no support), dark in some channel; every SH degree.
+        let cam = Camera::pinhole("c", 64, 48, 40.0);
+        let view = View::new(&cam);
+        let wave = |k: usize, a: f32| (k as f32 * a).sin();
+        let n = 61;
+        for degree in 0..=3u32 {
+            let g = Gaussians {
+                means: (0..n)
+                    .map(|i| [6.0 * wave(i, 0.37), 4.0 * wave(i, 0.91), 3.0 + 4.0 * wave(i, 1.3)])
+                    .collect(),
+                log_scales: (0..n)
+                    .map(|i| [wave(i, 0.2) - 2.0, wave(i, 0.5) - 1.0, wave(i, 0.8) - 3.0])
+                    .collect(),
+                rotations: (0..n)
+                    .map(|i| [1.0 + wave(i, 0.3), wave(i, 0.6), wave(i, 1.1), wave(i, 1.7)])
+                    .collect(),
+                opacity_logits: (0..n).map(|i| 7.0 * wave(i, 0.45)).collect(),
+                sh_degree: 3,
+                sh: (0..n * 48).map(|k| 2.0 * wave(k, 0.71)).collect(),
+                ..Default::default()
+            };
+            let splats = Splats { active_sh_degree: degree, ..Splats::new(&g) };
+            let (mut means2d, mut depths, mut radii) = (vec![[0.0; 2]; n], vec![0.0; n], vec![[0; 2]; n]);
+            let slots = Slots { means2d: &mut means2d, depths: &mut depths, radii: &mut radii };
+            let (ids, packed) = project_chunk(&splats, &view, 0, slots);
+            let (mut want_ids, mut culled, mut faint) = (Vec::new(), 0, 0);
+            for i in 0..n {
+                let Some((s, r)) = project(&view, &splats.params(i)) else {
+                    culled += 1;
+                    assert_eq!((means2d[i], depths[i], radii[i]), ([0.0; 2], 0.0, [0; 2]), "Gaussian {i}");
+                    continue;
+                };
+                assert_eq!((means2d[i], depths[i], radii[i]), (s.xy, s.depth, r), "Gaussian {i}");
+                let Some((ex, ey, thr)) = support(&s) else {
+                    faint += 1;
+                    continue;
+                };
+                let (got, want) = (packed[want_ids.len()], pack(&s, ex, ey, thr));
+                let bits = |p: &Packed| {
+                    [
+                        p.x, p.y, p.a, p.b, p.c, p.opacity, p.color[0], p.color[1], p.color[2], p.depth,
+                        p.ex, p.ey, p.thr,
+                    ]
+                    .map(f32::to_bits)
+                };
+                assert_eq!(bits(&got), bits(&want), "Gaussian {i}, degree {degree}");
+                want_ids.push(i as u32);
+            }
+            assert_eq!(ids, want_ids, "degree {degree}");
+            assert!(culled > 0 && faint > 0 && want_ids.len() > 8, "{culled} culled, {faint} faint");
+        }
+    }
+
     #[test]
     fn radix_sort_is_a_stable_sort() {
         let mut v: Vec<(u32, u32)> =

@@ -29,8 +29,14 @@ pub trait Real:
     fn sqrt(self) -> Self;
     /// `f32::exp` per lane.
     fn exp(self) -> Self;
+    /// `f32::ln` per lane.
+    fn ln(self) -> Self;
+    /// `f32::min` per lane.
+    fn min(self, o: Self) -> Self;
     /// `f32::max` per lane.
     fn max(self, o: Self) -> Self;
+    /// `f32::ceil` per lane.
+    fn ceil(self) -> Self;
     /// `f32::clamp` per lane.
     fn clamp(self, lo: Self, hi: Self) -> Self;
     /// `self < o` per lane.
@@ -52,8 +58,20 @@ impl Real for f32 {
         f32::exp(self)
     }
     #[inline(always)]
+    fn ln(self) -> Self {
+        f32::ln(self)
+    }
+    #[inline(always)]
+    fn min(self, o: Self) -> Self {
+        f32::min(self, o)
+    }
+    #[inline(always)]
     fn max(self, o: Self) -> Self {
         f32::max(self, o)
+    }
+    #[inline(always)]
+    fn ceil(self) -> Self {
+        f32::ceil(self)
     }
     #[inline(always)]
     fn clamp(self, lo: Self, hi: Self) -> Self {
@@ -83,6 +101,12 @@ impl Real for f32 {
 pub struct F8(pub [f32; 8]);
 
 impl F8 {
+    /// Lane `l` is `f(l)`.
+    #[inline(always)]
+    pub fn from_fn(f: impl Fn(usize) -> f32) -> Self {
+        F8(std::array::from_fn(f))
+    }
+
     /// `f` of each lane.
     #[inline(always)]
     fn map(self, f: impl Fn(f32) -> f32) -> Self {
@@ -145,8 +169,20 @@ impl Real for F8 {
         self.map(f32::exp)
     }
     #[inline(always)]
+    fn ln(self) -> Self {
+        self.map(f32::ln)
+    }
+    #[inline(always)]
+    fn min(self, o: Self) -> Self {
+        self.zip(o, f32::min)
+    }
+    #[inline(always)]
     fn max(self, o: Self) -> Self {
         self.zip(o, f32::max)
+    }
+    #[inline(always)]
+    fn ceil(self) -> Self {
+        self.map(f32::ceil)
     }
     #[inline(always)]
     fn clamp(self, lo: Self, hi: Self) -> Self {
@@ -192,7 +228,10 @@ mod tests {
             same(-a, l, -x);
             same(Real::sqrt(a), l, x.sqrt());
             same(Real::exp(a), l, x.exp());
+            same(Real::ln(a), l, x.ln());
+            same(Real::min(a, b), l, x.min(y));
             same(Real::max(a, b), l, x.max(y));
+            same(Real::ceil(a), l, x.ceil());
             same(a.clamp(F8::from(-1.0), F8::from(2.0)), l, x.clamp(-1.0, 2.0));
             assert_eq!(a.lt(b)[l], x < y);
             assert_eq!(a.ne(b)[l], x != y);

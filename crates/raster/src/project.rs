@@ -247,7 +247,7 @@ fn view_dir<T: Real>(view: &View, mean: [T; 3]) -> ([T; 3], T) {
 
 #[inline(always)]
 /// SH colour before the clamp (`Σ_k sh_k Y_k(d) + 0.5`).
-fn sh_color(view: &View, p: &GaussianParams) -> [f32; 3] {
+fn sh_color<T: Real>(view: &View, p: &GaussianParams<T>) -> [T; 3] {
     let (d, _) = view_dir(view, p.mean);
     sh_color_from(&sh::basis(p.active_degree, d), p)
 }
@@ -268,8 +268,8 @@ fn sh_color_from<T: Real>(b: &[T; 16], p: &GaussianParams<T>) -> [T; 3] {
 /// The colour a Gaussian is rendered with from `view`: c = max(Σ_k sh_k Y_k(d) + 0.5, 0)
 /// over the active SH degree, d the unit direction from the camera centre.
 #[inline(always)]
-pub fn view_colour(view: &View, p: &GaussianParams) -> [f32; 3] {
-    sh_color(view, p).map(|c| c.max(0.0))
+pub fn view_colour<T: Real>(view: &View, p: &GaussianParams<T>) -> [T; 3] {
+    sh_color(view, p).map(|c| c.max(T::from(0.0)))
 }
 
 /// How the colour clamp `c = max(raw, 0)` passes gradients to the SH coefficients.
@@ -353,41 +353,88 @@ fn colour_backward_from<T: Real>(
 /// and its per-axis pixel radius.
 #[inline(always)]
 pub fn project(view: &View, p: &GaussianParams) -> Option<(Splat2d, [u32; 2])> {
+    let g = geometry(view, p);
+    let (xy, depth, radius) = cull(view, &g)?;
+    let color = view_colour(view, p);
+    let opacity = sigmoid(p.opacity_logit);
+    Some((Splat2d { xy, conic: g.conic, opacity, color, depth }, radius))
+}
+
+/// The geometric part of [`project`], before its culls: camera-space depth, the 2D
+/// covariance's determinant, the conic, the per-axis radius and the 2D mean. Generic
+/// over [`Real`], so eight Gaussians can be projected at once with the same bits per
+/// lane ([`Geometry::lane`]).
+pub(crate) struct Geometry<T> {
+    pub tz: T,
+    pub det: T,
+    pub conic: [T; 3],
+    pub radius: [T; 2],
+    pub xy: [T; 2],
+}
+
+impl Geometry<crate::lanes::F8> {
+    /// Lane `l`'s geometry.
+    #[inline(always)]
+    pub(crate) fn lane(&self, l: usize) -> Geometry<f32> {
+        Geometry {
+            tz: self.tz.0[l],
+            det: self.det.0[l],
+            conic: self.conic.map(|v| v.0[l]),
+            radius: self.radius.map(|v| v.0[l]),
+            xy: self.xy.map(|v| v.0[l]),
+        }
+    }
+}
+
+/// [`Geometry`] of `p` (its SH coefficients are not read): Σ₂ = (J W R S)(J W R S)ᵀ,
+/// the same quantity as in `forward_internals`, with fewer operations (the backward
+/// pass recomputes the factored form).
+#[inline(always)]
+pub(crate) fn geometry<T: Real>(view: &View, p: &GaussianParams<T>) -> Geometry<T> {
+    let c = T::from;
     let t = view.to_camera(p.mean);
     let tz = t[2];
-    if !(tz > NEAR && tz < FAR) {
-        return None;
-    }
-    // Σ₂ = (J W R S)(J W R S)ᵀ: the same quantity as in `forward_internals`, with
-    // fewer operations (the backward pass recomputes the factored form).
     let (_, _, rot) = quat_to_rotmat(p.quat);
-    let scale = p.log_scale.map(f32::exp);
-    let wr = matmul(&view.rot, &rot);
-    let rx_ = (t[0] / tz).clamp(-view.lim_x_neg, view.lim_x_pos);
-    let ry_ = (t[1] / tz).clamp(-view.lim_y_neg, view.lim_y_pos);
-    let (j00, j02) = (view.fx / tz, -view.fx * rx_ / tz);
-    let (j11, j12) = (view.fy / tz, -view.fy * ry_ / tz);
-    let mut r0 = [0.0f32; 3];
-    let mut r1 = [0.0f32; 3];
+    let scale = p.log_scale.map(T::exp);
+    let wr = matmul(&lanes_m3::<T>(&view.rot), &rot);
+    let rx_ = (t[0] / tz).clamp(c(-view.lim_x_neg), c(view.lim_x_pos));
+    let ry_ = (t[1] / tz).clamp(c(-view.lim_y_neg), c(view.lim_y_pos));
+    let (j00, j02) = (c(view.fx) / tz, c(-view.fx) * rx_ / tz);
+    let (j11, j12) = (c(view.fy) / tz, c(-view.fy) * ry_ / tz);
+    let mut r0 = [c(0.0); 3];
+    let mut r1 = [c(0.0); 3];
     for k in 0..3 {
         r0[k] = (j00 * wr[0][k] + j02 * wr[2][k]) * scale[k];
         r1[k] = (j11 * wr[1][k] + j12 * wr[2][k]) * scale[k];
     }
-    let c00 = r0[0] * r0[0] + r0[1] * r0[1] + r0[2] * r0[2] + EPS2D;
+    let eps = c(EPS2D);
+    let c00 = r0[0] * r0[0] + r0[1] * r0[1] + r0[2] * r0[2] + eps;
     let c01 = r0[0] * r1[0] + r0[1] * r1[1] + r0[2] * r1[2];
-    let c11 = r1[0] * r1[0] + r1[1] * r1[1] + r1[2] * r1[2] + EPS2D;
+    let c11 = r1[0] * r1[0] + r1[1] * r1[1] + r1[2] * r1[2] + eps;
     let det = c00 * c11 - c01 * c01;
-    if !(det > 0.0) {
+    let inv = c(1.0) / det;
+    Geometry {
+        tz,
+        det,
+        conic: [c11 * inv, -c01 * inv, c00 * inv],
+        radius: [(c(EXTENT) * c00.sqrt()).ceil(), (c(EXTENT) * c11.sqrt()).ceil()],
+        xy: [c(view.fx) * t[0] / tz + c(view.cx), c(view.fy) * t[1] / tz + c(view.cy)],
+    }
+}
+
+/// The culls of [`project`] on its [`geometry`] `g`: the 2D mean, depth and radius of
+/// a Gaussian that passes them.
+#[inline(always)]
+pub(crate) fn cull(view: &View, g: &Geometry<f32>) -> Option<([f32; 2], f32, [u32; 2])> {
+    let tz = g.tz;
+    if !(tz > NEAR && tz < FAR) || !(g.det > 0.0) {
         return None;
     }
-    let inv = 1.0 / det;
-    let conic = [c11 * inv, -c01 * inv, c00 * inv];
-    let rx = (EXTENT * c00.sqrt()).ceil();
-    let ry = (EXTENT * c11.sqrt()).ceil();
+    let [rx, ry] = g.radius;
     if rx <= 0.0 && ry <= 0.0 {
         return None;
     }
-    let xy = [view.fx * t[0] / tz + view.cx, view.fy * t[1] / tz + view.cy];
+    let xy = g.xy;
     if !(xy[0] + rx > 0.0
         && xy[0] - rx < view.width as f32
         && xy[1] + ry > 0.0
@@ -395,9 +442,13 @@ pub fn project(view: &View, p: &GaussianParams) -> Option<(Splat2d, [u32; 2])> {
     {
         return None;
     }
-    let color = view_colour(view, p);
-    let opacity = transsplat_scene::sigmoid(p.opacity_logit);
-    Some((Splat2d { xy, conic, opacity, color, depth: tz }, [rx as u32, ry as u32]))
+    Some((xy, tz, [rx as u32, ry as u32]))
+}
+
+/// The activated opacity, 1 / (1 + exp(−x)) as `transsplat_scene::sigmoid`, lane-wise.
+#[inline(always)]
+pub(crate) fn sigmoid<T: Real>(x: T) -> T {
+    T::from(1.0) / (T::from(1.0) + (-x).exp())
 }
 
 /// Backward of [`project`] for a visible Gaussian: from the gradients on its
@@ -521,8 +572,7 @@ pub fn project_backward<T: Real>(
         v_mean[a] += (vd[a] - d[a] * dd) / dn;
     }
 
-    // sigmoid(x) = 1 / (1 + exp(−x)), as transsplat_scene::sigmoid.
-    let o = c(1.0) / (c(1.0) + (-p.opacity_logit).exp());
+    let o = sigmoid(p.opacity_logit);
     GaussianGrads {
         mean: v_mean,
         log_scale: v_log_scale,
