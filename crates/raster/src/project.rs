@@ -427,7 +427,7 @@ pub(crate) fn geometry<T: Real>(view: &View, p: &GaussianParams<T>) -> Geometry<
 #[inline(always)]
 pub(crate) fn cull(view: &View, g: &Geometry<f32>) -> Option<([f32; 2], f32, [u32; 2])> {
     let tz = g.tz;
-    if !(tz > NEAR && tz < FAR) || !(g.det > 0.0) {
+    if !(tz > NEAR && tz < FAR && g.det > 0.0) {
         return None;
     }
     let [rx, ry] = g.radius;
