@@ -346,22 +346,23 @@ pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, gr
     // The projection backward is linear in the splat gradients: a splat that no pixel
     // reached (occluded behind saturated pixels) contributes exactly zero. Found here in
     // depth order, where the accumulator streams, not by a random read per Gaussian.
-    let reached: Vec<u32> = acc
+    let reached: Vec<(u32, u32)> = acc
         .par_chunks(stride)
         .zip(b.ids.par_iter())
-        .filter(|(a, _)| a.iter().any(|&v| v != 0.0))
-        .map(|(_, &id)| id)
+        .enumerate()
+        .filter(|(_, (a, _))| a.iter().any(|&v| v != 0.0))
+        .map(|(j, (_, &id))| (id, j as u32))
         .collect();
-    let mut written = vec![false; n];
-    for &i in &reached {
-        written[i as usize] = true;
+    // Each Gaussian's accumulator row (its depth position), or NOT_REACHED.
+    let mut at = vec![per_gaussian::NOT_REACHED; n];
+    for &(i, j) in &reached {
+        at[i as usize] = j;
     }
     drop(reached);
     prof.lap("backward reached");
     let view = View::new(cam);
     let kc = sh_coeffs(splats.sh_degree) * 3;
-    let pos = depth_positions(&b.ids, n);
-    let inputs = per_gaussian::Inputs { splats, view: &view, acc: &acc, stride, pos: &pos, clamp: g.clamp };
+    let inputs = per_gaussian::Inputs { splats, view: &view, acc: &acc, stride, clamp: g.clamp };
     // Runs of rows in index order (per_gaussian's module doc), one unit of work each.
     let rows = per_gaussian::ROWS;
     let Grads { means, log_scales, rotations, opacity_logits, sh, features, means2d } = grads;
@@ -374,31 +375,28 @@ pub fn backward(splats: &Splats, cam: &Camera, frame: &Frame, g: &ImageGrads, gr
         .zip(log_scales.chunks_mut(rows))
         .zip(rotations.chunks_mut(rows).zip(opacity_logits.chunks_mut(rows)))
         .zip(sh.chunks_mut(kc * rows).zip(means2d.chunks_mut(rows)))
-        .zip(features.into_iter().zip(written.chunks(rows)))
+        .zip(features.into_iter().zip(at.chunks(rows)))
         .enumerate()
-        .map(
-            |(
-                c,
-                ((((means, log_scales), (rotations, opacity_logits)), (sh, means2d)), (features, written)),
-            )| {
-                per_gaussian::Run {
-                    first: c * rows,
-                    written,
-                    means,
-                    log_scales,
-                    rotations,
-                    opacity_logits,
-                    sh,
-                    features,
-                    means2d,
-                }
-            },
-        )
+        .map(|(c, ((((means, log_scales), (rotations, opacity_logits)), (sh, means2d)), (features, at)))| {
+            per_gaussian::Run {
+                first: c * rows,
+                at,
+                means,
+                log_scales,
+                rotations,
+                opacity_logits,
+                sh,
+                features,
+                means2d,
+            }
+        })
         .collect();
     let avx2 = transsplat_scene::cpu::has_avx2();
-    runs.into_par_iter().for_each(|run| per_gaussian::run(avx2, &inputs, run));
+    // Each run returns its reached rows, ascending: in run order, every reached row.
+    let reached: Vec<Vec<u32>> =
+        runs.into_par_iter().map(|run| per_gaussian::run(avx2, &inputs, run)).collect();
     prof.lap("backward per-Gaussian");
-    written.par_iter().enumerate().filter(|(_, &w)| w).map(|(i, _)| i as u32).collect()
+    reached.concat()
 }
 
 /// Per-Gaussian statistics of one view (docs/method.md#m1-visibility-and-source-masses), and the splat-back.

@@ -19,6 +19,9 @@ use transsplat_scene::cpu::prefetch_bytes;
 /// Rows per unit of parallel work.
 pub(crate) const ROWS: usize = 2048;
 
+/// [`Run::at`] of a Gaussian no pixel's gradient reached.
+pub(crate) const NOT_REACHED: u32 = u32::MAX;
+
 /// What every row of the pass reads.
 pub(crate) struct Inputs<'a> {
     pub splats: &'a Splats<'a>,
@@ -26,16 +29,15 @@ pub(crate) struct Inputs<'a> {
     /// The accumulator, `stride` floats per splat in depth order.
     pub acc: &'a [f32],
     pub stride: usize,
-    /// Each Gaussian's position in depth order (its accumulator row).
-    pub pos: &'a [u32],
     pub clamp: ClampGrad,
 }
 
-/// The gradient rows of one run of Gaussians (`first..first + written.len()`), and which
-/// of them were reached.
+/// The gradient rows of one run of Gaussians (`first..first + at.len()`), and which of
+/// them were reached.
 pub(crate) struct Run<'a> {
     pub first: usize,
-    pub written: &'a [bool],
+    /// Each Gaussian's accumulator row (its position in depth order), or [`NOT_REACHED`].
+    pub at: &'a [u32],
     pub means: &'a mut [[f32; 3]],
     pub log_scales: &'a mut [[f32; 3]],
     pub rotations: &'a mut [[f32; 4]],
@@ -48,8 +50,9 @@ pub(crate) struct Run<'a> {
 }
 
 /// Adds the gradients of every reached Gaussian of `run`, compiled for AVX2 when the CPU
-/// has it (the same results: no fused operations are formed).
-pub(crate) fn run(avx2: bool, inp: &Inputs, run: Run) {
+/// has it (the same results: no fused operations are formed); returns those Gaussians,
+/// ascending.
+pub(crate) fn run(avx2: bool, inp: &Inputs, run: Run) -> Vec<u32> {
     #[cfg(target_arch = "x86_64")]
     if avx2 {
         // SAFETY: the CPU has AVX2 and FMA (checked by the caller at run time).
@@ -61,19 +64,19 @@ pub(crate) fn run(avx2: bool, inp: &Inputs, run: Run) {
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn run_avx2(inp: &Inputs, run: Run) {
+fn run_avx2(inp: &Inputs, run: Run) -> Vec<u32> {
     run_any(inp, run)
 }
 
 #[inline(always)]
-fn run_any(inp: &Inputs, mut run: Run) {
+fn run_any(inp: &Inputs, mut run: Run) -> Vec<u32> {
     let s = inp.splats;
     let kc = crate::sh_coeffs(s.sh_degree) * 3;
     let mut reached = [0u16; ROWS];
     let mut count = 0;
-    for (k, &w) in run.written.iter().enumerate() {
+    for (k, &j) in run.at.iter().enumerate() {
         reached[count] = k as u16;
-        count += w as usize;
+        count += (j != NOT_REACHED) as usize;
     }
     let reached = &reached[..count];
     // The reached rows are scattered (a third of them at 1M Gaussians, 256²), so the
@@ -87,19 +90,20 @@ fn run_any(inp: &Inputs, mut run: Run) {
             let (k, i) = (k as usize, run.first + k as usize);
             prefetch_bytes(sh_at + i * kc * 4, kc * 4);
             prefetch_bytes(gsh_at + k * kc * 4, kc * 4);
-            prefetch_bytes(acc_at + inp.pos[i] as usize * inp.stride * 4, inp.stride * 4);
+            prefetch_bytes(acc_at + run.at[k] as usize * inp.stride * 4, inp.stride * 4);
         }
         match <&[u16; 8]>::try_from(group) {
             Ok(group) => eight(inp, &mut run, group),
             Err(_) => group.iter().for_each(|&k| one(inp, &mut run, k as usize)),
         }
     }
+    reached.iter().map(|&k| (run.first + k as usize) as u32).collect()
 }
 
-/// Gaussian `first + k`'s accumulator row.
+/// The accumulator row of row `k` of `run`.
 #[inline(always)]
-fn acc_row<'a>(inp: &Inputs<'a>, i: usize) -> &'a [f32] {
-    let j = inp.pos[i] as usize;
+fn acc_row<'a>(inp: &Inputs<'a>, run: &Run, k: usize) -> &'a [f32] {
+    let j = run.at[k] as usize;
     &inp.acc[j * inp.stride..(j + 1) * inp.stride]
 }
 
@@ -107,7 +111,7 @@ fn acc_row<'a>(inp: &Inputs<'a>, i: usize) -> &'a [f32] {
 #[inline(always)]
 fn one(inp: &Inputs, run: &mut Run, k: usize) {
     let i = run.first + k;
-    let a = acc_row(inp, i);
+    let a = acc_row(inp, run, k);
     let sg = kernel::splat_grads(a);
     let mut vsh = [0.0f32; 48];
     let p = inp.splats.params(i);
@@ -164,7 +168,7 @@ fn eight(inp: &Inputs, run: &mut Run, group: &[u16; 8]) {
         ([F8::default(); 3], [F8::default(); 3], [F8::default(); 4], F8::default());
     for l in 0..8 {
         let i = run.first + group[l] as usize;
-        let r = acc_row(inp, i);
+        let r = acc_row(inp, run, group[l] as usize);
         a[l] = r;
         sg.xy[0].0[l] = r[slot::XY];
         sg.xy[1].0[l] = r[slot::XY + 1];
