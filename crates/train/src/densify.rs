@@ -55,6 +55,7 @@
 use crate::model::Reindex;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use transsplat_scene::{sigmoid, Gaussians};
 
 /// The densification schedule and thresholds (INRIA defaults).
@@ -188,16 +189,19 @@ impl DensifyStats {
             means2d_grad.len() == self.denom.len() && radii.len() == self.denom.len(),
             "densification statistics do not match the view"
         );
-        for (i, (g, r)) in means2d_grad.iter().zip(radii).enumerate() {
-            let rad = r[0].max(r[1]);
-            if rad == 0 {
-                continue;
-            }
-            let (gx, gy) = (g[0] * sx, g[1] * sy);
-            self.grad_accum[i] += (gx * gx + gy * gy).sqrt();
-            self.denom[i] += 1;
-            self.max_radii[i] = self.max_radii[i].max(rad as f32);
-        }
+        let DensifyStats { grad_accum, denom, max_radii } = self;
+        (grad_accum, denom, max_radii, means2d_grad, radii).into_par_iter().with_min_len(1 << 14).for_each(
+            |(acc, d, max_r, g, r)| {
+                let rad = r[0].max(r[1]);
+                if rad == 0 {
+                    return;
+                }
+                let (gx, gy) = (g[0] * sx, g[1] * sy);
+                *acc += (gx * gx + gy * gy).sqrt();
+                *d += 1;
+                *max_r = max_r.max(rad as f32);
+            },
+        );
     }
 
     /// Mean gradient norm per Gaussian (0 where never visible).
