@@ -324,17 +324,9 @@ impl Adam {
         );
         let (b1, b2, eps) = (self.betas.0, self.betas.1, self.eps);
         // Dense with the rows known: every other row's gradient is zero, so a row neither
-        // listed nor live is left as it is without reading it (the update would not change it).
-        let listed = match update {
-            Update::Dense(Some(rows)) => {
-                let mut listed = vec![false; n];
-                for &r in rows {
-                    listed[r as usize] = true;
-                }
-                Some(listed)
-            }
-            _ => None,
-        };
+        // listed nor live is left as it is without reading it (the update would not change
+        // it). Built when a group uses it (below).
+        let mut listed: Option<Vec<bool>> = None;
         let (mut bad_grad, mut bad_param) = (None, None);
         // One pass per parameter array: the SH DC and rest groups share the SH rows, so
         // they are updated together and the rows are streamed once.
@@ -384,7 +376,24 @@ impl Adam {
             }
             let (names, parts): (Vec<Group>, Vec<Part>) = parts.into_iter().unzip();
             let verdicts = match update {
-                Update::Dense(_) => update_block(params, grad, parts, Rule::Dense(listed.as_deref())),
+                Update::Dense(None) => update_block(params, grad, parts, Rule::Dense(None)),
+                Update::Dense(Some(rows)) => {
+                    // The flags pay where few rows can move (an edit); where most rows are
+                    // live (training past its first views) reading every row in order is
+                    // faster (1M Gaussians, 256²: 51 against 57 ms). The same bits either way.
+                    // Live rows estimated from every 64th flag (the choice is speed only).
+                    let live =
+                        parts.iter().map(|p| p.mo.live.iter().step_by(64).filter(|&&l| l).count() * 64).max();
+                    let flags = match rows.len() + live.unwrap_or(0) <= n / 2 {
+                        true => Some(&**listed.get_or_insert_with(|| {
+                            let mut flags = vec![false; n];
+                            rows.iter().for_each(|&r| flags[r as usize] = true);
+                            flags
+                        })),
+                        false => None,
+                    };
+                    update_block(params, grad, parts, Rule::Dense(flags))
+                }
                 Update::Selective(None) => update_block(params, grad, parts, Rule::Selective),
                 Update::Selective(Some(rows)) => {
                     parts.into_iter().map(|part| update_rows(params, grad, part, rows)).collect()
