@@ -13,7 +13,10 @@
 //!   sum, pixel count, projected mean) and the splat-back of a per-pixel image: the
 //!   blend-weight-weighted mean per Gaussian, the transpose of rendering.
 //!
-//! Work is split into 16×16 tiles processed in parallel with rayon.
+//! Work is split into 16×16 tiles processed in parallel with rayon. The per-Gaussian
+//! passes (the projection in [`bin`], the backward's in `per_gaussian`) take eight
+//! Gaussians at a time in the lanes of [`lanes::F8`], with the bits the one-at-a-time
+//! code gives.
 
 // Lane loops index several per-pixel arrays in lockstep; `!(x > 0.0)` is used on
 // purpose where NaN must take the rejecting branch.

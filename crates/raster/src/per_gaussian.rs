@@ -2,13 +2,14 @@
 //! (one row of the tile pass's accumulator) through [`project_backward`] to the
 //! Gaussian's parameter gradients, added into its rows.
 //!
-//! The pass is arithmetic-bound (the projection's backward is some 1,500 instructions a
-//! Gaussian), so the reached Gaussians of a run of rows are taken eight at a time, one
-//! per lane of [`F8`]: the same operations in the same order per lane, so every
-//! Gaussian's gradients have the bits the one-at-a-time path gives (the remainder of a
-//! run goes one at a time). Rows are walked in index order, so parameter reads and
-//! gradient writes stream; the accumulator row (in depth order) is the random read,
-//! fetched ahead with the SH rows.
+//! The projection's backward is some 1,500 instructions a Gaussian, so the reached
+//! Gaussians of a run of rows are taken eight at a time, one per lane of [`F8`]: the same
+//! operations in the same order per lane, so every Gaussian's gradients have the bits the
+//! one-at-a-time path gives (the remainder of a run goes one at a time). Rows are walked
+//! in index order, so parameter reads and gradient writes stream; the accumulator row (in
+//! depth order) is the random read, fetched ahead with the SH rows. With the arithmetic
+//! eight-wide, the pass waits on memory about as long as it computes (docs/method.md
+//! M10 item 10).
 
 use crate::kernel::{self, slot};
 use crate::lanes::F8;
@@ -154,13 +155,12 @@ fn add_row(inp: &Inputs, run: &mut Run, k: usize, g: &Grads1, vsh: &[f32], a: &[
 }
 
 /// The gradients of eight rows of `run` at once, one per lane: the inputs gathered into
-/// lanes, the results scattered back row by row, as [`one`] adds them.
+/// lanes, each lane's results added to its row as [`one`] adds them.
 #[inline(always)]
 fn eight(inp: &Inputs, run: &mut Run, group: &[u16; 8]) {
     let s = inp.splats;
     let active_degree = s.active_sh_degree.min(s.sh_degree);
-    let (kc, nsh, f) =
-        (crate::sh_coeffs(s.sh_degree) * 3, crate::sh_coeffs(active_degree) * 3, s.num_features);
+    let (kc, nsh) = (crate::sh_coeffs(s.sh_degree) * 3, crate::sh_coeffs(active_degree) * 3);
     let mut a: [&[f32]; 8] = [&[]; 8];
     let mut sg = Splat2dGrads::<F8>::default();
     let mut sh = [F8::default(); 48];
@@ -192,22 +192,17 @@ fn eight(inp: &Inputs, run: &mut Run, group: &[u16; 8]) {
     let mut vsh = [F8::default(); 48];
     let gg = project_backward(inp.view, &p, &sg, &mut vsh[..nsh], inp.clamp);
     for l in 0..8 {
-        let k = group[l] as usize;
-        for c in 0..3 {
-            run.means[k][c] += gg.mean[c].0[l];
-            run.log_scales[k][c] += gg.log_scale[c].0[l];
+        let g = Grads1 {
+            mean: gg.mean.map(|v| v.0[l]),
+            log_scale: gg.log_scale.map(|v| v.0[l]),
+            quat: gg.quat.map(|v| v.0[l]),
+            opacity_logit: gg.opacity_logit.0[l],
+        };
+        let mut vsh1 = [0.0f32; 48];
+        for (d, v) in vsh1[..nsh].iter_mut().zip(&vsh) {
+            *d = v.0[l];
         }
-        for c in 0..4 {
-            run.rotations[k][c] += gg.quat[c].0[l];
-        }
-        run.opacity_logits[k] += gg.opacity_logit.0[l];
-        for (t, d) in run.sh[k * kc..k * kc + nsh].iter_mut().enumerate() {
-            *d += vsh[t].0[l];
-        }
-        for (d, v) in run.features[k * f..(k + 1) * f].iter_mut().zip(&a[l][slot::FEATURES..]) {
-            *d += v;
-        }
-        run.means2d[k][0] += sg.xy[0].0[l];
-        run.means2d[k][1] += sg.xy[1].0[l];
+        let xy = [sg.xy[0].0[l], sg.xy[1].0[l]];
+        add_row(inp, run, group[l] as usize, &g, &vsh1[..nsh], a[l], xy);
     }
 }

@@ -5,6 +5,10 @@
 //! mean t = R_w x + t_w; 2D mean (fx t_x/t_z + c_x, fy t_y/t_z + c_y); Jacobian with
 //! the 1.3× tan-fov clamp; Σ₂ = J R_w Σ R_wᵀ Jᵀ + 0.3 I; conic = Σ₂⁻¹; per-axis
 //! radius ⌈3.33 √diag Σ₂⌉; colour = SH(x − camera centre) + 0.5, clamped at 0.
+//!
+//! The projection's geometry, colour and opacity and the backward are generic over
+//! [`Real`]: one Gaussian in `f32`, or eight in the lanes of [`crate::lanes::F8`] with
+//! the same bits per lane (the per-Gaussian passes use both).
 
 use crate::lanes::Real;
 use crate::sh;

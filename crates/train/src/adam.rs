@@ -169,6 +169,31 @@ impl PartialEq for GroupState {
 }
 
 impl GroupState {
+    /// Begins this group's step over `n` Gaussians (moments allocated at the first, the
+    /// live flags rebuilt if they were dropped, the step counter advanced): its share
+    /// `block` of the parameter rows, its constants at learning rate `lr`, its moments.
+    fn begin_step(
+        &mut self,
+        group: Group,
+        n: usize,
+        block: Block,
+        lr: f32,
+        betas: (f32, f32),
+        eps: f32,
+    ) -> Part<'_> {
+        if self.m.len() != n * self.width {
+            assert!(self.m.is_empty(), "Adam moments of {} are out of step with the model", group.name());
+            self.m = vec![0.0; n * self.width];
+            self.v = vec![0.0; n * self.width];
+        }
+        if self.live.len() != n {
+            self.rebuild_live(n);
+        }
+        self.step += 1;
+        let h = Hyper::at(lr, betas, eps, self.step);
+        Part { b: block, h, mo: Moments { m: &mut self.m, v: &mut self.v, live: &mut self.live } }
+    }
+
     /// Recomputes [`GroupState::live`] from the moments.
     fn rebuild_live(&mut self, n: usize) {
         let w = self.width.max(1);
@@ -351,47 +376,19 @@ impl Adam {
             (&mut model.features, &grads.features, f, vec![(Group::Features, ft, 0)]),
         ];
         for (params, grad, row, groups) in arrays {
-            let mut parts = Vec::with_capacity(groups.len());
-            for (group, st, off) in groups {
-                let rate = lr[group.index()];
-                if rate == 0.0 || st.width == 0 || n == 0 {
-                    continue;
-                }
-                if st.m.len() != n * st.width {
-                    assert!(
-                        st.m.is_empty(),
-                        "Adam moments of {} are out of step with the model",
-                        group.name()
-                    );
-                    st.m = vec![0.0; n * st.width];
-                    st.v = vec![0.0; n * st.width];
-                }
-                if st.live.len() != n {
-                    st.rebuild_live(n);
-                }
-                st.step += 1;
-                let h = Hyper::at(rate, (b1, b2), eps, st.step);
-                let mo = Moments { m: &mut st.m, v: &mut st.v, live: &mut st.live };
-                parts.push((group, Part { b: Block { row, off, w: st.width }, h, mo }));
-            }
-            let (names, parts): (Vec<Group>, Vec<Part>) = parts.into_iter().unzip();
+            let (names, parts): (Vec<Group>, Vec<Part>) = groups
+                .into_iter()
+                .filter_map(|(group, st, off)| {
+                    let rate = lr[group.index()];
+                    let block = Block { row, off, w: st.width };
+                    (rate != 0.0 && st.width > 0 && n > 0)
+                        .then(|| (group, st.begin_step(group, n, block, rate, (b1, b2), eps)))
+                })
+                .unzip();
             let verdicts = match update {
                 Update::Dense(None) => update_block(params, grad, parts, Rule::Dense(None)),
                 Update::Dense(Some(rows)) => {
-                    // The flags pay where few rows can move (an edit); where most rows are
-                    // live (training past its first views) reading every row in order is
-                    // faster (1M Gaussians, 256²: 51 against 57 ms). The same bits either way.
-                    // Live rows estimated from every 64th flag (the choice is speed only).
-                    let live =
-                        parts.iter().map(|p| p.mo.live.iter().step_by(64).filter(|&&l| l).count() * 64).max();
-                    let flags = match rows.len() + live.unwrap_or(0) <= n / 2 {
-                        true => Some(&**listed.get_or_insert_with(|| {
-                            let mut flags = vec![false; n];
-                            rows.iter().for_each(|&r| flags[r as usize] = true);
-                            flags
-                        })),
-                        false => None,
-                    };
+                    let flags = dense_flags(rows, &parts, n, &mut listed);
                     update_block(params, grad, parts, Rule::Dense(flags))
                 }
                 Update::Selective(None) => update_block(params, grad, parts, Rule::Selective),
@@ -410,6 +407,29 @@ impl Adam {
         }
         bad_grad.map(NonFinite::Gradient).or(bad_param.map(NonFinite::Parameter))
     }
+}
+
+/// The flags of a dense step's listed `rows` (built once a step, into `listed`) where
+/// they pay, else `None` (every row read in order). They pay where few rows can move (an
+/// edit: listed plus live rows, estimated from every 64th live flag, at most half the
+/// rows); where most rows are live (training past its first views) reading every row in
+/// order measured faster (in-step Adam at 1M Gaussians, 256²: 51–52 against 56–62 ms).
+/// The same bits either way: the choice is speed only.
+fn dense_flags<'a>(
+    rows: &[u32],
+    parts: &[Part],
+    n: usize,
+    listed: &'a mut Option<Vec<bool>>,
+) -> Option<&'a [bool]> {
+    let live = parts.iter().map(|p| p.mo.live.iter().step_by(64).filter(|&&l| l).count() * 64).max();
+    if rows.len() + live.unwrap_or(0) > n / 2 {
+        return None;
+    }
+    Some(listed.get_or_insert_with(|| {
+        let mut flags = vec![false; n];
+        rows.iter().for_each(|&r| flags[r as usize] = true);
+        flags
+    }))
 }
 
 /// A parameter array, its gradients, its row width and the groups that share its rows
