@@ -6,7 +6,7 @@
 
 use crate::lanes::Real;
 use crate::lanes::F8;
-use crate::project::{cull, geometry, project, sigmoid, view_colour, GaussianParams, Splat2d, View};
+use crate::project::{cull, geometry, sigmoid, view_colour, Splat2d, View};
 use crate::Splats;
 use rayon::prelude::*;
 
@@ -33,18 +33,12 @@ pub struct Packed {
     pub thr: f32,
 }
 
-/// The tight support of a splat: (ex, ey, thr), or `None` if α < 1/255 everywhere.
-/// Used only to skip work: every pair it excludes has α < 1/255 and would be skipped
-/// by the compositing rule anyway.
-fn support(s: &Splat2d) -> Option<(f32, f32, f32)> {
-    let (thr, ex, ey) = support_lanes(s.conic, s.opacity);
-    (thr > 0.0).then_some((ex, ey, thr))
-}
-
-/// [`support`] lane-wise: (thr, ex, ey), the splat blending somewhere where `thr > 0`
-/// (the same bits as [`support`] per lane where it does).
+/// The tight support of splats (lane-wise): (thr, ex, ey), where `thr > 0` says the
+/// splat can blend somewhere, and then α < 1/255 outside the half-extents (ex, ey)
+/// (pixels) and wherever σ > thr. Used only to skip work: every pair it excludes has
+/// α < 1/255 and would be skipped by the compositing rule anyway.
 #[inline(always)]
-fn support_lanes<T: Real>(conic: [T; 3], opacity: T) -> (T, T, T) {
+fn support<T: Real>(conic: [T; 3], opacity: T) -> (T, T, T) {
     let c = T::from;
     let thr = (c(255.0) * opacity).ln();
     let inflated = thr * c(1.0 + 1e-4) + c(1e-4);
@@ -161,29 +155,17 @@ struct Slots<'a> {
 fn project_chunk(splats: &Splats, view: &View, i0: usize, out: Slots) -> (Vec<u32>, Vec<Packed>) {
     let len = out.depths.len();
     let (mut ids, mut pk) = (Vec::with_capacity(len), Vec::with_capacity(len));
-    // Eight at a time, one per lane, then the culls per Gaussian: the same bits as one
-    // at a time (crate::lanes), which takes the remainder.
-    let active_degree = splats.active_sh_degree.min(splats.sh_degree);
-    let (kc, nsh) = (crate::sh_coeffs(splats.sh_degree) * 3, crate::sh_coeffs(active_degree) * 3);
-    let full = len / 8 * 8;
-    for k0 in (0..full).step_by(8) {
-        let i = i0 + k0;
+    // Eight at a time, one per lane (the same bits as one at a time, crate::lanes; a
+    // last group of fewer repeats its last Gaussian in the spare lanes), then the culls
+    // per Gaussian.
+    for k0 in (0..len).step_by(8) {
+        let idx: [usize; 8] = std::array::from_fn(|l| i0 + (k0 + l).min(len - 1));
         let mut sh = [F8::default(); 48];
-        for (t, v) in sh[..nsh].iter_mut().enumerate() {
-            *v = F8::from_fn(|l| splats.sh[(i + l) * kc + t]);
-        }
-        let p = GaussianParams {
-            mean: std::array::from_fn(|c| F8::from_fn(|l| splats.means[i + l][c])),
-            log_scale: std::array::from_fn(|c| F8::from_fn(|l| splats.log_scales[i + l][c])),
-            quat: std::array::from_fn(|c| F8::from_fn(|l| splats.rotations[i + l][c])),
-            opacity_logit: F8::from_fn(|l| splats.opacity_logits[i + l]),
-            sh: &sh[..nsh],
-            active_degree,
-        };
+        let p = splats.params8(idx, &mut sh);
         let g = geometry(view, &p);
         let (color, opacity) = (view_colour(view, &p), sigmoid(p.opacity_logit));
-        let (thr, ex, ey) = support_lanes(g.conic, opacity);
-        for l in 0..8 {
+        let (thr, ex, ey) = support(g.conic, opacity);
+        for l in 0..(len - k0).min(8) {
             let k = k0 + l;
             let Some((xy, depth, r)) = cull(view, &g.lane(l)) else { continue };
             (out.means2d[k], out.depths[k], out.radii[k]) = (xy, depth, r);
@@ -198,15 +180,6 @@ fn project_chunk(splats: &Splats, view: &View, i0: usize, out: Slots) -> (Vec<u3
                 };
                 pk.push(pack(&s, ex.0[l], ey.0[l], thr.0[l]));
             }
-        }
-    }
-    for k in full..len {
-        let i = i0 + k;
-        let Some((s, r)) = project(view, &splats.params(i)) else { continue };
-        (out.means2d[k], out.depths[k], out.radii[k]) = (s.xy, s.depth, r);
-        if let Some((ex, ey, thr)) = support(&s) {
-            ids.push(i as u32);
-            pk.push(pack(&s, ex, ey, thr));
         }
     }
     (ids, pk)
@@ -395,6 +368,7 @@ fn radix_sort(v: &mut Vec<(u32, u32)>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::project::project;
     use transsplat_scene::{Camera, Gaussians};
 
     #[test]
@@ -433,10 +407,11 @@ mod tests {
                     continue;
                 };
                 assert_eq!((means2d[i], depths[i], radii[i]), (s.xy, s.depth, r), "Gaussian {i}");
-                let Some((ex, ey, thr)) = support(&s) else {
+                let (thr, ex, ey) = support(s.conic, s.opacity);
+                if !(thr > 0.0) {
                     faint += 1;
                     continue;
-                };
+                }
                 let (got, want) = (packed[want_ids.len()], pack(&s, ex, ey, thr));
                 let bits = |p: &Packed| {
                     [

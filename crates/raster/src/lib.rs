@@ -93,6 +93,7 @@ impl<'a> Splats<'a> {
         self.means.is_empty()
     }
 
+    #[inline(always)]
     fn params(&self, i: usize) -> GaussianParams<'a> {
         let k = sh_coeffs(self.sh_degree) * 3;
         GaussianParams {
@@ -102,6 +103,27 @@ impl<'a> Splats<'a> {
             opacity_logit: self.opacity_logits[i],
             sh: &self.sh[i * k..(i + 1) * k],
             active_degree: self.active_sh_degree.min(self.sh_degree),
+        }
+    }
+
+    /// Gaussians `idx` in the lanes of [`lanes::F8`] (lane `l` is [`Splats::params`] of
+    /// `idx[l]`), their active SH coefficients gathered into `sh`: the input of the
+    /// per-Gaussian passes that take eight at a time.
+    #[inline(always)]
+    fn params8<'s>(&self, idx: [usize; 8], sh: &'s mut [lanes::F8; 48]) -> GaussianParams<'s, lanes::F8> {
+        use lanes::F8;
+        let active_degree = self.active_sh_degree.min(self.sh_degree);
+        let (kc, nsh) = (sh_coeffs(self.sh_degree) * 3, sh_coeffs(active_degree) * 3);
+        for (t, v) in sh[..nsh].iter_mut().enumerate() {
+            *v = F8::from_fn(|l| self.sh[idx[l] * kc + t]);
+        }
+        GaussianParams {
+            mean: std::array::from_fn(|c| F8::from_fn(|l| self.means[idx[l]][c])),
+            log_scale: std::array::from_fn(|c| F8::from_fn(|l| self.log_scales[idx[l]][c])),
+            quat: std::array::from_fn(|c| F8::from_fn(|l| self.rotations[idx[l]][c])),
+            opacity_logit: F8::from_fn(|l| self.opacity_logits[idx[l]]),
+            sh: &sh[..nsh],
+            active_degree,
         }
     }
 }

@@ -5,7 +5,8 @@
 //! The projection's backward is some 1,500 instructions a Gaussian, so the reached
 //! Gaussians of a run of rows are taken eight at a time, one per lane of [`F8`]: the same
 //! operations in the same order per lane, so every Gaussian's gradients have the bits the
-//! one-at-a-time path gives (the remainder of a run goes one at a time). Rows are walked
+//! one-at-a-time `project_backward` gives (a run's last group of fewer than eight fills
+//! its spare lanes with a copy of its last Gaussian, whose results are dropped). Rows are walked
 //! in index order, so parameter reads and gradient writes stream; the accumulator row (in
 //! depth order) is the random read, fetched ahead with the SH rows. With the arithmetic
 //! eight-wide, the pass waits on memory about as long as it computes (docs/method.md
@@ -13,7 +14,7 @@
 
 use crate::kernel::{self, slot};
 use crate::lanes::F8;
-use crate::project::{project_backward, ClampGrad, GaussianParams, Splat2dGrads, View};
+use crate::project::{project_backward, ClampGrad, Splat2dGrads, View};
 use crate::Splats;
 use transsplat_scene::cpu::prefetch_bytes;
 
@@ -93,10 +94,7 @@ fn run_any(inp: &Inputs, mut run: Run) -> Vec<u32> {
             prefetch_bytes(gsh_at + k * kc * 4, kc * 4);
             prefetch_bytes(acc_at + run.at[k] as usize * inp.stride * 4, inp.stride * 4);
         }
-        match <&[u16; 8]>::try_from(group) {
-            Ok(group) => eight(inp, &mut run, group),
-            Err(_) => group.iter().for_each(|&k| one(inp, &mut run, k as usize)),
-        }
+        eight(inp, &mut run, group);
     }
     reached.iter().map(|&k| (run.first + k as usize) as u32).collect()
 }
@@ -108,101 +106,45 @@ fn acc_row<'a>(inp: &Inputs<'a>, run: &Run, k: usize) -> &'a [f32] {
     &inp.acc[j * inp.stride..(j + 1) * inp.stride]
 }
 
-/// The gradients of row `k` of `run` alone.
+/// The gradients of up to eight rows of `run` (`group`, local indices) at once, one per
+/// lane (a group of fewer repeats its last row in the spare lanes, whose results are
+/// dropped): the inputs gathered into lanes, each lane's results added to its row.
 #[inline(always)]
-fn one(inp: &Inputs, run: &mut Run, k: usize) {
-    let i = run.first + k;
-    let a = acc_row(inp, run, k);
-    let sg = kernel::splat_grads(a);
-    let mut vsh = [0.0f32; 48];
-    let p = inp.splats.params(i);
-    let nsh = crate::sh_coeffs(p.active_degree) * 3;
-    let gg = project_backward(inp.view, &p, &sg, &mut vsh[..nsh], inp.clamp);
-    let g = Grads1 { mean: gg.mean, log_scale: gg.log_scale, quat: gg.quat, opacity_logit: gg.opacity_logit };
-    add_row(inp, run, k, &g, &vsh[..nsh], a, sg.xy);
-}
-
-/// One Gaussian's gradients (a lane of the eight-wide result, or the scalar one).
-struct Grads1 {
-    mean: [f32; 3],
-    log_scale: [f32; 3],
-    quat: [f32; 4],
-    opacity_logit: f32,
-}
-
-/// Adds one Gaussian's gradients into row `k` of `run`: the parameters', the SH
-/// coefficients' (`vsh`, the active ones), the features' (from its accumulator row `a`)
-/// and the 2D mean's (`xy`, for the densification statistics).
-#[inline(always)]
-fn add_row(inp: &Inputs, run: &mut Run, k: usize, g: &Grads1, vsh: &[f32], a: &[f32], xy: [f32; 2]) {
-    let (kc, f) = (crate::sh_coeffs(inp.splats.sh_degree) * 3, inp.splats.num_features);
-    for c in 0..3 {
-        run.means[k][c] += g.mean[c];
-        run.log_scales[k][c] += g.log_scale[c];
-    }
-    for (r, q) in run.rotations[k].iter_mut().zip(g.quat) {
-        *r += q;
-    }
-    run.opacity_logits[k] += g.opacity_logit;
-    for (s, v) in run.sh[k * kc..(k + 1) * kc].iter_mut().zip(vsh) {
-        *s += v;
-    }
-    for (d, v) in run.features[k * f..(k + 1) * f].iter_mut().zip(&a[slot::FEATURES..]) {
-        *d += v;
-    }
-    run.means2d[k][0] += xy[0];
-    run.means2d[k][1] += xy[1];
-}
-
-/// The gradients of eight rows of `run` at once, one per lane: the inputs gathered into
-/// lanes, each lane's results added to its row as [`one`] adds them.
-#[inline(always)]
-fn eight(inp: &Inputs, run: &mut Run, group: &[u16; 8]) {
+fn eight(inp: &Inputs, run: &mut Run, group: &[u16]) {
     let s = inp.splats;
-    let active_degree = s.active_sh_degree.min(s.sh_degree);
-    let (kc, nsh) = (crate::sh_coeffs(s.sh_degree) * 3, crate::sh_coeffs(active_degree) * 3);
-    let mut a: [&[f32]; 8] = [&[]; 8];
-    let mut sg = Splat2dGrads::<F8>::default();
+    let rows: [usize; 8] = std::array::from_fn(|l| group[l.min(group.len() - 1)] as usize);
+    let a: [&[f32]; 8] = rows.map(|k| acc_row(inp, run, k));
+    let sg1: [Splat2dGrads; 8] = a.map(kernel::splat_grads);
+    let lanes = |f: fn(&Splat2dGrads) -> f32| F8::from_fn(|l| f(&sg1[l]));
+    let sg = Splat2dGrads {
+        xy: [lanes(|g| g.xy[0]), lanes(|g| g.xy[1])],
+        conic: [lanes(|g| g.conic[0]), lanes(|g| g.conic[1]), lanes(|g| g.conic[2])],
+        opacity: lanes(|g| g.opacity),
+        color: [lanes(|g| g.color[0]), lanes(|g| g.color[1]), lanes(|g| g.color[2])],
+        depth: lanes(|g| g.depth),
+    };
     let mut sh = [F8::default(); 48];
-    let (mut mean, mut log_scale, mut quat, mut opacity_logit) =
-        ([F8::default(); 3], [F8::default(); 3], [F8::default(); 4], F8::default());
-    for l in 0..8 {
-        let i = run.first + group[l] as usize;
-        let r = acc_row(inp, run, group[l] as usize);
-        a[l] = r;
-        sg.xy[0].0[l] = r[slot::XY];
-        sg.xy[1].0[l] = r[slot::XY + 1];
-        for c in 0..3 {
-            sg.conic[c].0[l] = r[slot::CONIC + c];
-            sg.color[c].0[l] = r[slot::COLOR + c];
-            mean[c].0[l] = s.means[i][c];
-            log_scale[c].0[l] = s.log_scales[i][c];
-        }
-        sg.opacity.0[l] = r[slot::OPACITY];
-        sg.depth.0[l] = r[slot::DEPTH];
-        for c in 0..4 {
-            quat[c].0[l] = s.rotations[i][c];
-        }
-        opacity_logit.0[l] = s.opacity_logits[i];
-        for (t, v) in s.sh[i * kc..i * kc + nsh].iter().enumerate() {
-            sh[t].0[l] = *v;
-        }
-    }
-    let p = GaussianParams { mean, log_scale, quat, opacity_logit, sh: &sh[..nsh], active_degree };
+    let p = s.params8(rows.map(|k| run.first + k), &mut sh);
+    let nsh = p.sh.len();
     let mut vsh = [F8::default(); 48];
     let gg = project_backward(inp.view, &p, &sg, &mut vsh[..nsh], inp.clamp);
-    for l in 0..8 {
-        let g = Grads1 {
-            mean: gg.mean.map(|v| v.0[l]),
-            log_scale: gg.log_scale.map(|v| v.0[l]),
-            quat: gg.quat.map(|v| v.0[l]),
-            opacity_logit: gg.opacity_logit.0[l],
-        };
-        let mut vsh1 = [0.0f32; 48];
-        for (d, v) in vsh1[..nsh].iter_mut().zip(&vsh) {
-            *d = v.0[l];
+    let (kc, f) = (crate::sh_coeffs(s.sh_degree) * 3, s.num_features);
+    for (l, &k) in rows.iter().enumerate().take(group.len()) {
+        for c in 0..3 {
+            run.means[k][c] += gg.mean[c].0[l];
+            run.log_scales[k][c] += gg.log_scale[c].0[l];
         }
-        let xy = [sg.xy[0].0[l], sg.xy[1].0[l]];
-        add_row(inp, run, group[l] as usize, &g, &vsh1[..nsh], a[l], xy);
+        for c in 0..4 {
+            run.rotations[k][c] += gg.quat[c].0[l];
+        }
+        run.opacity_logits[k] += gg.opacity_logit.0[l];
+        for (d, v) in run.sh[k * kc..k * kc + nsh].iter_mut().zip(&vsh) {
+            *d += v.0[l];
+        }
+        for (d, v) in run.features[k * f..(k + 1) * f].iter_mut().zip(&a[l][slot::FEATURES..]) {
+            *d += v;
+        }
+        run.means2d[k][0] += sg1[l].xy[0];
+        run.means2d[k][1] += sg1[l].xy[1];
     }
 }

@@ -371,7 +371,8 @@ impl Trainer {
     ///
     /// `rows`, when known, lists (ascending) every row where `grads` may be non-zero (what
     /// the backward passes returned): Adam then visits only those (selective) or those
-    /// and the rows whose moments are live (dense).
+    /// and the rows whose moments are live (dense, where few rows are; otherwise it
+    /// reads every row in order, which is faster there and gives the same bits).
     pub fn finish_step(
         &mut self,
         grads: &Grads,
