@@ -459,9 +459,21 @@ impl Hyper {
     /// same bits.
     #[inline(always)]
     pub fn update(&self, p: &mut f32, m: &mut f32, v: &mut f32, g: f32) {
+        self.update_at(self.step_size, self.sqrt_bc2, p, m, v, g);
+    }
+
+    /// Whether `o` has the same β and eps (so [`Hyper::update_at`] of one serves the other).
+    fn same_betas(&self, o: &Hyper) -> bool {
+        (self.b1, self.b2, self.eps) == (o.b1, o.b2, o.eps)
+    }
+
+    /// [`Hyper::update`] with the step size and bias correction given (those of another
+    /// group with the same β and eps, [`update_shared_rows`]).
+    #[inline(always)]
+    fn update_at(&self, step_size: f32, sqrt_bc2: f32, p: &mut f32, m: &mut f32, v: &mut f32, g: f32) {
         *m = self.b1 * *m + (1.0 - self.b1) * g;
         *v = self.b2 * *v + (1.0 - self.b2) * g * g;
-        *p -= self.step_size * *m / (v.sqrt() / self.sqrt_bc2 + self.eps);
+        *p -= step_size * *m / (v.sqrt() / sqrt_bc2 + self.eps);
     }
 }
 
@@ -575,6 +587,18 @@ fn update_block(p: &mut [f32], g: &[f32], parts: Vec<Part>, rule: Rule) -> Vec<u
             if listed.is_some_and(|l| idle(l) && mos.iter().all(|(_, _, live)| idle(live))) {
                 return 0;
             }
+            if !selective && mos.iter().all(|(_, _, live)| live.iter().all(|&l| l)) {
+                if let ([(b, h)], [(m, v, live)]) = (&heads[..], &mut mos[..]) {
+                    if b.w == row {
+                        return u32::from(update_whole_rows(p, g, m, v, live, row, h));
+                    }
+                }
+                if let ([(b0, h0), (b1, h1)], [dc, rest]) = (&heads[..], &mut mos[..]) {
+                    if b0.off == 0 && b1.off == b0.w && b0.w + b1.w == row && row <= SHARED_MAX && h0.same_betas(h1) {
+                        return update_shared_rows(p, g, [dc, rest], [(*b0, h0), (*b1, h1)]);
+                    }
+                }
+            }
             let mut bad = 0u32;
             for r in 0..rows {
                 let (pr, gr) = (&mut p[r * row..(r + 1) * row], &g[r * row..(r + 1) * row]);
@@ -597,6 +621,141 @@ fn update_block(p: &mut [f32], g: &[f32], parts: Vec<Part>, rule: Rule) -> Vec<u
         })
         .reduce(|| 0, |a, b| a | b);
     (0..heads.len()).map(|k| (verdicts >> (2 * k)) as u8 & (BAD_GRAD | BAD_PARAM)).collect()
+}
+
+/// [`update_row`] over a chunk of whole rows of `w` values (a group that owns its
+/// parameter array) when every row is updated (dense, every row live): one elementwise
+/// pass over the chunk, so the arithmetic fills the vector lanes whatever the row width
+/// (rows of 1, 3 or 4 values otherwise leave most lanes idle, and Adam waited on its
+/// square roots and divisions: at 1M Gaussians, 256², it took 51 ms of which this saves
+/// 17), then the rows' live flags and, only if a value went non-finite, the rows'
+/// verdicts. The same arithmetic per value as [`update_row`], so the same bits.
+fn update_whole_rows(
+    p: &mut [f32],
+    g: &[f32],
+    m: &mut [f32],
+    v: &mut [f32],
+    live: &mut [bool],
+    w: usize,
+    h: &Hyper,
+) -> u8 {
+    let len = live.len() * w;
+    let (m, v) = (&mut m[..len], &mut v[..len]);
+    let finite = update_elementwise(&mut p[..len], &g[..len], m, v, h);
+    for (l, (mr, vr)) in live.iter_mut().zip(m.chunks(w).zip(v.chunks(w))) {
+        *l = mr.iter().chain(vr).any(|&x| x != 0.0);
+    }
+    if finite {
+        return 0;
+    }
+    let mut bad = 0;
+    for (pr, gr) in p.chunks(w).zip(g.chunks(w)) {
+        if pr.iter().any(|x| !x.is_finite()) {
+            bad |= if gr.iter().any(|x| !x.is_finite()) { BAD_GRAD } else { BAD_PARAM };
+        }
+    }
+    bad
+}
+
+/// The widest row [`update_shared_rows`] takes (SH degree 3: 48 values).
+const SHARED_MAX: usize = 48;
+
+/// [`update_row`] over every row of a chunk for two groups sharing its rows (the SH DC
+/// and rest: columns `0..w₀` and `w₀..row`) when every row of both is updated (dense,
+/// every row live): each row's moments of both groups are put side by side, so the row is
+/// one elementwise pass in full vector lanes with each column's own step size and bias
+/// correction (the DC's three values and the rest's last few otherwise each take a
+/// scalar square root and division). The same arithmetic per value as [`update_row`], so
+/// the same bits. Verdicts two bits a group, as [`update_chunk`].
+fn update_shared_rows(p: &mut [f32], g: &[f32], mos: [&mut (&mut [f32], &mut [f32], &mut [bool]); 2], heads: [(Block, &Hyper); 2]) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    if transsplat_scene::cpu::has_avx2() {
+        // SAFETY: the CPU has AVX2 and FMA (checked above).
+        return unsafe { update_shared_rows_avx2(p, g, mos, heads) };
+    }
+    update_shared_rows_any(p, g, mos, heads)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn update_shared_rows_avx2(p: &mut [f32], g: &[f32], mos: [&mut (&mut [f32], &mut [f32], &mut [bool]); 2], heads: [(Block, &Hyper); 2]) -> u32 {
+    update_shared_rows_any(p, g, mos, heads)
+}
+
+#[inline(always)]
+fn update_shared_rows_any(p: &mut [f32], g: &[f32], mos: [&mut (&mut [f32], &mut [f32], &mut [bool]); 2], heads: [(Block, &Hyper); 2]) -> u32 {
+    let [(b0, h0), (b1, h1)] = heads;
+    let (w0, row) = (b0.w, b0.w + b1.w);
+    let [(m0, v0, l0), (m1, v1, l1)] = mos.map(|(m, v, l)| (&mut **m, &mut **v, &mut **l));
+    let mut step = [0.0f32; SHARED_MAX];
+    let mut bc = [0.0f32; SHARED_MAX];
+    for k in 0..row {
+        let h = if k < w0 { h0 } else { h1 };
+        (step[k], bc[k]) = (h.step_size, h.sqrt_bc2);
+    }
+    let mut bad = 0u32;
+    for r in 0..l0.len() {
+        let (pr, gr) = (&mut p[r * row..(r + 1) * row], &g[r * row..(r + 1) * row]);
+        let (m0r, v0r) = (&mut m0[r * w0..(r + 1) * w0], &mut v0[r * w0..(r + 1) * w0]);
+        let (m1r, v1r) = (&mut m1[r * b1.w..(r + 1) * b1.w], &mut v1[r * b1.w..(r + 1) * b1.w]);
+        let mut m = [0.0f32; SHARED_MAX];
+        let mut v = [0.0f32; SHARED_MAX];
+        m[..w0].copy_from_slice(m0r);
+        m[w0..row].copy_from_slice(m1r);
+        v[..w0].copy_from_slice(v0r);
+        v[w0..row].copy_from_slice(v1r);
+        let mut finite = true;
+        for k in 0..row {
+            h0.update_at(step[k], bc[k], &mut pr[k], &mut m[k], &mut v[k], gr[k]);
+            finite &= pr[k].is_finite();
+        }
+        m0r.copy_from_slice(&m[..w0]);
+        m1r.copy_from_slice(&m[w0..row]);
+        v0r.copy_from_slice(&v[..w0]);
+        v1r.copy_from_slice(&v[w0..row]);
+        let nonzero = |a: &[f32], b: &[f32]| a.iter().chain(b).any(|&x| x != 0.0);
+        l0[r] = nonzero(&m[..w0], &v[..w0]);
+        l1[r] = nonzero(&m[w0..row], &v[w0..row]);
+        if !finite {
+            for (k, cols) in [(0, 0..w0), (1, w0..row)] {
+                if pr[cols.clone()].iter().any(|x| !x.is_finite()) {
+                    let kind = if gr[cols].iter().any(|x| !x.is_finite()) { BAD_GRAD } else { BAD_PARAM };
+                    bad |= u32::from(kind) << (2 * k);
+                }
+            }
+        }
+    }
+    bad
+}
+
+/// [`Hyper::update`] of every value (`p`, `m`, `v`, `g` of the same length), compiled for
+/// AVX2 where the CPU has it (the same bits: no fused operations are formed); whether
+/// every updated `p` is finite.
+fn update_elementwise(p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32], h: &Hyper) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if transsplat_scene::cpu::has_avx2() {
+        // SAFETY: the CPU has AVX2 and FMA (checked above).
+        return unsafe { update_elementwise_avx2(p, g, m, v, h) };
+    }
+    update_elementwise_any(p, g, m, v, h)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn update_elementwise_avx2(p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32], h: &Hyper) -> bool {
+    update_elementwise_any(p, g, m, v, h)
+}
+
+#[inline(always)]
+fn update_elementwise_any(p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32], h: &Hyper) -> bool {
+    let len = p.len();
+    let (g, m, v) = (&g[..len], &mut m[..len], &mut v[..len]);
+    let mut finite = true;
+    for i in 0..len {
+        h.update(&mut p[i], &mut m[i], &mut v[i], g[i]);
+        finite &= p[i].is_finite();
+    }
+    finite
 }
 
 /// Selective [`update_row`] over the listed rows only (ascending), in
