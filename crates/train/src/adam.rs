@@ -594,7 +594,12 @@ fn update_block(p: &mut [f32], g: &[f32], parts: Vec<Part>, rule: Rule) -> Vec<u
                     }
                 }
                 if let ([(b0, h0), (b1, h1)], [dc, rest]) = (&heads[..], &mut mos[..]) {
-                    if b0.off == 0 && b1.off == b0.w && b0.w + b1.w == row && row <= SHARED_MAX && h0.same_betas(h1) {
+                    if b0.off == 0
+                        && b1.off == b0.w
+                        && b0.w + b1.w == row
+                        && row <= SHARED_MAX
+                        && h0.same_betas(h1)
+                    {
                         return update_shared_rows(p, g, [dc, rest], [(*b0, h0), (*b1, h1)]);
                     }
                 }
@@ -667,7 +672,12 @@ const SHARED_MAX: usize = 48;
 /// correction (the DC's three values and the rest's last few otherwise each take a
 /// scalar square root and division). The same arithmetic per value as [`update_row`], so
 /// the same bits. Verdicts two bits a group, as [`update_chunk`].
-fn update_shared_rows(p: &mut [f32], g: &[f32], mos: [&mut (&mut [f32], &mut [f32], &mut [bool]); 2], heads: [(Block, &Hyper); 2]) -> u32 {
+fn update_shared_rows(
+    p: &mut [f32],
+    g: &[f32],
+    mos: [&mut (&mut [f32], &mut [f32], &mut [bool]); 2],
+    heads: [(Block, &Hyper); 2],
+) -> u32 {
     #[cfg(target_arch = "x86_64")]
     if transsplat_scene::cpu::has_avx2() {
         // SAFETY: the CPU has AVX2 and FMA (checked above).
@@ -678,12 +688,22 @@ fn update_shared_rows(p: &mut [f32], g: &[f32], mos: [&mut (&mut [f32], &mut [f3
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn update_shared_rows_avx2(p: &mut [f32], g: &[f32], mos: [&mut (&mut [f32], &mut [f32], &mut [bool]); 2], heads: [(Block, &Hyper); 2]) -> u32 {
+fn update_shared_rows_avx2(
+    p: &mut [f32],
+    g: &[f32],
+    mos: [&mut (&mut [f32], &mut [f32], &mut [bool]); 2],
+    heads: [(Block, &Hyper); 2],
+) -> u32 {
     update_shared_rows_any(p, g, mos, heads)
 }
 
 #[inline(always)]
-fn update_shared_rows_any(p: &mut [f32], g: &[f32], mos: [&mut (&mut [f32], &mut [f32], &mut [bool]); 2], heads: [(Block, &Hyper); 2]) -> u32 {
+fn update_shared_rows_any(
+    p: &mut [f32],
+    g: &[f32],
+    mos: [&mut (&mut [f32], &mut [f32], &mut [bool]); 2],
+    heads: [(Block, &Hyper); 2],
+) -> u32 {
     let [(b0, h0), (b1, h1)] = heads;
     let (w0, row) = (b0.w, b0.w + b1.w);
     let [(m0, v0, l0), (m1, v1, l1)] = mos.map(|(m, v, l)| (&mut **m, &mut **v, &mut **l));
@@ -989,6 +1009,87 @@ mod tests {
             g.features[r * 2..(r + 1) * 2].iter_mut().enumerate().for_each(|(k, v)| *v = x(23 + k));
         }
         g
+    }
+
+    #[test]
+    fn dense_steps_over_live_rows_have_the_bits_of_the_formula_per_value() {
+        // 3000 Gaussians (a chunk of 2048 rows and a partial one), every row reached at
+        // every step but the second (rows ≡ 2 mod 5 get no gradient then, yet stay live):
+        // from step 2 on each chunk takes the elementwise paths (whole rows; the SH DC and
+        // rest side by side). Oracle: the update formula applied value by value.
+        let n = 3000;
+        let lr = [1e-3, 2e-3, 1e-4, 0.05, 5e-3, 1e-3, 2e-3];
+        let mut model = varied_model(n);
+        let mut adam = Adam::new(&model);
+        // (group, flattened parameters, row width, first column)
+        let flat = |m: &Model| -> Vec<(Group, Vec<f32>, usize, usize)> {
+            let g = &m.gaussians;
+            vec![
+                (Group::Position, g.means.as_flattened().to_vec(), 3, 0),
+                (Group::ShDc, g.sh.clone(), 12, 0),
+                (Group::ShRest, g.sh.clone(), 12, 3),
+                (Group::Opacity, g.opacity_logits.clone(), 1, 0),
+                (Group::Scaling, g.log_scales.as_flattened().to_vec(), 3, 0),
+                (Group::Rotation, g.rotations.as_flattened().to_vec(), 4, 0),
+                (Group::Features, m.features.clone(), 2, 0),
+            ]
+        };
+        let mut want = flat(&model);
+        let mut moments: Vec<(Vec<f32>, Vec<f32>)> = want
+            .iter()
+            .map(|(gr, ..)| (vec![0.0; n * gr.width(&model)], vec![0.0; n * gr.width(&model)]))
+            .collect();
+        let all: Vec<u32> = (0..n as u32).collect();
+        let some: Vec<u32> = (0..n as u32).filter(|i| i % 5 != 2).collect();
+        for t in 1..=4u64 {
+            let grads = grads_on(n, if t == 2 { &some } else { &all }, t);
+            assert!(adam.step(&mut model, &grads, &lr, Update::Dense(None)).is_none());
+            let gflat = flat(&Model {
+                gaussians: Gaussians {
+                    means: grads.means.clone(),
+                    log_scales: grads.log_scales.clone(),
+                    rotations: grads.rotations.clone(),
+                    opacity_logits: grads.opacity_logits.clone(),
+                    sh: grads.sh.clone(),
+                    sh_degree: 1,
+                    ..Default::default()
+                },
+                features: grads.features.clone(),
+                ..model.clone()
+            });
+            for ((group, p, row, off), ((m, v), (_, g, ..))) in
+                want.iter_mut().zip(moments.iter_mut().zip(&gflat))
+            {
+                let w = group.width(&model);
+                let h = Hyper::at(lr[group.index()], (0.9, 0.999), 1e-15, t);
+                for i in 0..n {
+                    for c in 0..w {
+                        let (pi, mi) = (i * *row + *off + c, i * w + c);
+                        h.update(&mut p[pi], &mut m[mi], &mut v[mi], g[pi]);
+                    }
+                }
+            }
+            let bits = |x: &[f32]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            for ((group, p, row, off), ((m, v), (_, got, ..))) in
+                want.iter().zip(moments.iter().zip(flat(&model)))
+            {
+                let w = group.width(&model);
+                let cols = |x: &[f32]| -> Vec<f32> {
+                    x.chunks(*row).flat_map(|r| r[*off..*off + w].to_vec()).collect()
+                };
+                assert_eq!(bits(&cols(&got)), bits(&cols(p)), "{group:?} parameters, step {t}");
+                let st = &adam.groups[group.index()];
+                assert_eq!((bits(&st.m), bits(&st.v)), (bits(m), bits(v)), "{group:?} moments, step {t}");
+            }
+        }
+        // A non-finite gradient on live rows is named as in the per-row path.
+        let mut grads = grads_on(n, &all, 5);
+        grads.opacity_logits[2500] = f32::INFINITY;
+        let got = adam.step(&mut model, &grads, &lr, Update::Dense(None));
+        assert_eq!(got, Some(NonFinite::Gradient(Group::Opacity)));
+        grads.sh[100 * 12 + 7] = f32::NAN;
+        let got = adam.step(&mut model, &grads, &lr, Update::Dense(None));
+        assert_eq!(got, Some(NonFinite::Gradient(Group::ShRest)), "the SH rest comes first in state order");
     }
 
     #[test]
