@@ -566,8 +566,7 @@ fn update_block(p: &mut [f32], g: &[f32], parts: Vec<Part>, rule: Rule) -> Vec<u
     let chunks = (p.len() / row).div_ceil(ROWS);
     let heads: Vec<(Block, Hyper)> = parts.iter().map(|part| (part.b, part.h)).collect();
     // Each chunk's moments, part by part.
-    type Chunk<'a> = Vec<(&'a mut [f32], &'a mut [f32], &'a mut [bool])>;
-    let mut moments: Vec<Chunk> = (0..chunks).map(|_| Vec::with_capacity(parts.len())).collect();
+    let mut moments: Vec<ChunkMoments> = (0..chunks).map(|_| Vec::with_capacity(parts.len())).collect();
     for Part { b, mo, .. } in parts {
         let pieces =
             mo.m.chunks_mut(b.w * ROWS).zip(mo.v.chunks_mut(b.w * ROWS)).zip(mo.live.chunks_mut(ROWS));
@@ -587,21 +586,9 @@ fn update_block(p: &mut [f32], g: &[f32], parts: Vec<Part>, rule: Rule) -> Vec<u
             if listed.is_some_and(|l| idle(l) && mos.iter().all(|(_, _, live)| idle(live))) {
                 return 0;
             }
-            if !selective && mos.iter().all(|(_, _, live)| live.iter().all(|&l| l)) {
-                if let ([(b, h)], [(m, v, live)]) = (&heads[..], &mut mos[..]) {
-                    if b.w == row {
-                        return u32::from(update_whole_rows(p, g, m, v, live, row, h));
-                    }
-                }
-                if let ([(b0, h0), (b1, h1)], [dc, rest]) = (&heads[..], &mut mos[..]) {
-                    if b0.off == 0
-                        && b1.off == b0.w
-                        && b0.w + b1.w == row
-                        && row <= SHARED_MAX
-                        && h0.same_betas(h1)
-                    {
-                        return update_shared_rows(p, g, [dc, rest], [(*b0, h0), (*b1, h1)]);
-                    }
+            if !selective {
+                if let Some(bad) = update_all_live(p, g, &mut mos, &heads) {
+                    return bad;
                 }
             }
             let mut bad = 0u32;
@@ -626,6 +613,42 @@ fn update_block(p: &mut [f32], g: &[f32], parts: Vec<Part>, rule: Rule) -> Vec<u
         })
         .reduce(|| 0, |a, b| a | b);
     (0..heads.len()).map(|k| (verdicts >> (2 * k)) as u8 & (BAD_GRAD | BAD_PARAM)).collect()
+}
+
+/// One part's moments (`m`, `v`, live flags) over a chunk of rows.
+type PartMoments<'a> = (&'a mut [f32], &'a mut [f32], &'a mut [bool]);
+
+/// Each part's moments over one chunk of rows.
+type ChunkMoments<'a> = Vec<PartMoments<'a>>;
+
+/// A dense chunk's update when every row of every part is live, so every row is updated:
+/// in full vector lanes ([`update_whole_rows`] for a group that owns its array,
+/// [`update_shared_rows`] for the SH DC and rest); `None` where neither applies. Verdicts
+/// two bits a part.
+fn update_all_live(
+    p: &mut [f32],
+    g: &[f32],
+    mos: &mut ChunkMoments,
+    heads: &[(Block, Hyper)],
+) -> Option<u32> {
+    if !mos.iter().all(|(_, _, live)| live.iter().all(|&l| l)) {
+        return None;
+    }
+    match (heads, &mut mos[..]) {
+        ([(b, h)], [(m, v, live)]) if b.w == b.row => {
+            Some(u32::from(update_whole_rows(p, g, m, v, live, b.w, h)))
+        }
+        ([(b0, h0), (b1, h1)], [dc, rest])
+            if b0.off == 0
+                && b1.off == b0.w
+                && b0.w + b1.w == b0.row
+                && b0.row <= SHARED_MAX
+                && h0.same_betas(h1) =>
+        {
+            Some(update_shared_rows(p, g, [dc, rest], [(*b0, h0), (*b1, h1)]))
+        }
+        _ => None,
+    }
 }
 
 /// [`update_row`] over a chunk of whole rows of `w` values (a group that owns its
@@ -675,7 +698,7 @@ const SHARED_MAX: usize = 48;
 fn update_shared_rows(
     p: &mut [f32],
     g: &[f32],
-    mos: [&mut (&mut [f32], &mut [f32], &mut [bool]); 2],
+    mos: [&mut PartMoments; 2],
     heads: [(Block, &Hyper); 2],
 ) -> u32 {
     #[cfg(target_arch = "x86_64")]
@@ -691,7 +714,7 @@ fn update_shared_rows(
 fn update_shared_rows_avx2(
     p: &mut [f32],
     g: &[f32],
-    mos: [&mut (&mut [f32], &mut [f32], &mut [bool]); 2],
+    mos: [&mut PartMoments; 2],
     heads: [(Block, &Hyper); 2],
 ) -> u32 {
     update_shared_rows_any(p, g, mos, heads)
@@ -701,7 +724,7 @@ fn update_shared_rows_avx2(
 fn update_shared_rows_any(
     p: &mut [f32],
     g: &[f32],
-    mos: [&mut (&mut [f32], &mut [f32], &mut [bool]); 2],
+    mos: [&mut PartMoments; 2],
     heads: [(Block, &Hyper); 2],
 ) -> u32 {
     let [(b0, h0), (b1, h1)] = heads;
