@@ -694,7 +694,7 @@ const SHARED_MAX: usize = 48;
 /// one elementwise pass in full vector lanes with each column's own step size and bias
 /// correction (the DC's three values and the rest's last few otherwise each take a
 /// scalar square root and division). The same arithmetic per value as [`update_row`], so
-/// the same bits. Verdicts two bits a group, as [`update_chunk`].
+/// the same bits. Verdicts two bits a group, as in [`update_block`].
 fn update_shared_rows(
     p: &mut [f32],
     g: &[f32],
