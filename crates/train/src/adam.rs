@@ -462,13 +462,8 @@ impl Hyper {
         self.update_at(self.step_size, self.sqrt_bc2, p, m, v, g);
     }
 
-    /// Whether `o` has the same β and eps (so [`Hyper::update_at`] of one serves the other).
-    fn same_betas(&self, o: &Hyper) -> bool {
-        (self.b1, self.b2, self.eps) == (o.b1, o.b2, o.eps)
-    }
-
-    /// [`Hyper::update`] with the step size and bias correction given (those of another
-    /// group with the same β and eps, [`update_shared_rows`]).
+    /// [`Hyper::update`] with the step size and bias correction given (another group's:
+    /// β and eps are Adam's, the same in every group; [`update_shared_rows`]).
     #[inline(always)]
     fn update_at(&self, step_size: f32, sqrt_bc2: f32, p: &mut f32, m: &mut f32, v: &mut f32, g: f32) {
         *m = self.b1 * *m + (1.0 - self.b1) * g;
@@ -535,11 +530,27 @@ fn update_row(p: &mut [f32], g: &[f32], mo: Moments, b: Block, selective: bool, 
         nonzero |= (m[k] != 0.0) | (v[k] != 0.0);
     }
     *live = nonzero;
-    match bad {
-        false => 0,
-        true if g.iter().any(|x| !x.is_finite()) => BAD_GRAD,
-        true => BAD_PARAM,
+    if bad {
+        non_finite_kind(g)
+    } else {
+        0
     }
+}
+
+/// The verdict on a row whose updated values are not all finite: [`BAD_GRAD`] when its
+/// gradient `g` has a NaN or infinite value (which always makes an updated value NaN),
+/// else [`BAD_PARAM`].
+fn non_finite_kind(g: &[f32]) -> u8 {
+    if g.iter().any(|x| !x.is_finite()) {
+        BAD_GRAD
+    } else {
+        BAD_PARAM
+    }
+}
+
+/// Whether a row's moments hold a non-zero value ([`GroupState::live`]).
+fn any_nonzero(m: &[f32], v: &[f32]) -> bool {
+    m.iter().chain(v).any(|&x| x != 0.0)
 }
 
 /// Which rows [`update_block`] moves: dense ([`Update::Dense`], with the rows whose
@@ -623,8 +634,9 @@ type ChunkMoments<'a> = Vec<PartMoments<'a>>;
 
 /// A dense chunk's update when every row of every part is live, so every row is updated:
 /// in full vector lanes ([`update_whole_rows`] for a group that owns its array,
-/// [`update_shared_rows`] for the SH DC and rest); `None` where neither applies. Verdicts
-/// two bits a part.
+/// [`update_shared_rows`] for the SH DC and rest), compiled for AVX2 where the CPU has it
+/// (the same bits: no fused operations are formed); `None` where neither applies.
+/// Verdicts two bits a part, as in [`update_block`].
 fn update_all_live(
     p: &mut [f32],
     g: &[f32],
@@ -634,16 +646,38 @@ fn update_all_live(
     if !mos.iter().all(|(_, _, live)| live.iter().all(|&l| l)) {
         return None;
     }
+    #[cfg(target_arch = "x86_64")]
+    if transsplat_scene::cpu::has_avx2() {
+        // SAFETY: the CPU has AVX2 and FMA (checked above).
+        return unsafe { update_all_live_avx2(p, g, mos, heads) };
+    }
+    update_all_live_any(p, g, mos, heads)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn update_all_live_avx2(
+    p: &mut [f32],
+    g: &[f32],
+    mos: &mut ChunkMoments,
+    heads: &[(Block, Hyper)],
+) -> Option<u32> {
+    update_all_live_any(p, g, mos, heads)
+}
+
+#[inline(always)]
+fn update_all_live_any(
+    p: &mut [f32],
+    g: &[f32],
+    mos: &mut ChunkMoments,
+    heads: &[(Block, Hyper)],
+) -> Option<u32> {
     match (heads, &mut mos[..]) {
         ([(b, h)], [(m, v, live)]) if b.w == b.row => {
             Some(u32::from(update_whole_rows(p, g, m, v, live, b.w, h)))
         }
         ([(b0, h0), (b1, h1)], [dc, rest])
-            if b0.off == 0
-                && b1.off == b0.w
-                && b0.w + b1.w == b0.row
-                && b0.row <= SHARED_MAX
-                && h0.same_betas(h1) =>
+            if b0.off == 0 && b1.off == b0.w && b0.w + b1.w == b0.row && b0.row <= SHARED_MAX =>
         {
             Some(update_shared_rows(p, g, [dc, rest], [(*b0, h0), (*b1, h1)]))
         }
@@ -652,12 +686,13 @@ fn update_all_live(
 }
 
 /// [`update_row`] over a chunk of whole rows of `w` values (a group that owns its
-/// parameter array) when every row is updated (dense, every row live): one elementwise
-/// pass over the chunk, so the arithmetic fills the vector lanes whatever the row width
-/// (rows of 1, 3 or 4 values otherwise leave most lanes idle, and Adam waited on its
-/// square roots and divisions: at 1M Gaussians, 256², it took 51 ms of which this saves
-/// 17), then the rows' live flags and, only if a value went non-finite, the rows'
-/// verdicts. The same arithmetic per value as [`update_row`], so the same bits.
+/// parameter array) when every row is updated: one elementwise pass over the chunk, so
+/// the arithmetic fills the vector lanes whatever the row width (rows of 1, 3 or 4 values
+/// otherwise leave most lanes idle, and Adam waited on its square roots and divisions:
+/// at 1M Gaussians, 256², Adam alone took 51 ms, 33–34 with this), then the rows' live
+/// flags and, only if a value went non-finite, the rows' verdicts. The same arithmetic
+/// per value as [`update_row`], so the same bits.
+#[inline(always)]
 fn update_whole_rows(
     p: &mut [f32],
     g: &[f32],
@@ -668,60 +703,34 @@ fn update_whole_rows(
     h: &Hyper,
 ) -> u8 {
     let len = live.len() * w;
-    let (m, v) = (&mut m[..len], &mut v[..len]);
-    let finite = update_elementwise(&mut p[..len], &g[..len], m, v, h);
+    let (p, g, m, v) = (&mut p[..len], &g[..len], &mut m[..len], &mut v[..len]);
+    let mut finite = true;
+    for i in 0..len {
+        h.update(&mut p[i], &mut m[i], &mut v[i], g[i]);
+        finite &= p[i].is_finite();
+    }
     for (l, (mr, vr)) in live.iter_mut().zip(m.chunks(w).zip(v.chunks(w))) {
-        *l = mr.iter().chain(vr).any(|&x| x != 0.0);
+        *l = any_nonzero(mr, vr);
     }
     if finite {
         return 0;
     }
-    let mut bad = 0;
-    for (pr, gr) in p.chunks(w).zip(g.chunks(w)) {
-        if pr.iter().any(|x| !x.is_finite()) {
-            bad |= if gr.iter().any(|x| !x.is_finite()) { BAD_GRAD } else { BAD_PARAM };
-        }
-    }
-    bad
+    let bad_rows = p.chunks(w).zip(g.chunks(w)).filter(|(pr, _)| pr.iter().any(|x| !x.is_finite()));
+    bad_rows.fold(0, |bad, (_, gr)| bad | non_finite_kind(gr))
 }
 
 /// The widest row [`update_shared_rows`] takes (SH degree 3: 48 values).
 const SHARED_MAX: usize = 48;
 
 /// [`update_row`] over every row of a chunk for two groups sharing its rows (the SH DC
-/// and rest: columns `0..w₀` and `w₀..row`) when every row of both is updated (dense,
-/// every row live): each row's moments of both groups are put side by side, so the row is
-/// one elementwise pass in full vector lanes with each column's own step size and bias
-/// correction (the DC's three values and the rest's last few otherwise each take a
-/// scalar square root and division). The same arithmetic per value as [`update_row`], so
-/// the same bits. Verdicts two bits a group, as in [`update_block`].
-fn update_shared_rows(
-    p: &mut [f32],
-    g: &[f32],
-    mos: [&mut PartMoments; 2],
-    heads: [(Block, &Hyper); 2],
-) -> u32 {
-    #[cfg(target_arch = "x86_64")]
-    if transsplat_scene::cpu::has_avx2() {
-        // SAFETY: the CPU has AVX2 and FMA (checked above).
-        return unsafe { update_shared_rows_avx2(p, g, mos, heads) };
-    }
-    update_shared_rows_any(p, g, mos, heads)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn update_shared_rows_avx2(
-    p: &mut [f32],
-    g: &[f32],
-    mos: [&mut PartMoments; 2],
-    heads: [(Block, &Hyper); 2],
-) -> u32 {
-    update_shared_rows_any(p, g, mos, heads)
-}
-
+/// and rest: columns `0..w₀` and `w₀..row`) when every row of both is updated: each row's
+/// moments of both groups are put side by side, so the row is one elementwise pass in
+/// full vector lanes with each column's own step size and bias correction (the DC's three
+/// values and the rest's last few otherwise each take a scalar square root and division;
+/// β and eps are Adam's, the same for every group). The same arithmetic per value as
+/// [`update_row`], so the same bits. Verdicts two bits a group, as in [`update_block`].
 #[inline(always)]
-fn update_shared_rows_any(
+fn update_shared_rows(
     p: &mut [f32],
     g: &[f32],
     mos: [&mut PartMoments; 2],
@@ -756,49 +765,17 @@ fn update_shared_rows_any(
         m1r.copy_from_slice(&m[w0..row]);
         v0r.copy_from_slice(&v[..w0]);
         v1r.copy_from_slice(&v[w0..row]);
-        let nonzero = |a: &[f32], b: &[f32]| a.iter().chain(b).any(|&x| x != 0.0);
-        l0[r] = nonzero(&m[..w0], &v[..w0]);
-        l1[r] = nonzero(&m[w0..row], &v[w0..row]);
+        l0[r] = any_nonzero(&m[..w0], &v[..w0]);
+        l1[r] = any_nonzero(&m[w0..row], &v[w0..row]);
         if !finite {
             for (k, cols) in [(0, 0..w0), (1, w0..row)] {
                 if pr[cols.clone()].iter().any(|x| !x.is_finite()) {
-                    let kind = if gr[cols].iter().any(|x| !x.is_finite()) { BAD_GRAD } else { BAD_PARAM };
-                    bad |= u32::from(kind) << (2 * k);
+                    bad |= u32::from(non_finite_kind(&gr[cols])) << (2 * k);
                 }
             }
         }
     }
     bad
-}
-
-/// [`Hyper::update`] of every value (`p`, `m`, `v`, `g` of the same length), compiled for
-/// AVX2 where the CPU has it (the same bits: no fused operations are formed); whether
-/// every updated `p` is finite.
-fn update_elementwise(p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32], h: &Hyper) -> bool {
-    #[cfg(target_arch = "x86_64")]
-    if transsplat_scene::cpu::has_avx2() {
-        // SAFETY: the CPU has AVX2 and FMA (checked above).
-        return unsafe { update_elementwise_avx2(p, g, m, v, h) };
-    }
-    update_elementwise_any(p, g, m, v, h)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn update_elementwise_avx2(p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32], h: &Hyper) -> bool {
-    update_elementwise_any(p, g, m, v, h)
-}
-
-#[inline(always)]
-fn update_elementwise_any(p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32], h: &Hyper) -> bool {
-    let len = p.len();
-    let (g, m, v) = (&g[..len], &mut m[..len], &mut v[..len]);
-    let mut finite = true;
-    for i in 0..len {
-        h.update(&mut p[i], &mut m[i], &mut v[i], g[i]);
-        finite &= p[i].is_finite();
-    }
-    finite
 }
 
 /// Selective [`update_row`] over the listed rows only (ascending), in
@@ -1044,20 +1021,25 @@ mod tests {
         let lr = [1e-3, 2e-3, 1e-4, 0.05, 5e-3, 1e-3, 2e-3];
         let mut model = varied_model(n);
         let mut adam = Adam::new(&model);
-        // (group, flattened parameters, row width, first column)
-        let flat = |m: &Model| -> Vec<(Group, Vec<f32>, usize, usize)> {
-            let g = &m.gaussians;
+        // (group, flattened array, row width, first column) of a model's parameters or
+        // of gradients: the arrays in Group order.
+        type Arrays<'a> = (&'a [[f32; 3]], &'a [f32], &'a [f32], &'a [[f32; 3]], &'a [[f32; 4]], &'a [f32]);
+        let flat = |(means, sh, op, ls, rot, ft): Arrays| -> Vec<(Group, Vec<f32>, usize, usize)> {
             vec![
-                (Group::Position, g.means.as_flattened().to_vec(), 3, 0),
-                (Group::ShDc, g.sh.clone(), 12, 0),
-                (Group::ShRest, g.sh.clone(), 12, 3),
-                (Group::Opacity, g.opacity_logits.clone(), 1, 0),
-                (Group::Scaling, g.log_scales.as_flattened().to_vec(), 3, 0),
-                (Group::Rotation, g.rotations.as_flattened().to_vec(), 4, 0),
-                (Group::Features, m.features.clone(), 2, 0),
+                (Group::Position, means.as_flattened().to_vec(), 3, 0),
+                (Group::ShDc, sh.to_vec(), 12, 0),
+                (Group::ShRest, sh.to_vec(), 12, 3),
+                (Group::Opacity, op.to_vec(), 1, 0),
+                (Group::Scaling, ls.as_flattened().to_vec(), 3, 0),
+                (Group::Rotation, rot.as_flattened().to_vec(), 4, 0),
+                (Group::Features, ft.to_vec(), 2, 0),
             ]
         };
-        let mut want = flat(&model);
+        let of_model = |m: &Model| {
+            let g = &m.gaussians;
+            flat((&g.means, &g.sh, &g.opacity_logits, &g.log_scales, &g.rotations, &m.features))
+        };
+        let mut want = of_model(&model);
         let mut moments: Vec<(Vec<f32>, Vec<f32>)> = want
             .iter()
             .map(|(gr, ..)| (vec![0.0; n * gr.width(&model)], vec![0.0; n * gr.width(&model)]))
@@ -1067,19 +1049,8 @@ mod tests {
         for t in 1..=4u64 {
             let grads = grads_on(n, if t == 2 { &some } else { &all }, t);
             assert!(adam.step(&mut model, &grads, &lr, Update::Dense(None)).is_none());
-            let gflat = flat(&Model {
-                gaussians: Gaussians {
-                    means: grads.means.clone(),
-                    log_scales: grads.log_scales.clone(),
-                    rotations: grads.rotations.clone(),
-                    opacity_logits: grads.opacity_logits.clone(),
-                    sh: grads.sh.clone(),
-                    sh_degree: 1,
-                    ..Default::default()
-                },
-                features: grads.features.clone(),
-                ..model.clone()
-            });
+            let g = &grads;
+            let gflat = flat((&g.means, &g.sh, &g.opacity_logits, &g.log_scales, &g.rotations, &g.features));
             for ((group, p, row, off), ((m, v), (_, g, ..))) in
                 want.iter_mut().zip(moments.iter_mut().zip(&gflat))
             {
@@ -1094,7 +1065,7 @@ mod tests {
             }
             let bits = |x: &[f32]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
             for ((group, p, row, off), ((m, v), (_, got, ..))) in
-                want.iter().zip(moments.iter().zip(flat(&model)))
+                want.iter().zip(moments.iter().zip(of_model(&model)))
             {
                 let w = group.width(&model);
                 let cols = |x: &[f32]| -> Vec<f32> {
