@@ -46,6 +46,46 @@ fn halves(s: &Packed, dy: f32, x0: usize) -> (usize, usize) {
     (lo, hi)
 }
 
+/// The halves `[h0, h1)` of a tile row that the splat's box `x ± ex` reaches, padded as
+/// [`halves`] is. Every half [`halves`] returns for a row of the box lies in this range
+/// (the box is the ellipse σ ≤ thr's extent), so where the range is one half the rows
+/// need no solving: a half the ellipse misses on some row only gives pairs with
+/// α < 1/255, which the compositing rule skips, as it skips the other lanes of a half.
+#[inline(always)]
+fn box_halves(s: &Packed, x0: usize) -> (usize, usize) {
+    let lo = s.x - s.ex - 0.5 - x0 as f32 - 0.05;
+    let hi = s.x + s.ex - 0.5 - x0 as f32 + 0.05;
+    if !(hi >= 0.0 && lo <= (TILE - 1) as f32) {
+        return (0, 0);
+    }
+    let lo = lo.max(0.0) as usize / HALF;
+    let hi = (hi.min((TILE - 1) as f32) as usize) / HALF + 1;
+    (lo, hi)
+}
+
+/// The bits of [`forward_tile`]'s live mask for the halves `[h0, h1)` of every row.
+#[inline(always)]
+fn column_mask(h0: usize, h1: usize) -> u32 {
+    const FIRST: u32 = 0x5555_5555;
+    match (h0, h1) {
+        (0, 1) => FIRST,
+        (1, 2) => FIRST << 1,
+        (0, 2) => u32::MAX,
+        _ => 0,
+    }
+}
+
+/// The halves of the row at `dy` to evaluate, given the box's halves `[bh0, bh1)`:
+/// those alone where they are one half, else the row's own ([`halves`]).
+#[inline(always)]
+fn row_halves(s: &Packed, dy: f32, x0: usize, (bh0, bh1): (usize, usize)) -> (usize, usize) {
+    if bh1 - bh0 > 1 {
+        halves(s, dy, x0)
+    } else {
+        (bh0, bh1)
+    }
+}
+
 /// The bits of [`forward_tile`]'s live mask for tile rows `[r0, r1)` (both halves).
 #[inline(always)]
 fn half_mask(r0: usize, r1: usize) -> u32 {
@@ -161,7 +201,9 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
         prefetch(b, list, li + PREFETCH);
         let s = &b.splats[j as usize];
         let (r0, r1) = rows(s, y0, y1);
-        if live & half_mask(r0 - y0, r1 - y0) == 0 {
+        let bh = box_halves(s, x0);
+        let cols = column_mask(bh.0, bh.1);
+        if live & half_mask(r0 - y0, r1 - y0) & cols == 0 {
             continue;
         }
         let mut sums = [0.0f32; 3];
@@ -171,11 +213,11 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
         let lnext = li as u32 + 1;
         for py in r0..r1 {
             let r = py - y0;
-            if (live >> (2 * r)) & 3 == 0 {
+            if (live & cols) >> (2 * r) & 3 == 0 {
                 continue;
             }
             let dy = s.y - (py as f32 + 0.5);
-            let (h0, h1) = halves(s, dy, x0);
+            let (h0, h1) = row_halves(s, dy, x0, bh);
             let cdy = 0.5 * sc * dy * dy;
             let bdy = sb * dy;
             for h in h0..h1 {
@@ -324,8 +366,67 @@ pub fn splat_grads(row: &[f32]) -> Splat2dGrads {
     }
 }
 
+/// `rows[k][0] + rows[k][1] + … + rows[k][7]` for every k, added in that order, so each
+/// is `rows[k].iter().sum()` to the bit. With `AVX` (only in the AVX2 instance of a
+/// kernel) the eight rows are transposed in registers and their columns added, eight
+/// sums at once, instead of reducing each row across its lanes one by one.
 #[inline(always)]
-fn backward_tile_impl(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads, buf: &mut [f32]) {
+fn lane_sums<const AVX: bool>(rows: &[[f32; HALF]; HALF]) -> [f32; HALF] {
+    #[cfg(target_arch = "x86_64")]
+    if AVX {
+        // SAFETY: the AVX2 instance runs only where the CPU has AVX2.
+        return unsafe { transposed_sums(rows) };
+    }
+    std::array::from_fn(|k| rows[k].iter().sum())
+}
+
+/// [`lane_sums`] by an 8×8 transpose (unpack, shuffle, exchange of 128-bit halves).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+fn transposed_sums(rows: &[[f32; HALF]; HALF]) -> [f32; HALF] {
+    use std::arch::x86_64::*;
+    let mut r = [_mm256_setzero_ps(); HALF];
+    for k in 0..HALF {
+        // SAFETY: each row is 8 floats, read unaligned.
+        r[k] = unsafe { _mm256_loadu_ps(rows[k].as_ptr()) };
+    }
+    // Rows 2i and 2i+1 interleaved: t[2i] holds their columns 0, 1 | 4, 5, t[2i+1] 2, 3 | 6, 7.
+    let mut t = r;
+    for i in 0..HALF / 2 {
+        t[2 * i] = _mm256_unpacklo_ps(r[2 * i], r[2 * i + 1]);
+        t[2 * i + 1] = _mm256_unpackhi_ps(r[2 * i], r[2 * i + 1]);
+    }
+    // u[4q + c] holds column c of rows 4q..4q+4 in its low half, column c + 4 in its high.
+    let mut u = t;
+    for q in 0..2 {
+        let (t0, t1, t2, t3) = (t[4 * q], t[4 * q + 1], t[4 * q + 2], t[4 * q + 3]);
+        u[4 * q] = _mm256_shuffle_ps::<0x44>(t0, t2);
+        u[4 * q + 1] = _mm256_shuffle_ps::<0xEE>(t0, t2);
+        u[4 * q + 2] = _mm256_shuffle_ps::<0x44>(t1, t3);
+        u[4 * q + 3] = _mm256_shuffle_ps::<0xEE>(t1, t3);
+    }
+    // Column c of all eight rows, added in column order.
+    let mut s = _mm256_permute2f128_ps::<0x20>(u[0], u[4]);
+    for c in 1..4 {
+        s = _mm256_add_ps(s, _mm256_permute2f128_ps::<0x20>(u[c], u[4 + c]));
+    }
+    for c in 0..4 {
+        s = _mm256_add_ps(s, _mm256_permute2f128_ps::<0x31>(u[c], u[4 + c]));
+    }
+    let mut out = [0.0f32; HALF];
+    // SAFETY: `out` holds 8 floats.
+    unsafe { _mm256_storeu_ps(out.as_mut_ptr(), s) };
+    out
+}
+
+#[inline(always)]
+fn backward_tile_impl<const AVX: bool>(
+    b: &Binned,
+    tile: usize,
+    st: &ForwardState,
+    g: &PixelGrads,
+    buf: &mut [f32],
+) {
     let (x0, y0, x1, y1) = b.tile_rect(tile);
     let f = b.num_features;
     let stride = grad_stride(f);
@@ -393,6 +494,7 @@ fn backward_tile_impl(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads
         if row_last[r0 - y0..r1 - y0].iter().all(|&l| li32 >= l) {
             continue;
         }
+        let bh = box_halves(s, x0);
         let (sx, sa, sb, sc, so, sz) = (s.x, s.a, s.b, s.c, s.opacity, s.depth);
         let [cr, cg, cb] = s.color;
         let mut gx = [0.0f32; HALF];
@@ -412,7 +514,7 @@ fn backward_tile_impl(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads
                 continue;
             }
             let dy = s.y - (py as f32 + 0.5);
-            let (h0, h1) = halves(s, dy, x0);
+            let (h0, h1) = row_halves(s, dy, x0, bh);
             for h in h0..h1 {
                 if li32 >= half_last[r][h] {
                     continue;
@@ -509,16 +611,14 @@ fn backward_tile_impl(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads
             continue;
         }
         let dst = &mut buf[j * stride..(j + 1) * stride];
-        let sum = |a: &[f32; HALF]| a.iter().sum::<f32>();
-        dst[slot::XY] += sum(&gx);
-        dst[slot::XY + 1] += sum(&gy);
-        dst[slot::CONIC] += sum(&ga);
-        dst[slot::CONIC + 1] += sum(&gb);
-        dst[slot::CONIC + 2] += sum(&gc);
-        dst[slot::OPACITY] += sum(&go);
-        for c in 0..3 {
-            dst[slot::COLOR + c] += sum(&gcol[c]);
+        // Slots 0..8 in order: ∂(x, y), ∂(a, b, c), ∂o, ∂(r, g).
+        const _: () = assert!(slot::XY == 0 && slot::CONIC == 2 && slot::OPACITY == 5 && slot::COLOR == 6);
+        let first = lane_sums::<AVX>(&[gx, gy, ga, gb, gc, go, gcol[0], gcol[1]]);
+        for (d, v) in dst[..HALF].iter_mut().zip(first) {
+            *d += v;
         }
+        let sum = |a: &[f32; HALF]| a.iter().sum::<f32>();
+        dst[slot::COLOR + 2] += sum(&gcol[2]);
         dst[slot::DEPTH] += sum(&gz);
         for (d, g) in dst[slot::FEATURES..].iter_mut().zip(&gfeat[..f]) {
             *d += g;
@@ -535,7 +635,7 @@ fn forward_tile_avx2(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn backward_tile_avx2(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads, buf: &mut [f32]) {
-    backward_tile_impl(b, tile, st, g, buf)
+    backward_tile_impl::<true>(b, tile, st, g, buf)
 }
 
 /// Forward pass over one tile. Forward and backward always take the same code
@@ -557,5 +657,33 @@ pub fn backward_tile(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads,
         // SAFETY: the CPU supports AVX2 and FMA (checked above).
         return unsafe { backward_tile_avx2(b, tile, st, g, buf) };
     }
-    backward_tile_impl(b, tile, st, g, buf)
+    backward_tile_impl::<false>(b, tile, st, g, buf)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lane_sums_are_each_rows_sum_in_order_to_the_bit() {
+        // Values whose sum depends on the order of addition.
+        let rows: [[f32; HALF]; HALF] = std::array::from_fn(|k| {
+            std::array::from_fn(|x| ((k * 8 + x) as f32 * 0.37).sin() * 10f32.powi((x % 5) as i32 - 2))
+        });
+        let want: [f32; HALF] = std::array::from_fn(|k| rows[k].iter().sum());
+        for (k, w) in want.iter().enumerate() {
+            let mut s = rows[k][0];
+            for v in &rows[k][1..] {
+                s += v;
+            }
+            assert_eq!(s.to_bits(), w.to_bits(), "row {k}: a sum in order");
+        }
+        let plain = lane_sums::<false>(&rows);
+        assert_eq!(plain.map(f32::to_bits), want.map(f32::to_bits));
+        #[cfg(target_arch = "x86_64")]
+        if transsplat_scene::cpu::has_avx2() {
+            let fast = lane_sums::<true>(&rows);
+            assert_eq!(fast.map(f32::to_bits), want.map(f32::to_bits), "transposed");
+        }
+    }
 }
