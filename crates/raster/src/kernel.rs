@@ -167,7 +167,12 @@ impl Accum<'_> {
 }
 
 #[inline(always)]
-fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&Accum, &mut [f32])>) {
+fn forward_tile_impl<const WEIGHTS: bool>(
+    b: &Binned,
+    tile: usize,
+    out: &mut TileOut,
+    acc: Option<(&Accum, &mut [f32])>,
+) {
     let (x0, y0, x1, y1) = b.tile_rect(tile);
     let f = b.num_features;
     // A pixel is live while its T is positive; when it stops, T is stored negated
@@ -184,7 +189,10 @@ fn forward_tile_impl(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&A
         Some((a, buf)) => (Some(a), buf),
         None => (None, &mut [][..]),
     };
-    let need_weights = f > 0 || acc.is_some();
+    // Known at compile time, so the plain render (no features, no sums: training) keeps
+    // no per-lane weights at all.
+    debug_assert_eq!(WEIGHTS, f > 0 || acc.is_some());
+    let need_weights = WEIGHTS;
     // `last` is written as max(last, blended ? position : 0), which is the select, since
     // positions only grow along the list. Written as a select it compiles to a masked
     // load and store (AVX2's, slow on AMD CPUs); with the 0 opaque to the compiler, to a
@@ -428,7 +436,7 @@ fn transposed_sums(rows: &[[f32; HALF]; HALF]) -> [f32; HALF] {
 }
 
 #[inline(always)]
-fn backward_tile_impl<const AVX: bool>(
+fn backward_tile_impl<const AVX: bool, const FEATURES: bool>(
     b: &Binned,
     tile: usize,
     st: &ForwardState,
@@ -586,7 +594,7 @@ fn backward_tile_impl<const AVX: bool>(
                     }
                 }
                 touched = true;
-                if f == 0 {
+                if !FEATURES {
                     continue;
                 }
                 let mut vfa = [0.0f32; HALF];
@@ -636,36 +644,65 @@ fn backward_tile_impl<const AVX: bool>(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn forward_tile_avx2(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&Accum, &mut [f32])>) {
-    forward_tile_impl(b, tile, out, acc)
+fn forward_tile_avx2<const WEIGHTS: bool>(
+    b: &Binned,
+    tile: usize,
+    out: &mut TileOut,
+    acc: Option<(&Accum, &mut [f32])>,
+) {
+    forward_tile_impl::<WEIGHTS>(b, tile, out, acc)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn backward_tile_avx2(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads, buf: &mut [f32]) {
-    backward_tile_impl::<true>(b, tile, st, g, buf)
+fn backward_tile_avx2<const FEATURES: bool>(
+    b: &Binned,
+    tile: usize,
+    st: &ForwardState,
+    g: &PixelGrads,
+    buf: &mut [f32],
+) {
+    backward_tile_impl::<true, FEATURES>(b, tile, st, g, buf)
 }
 
 /// Forward pass over one tile. Forward and backward always take the same code
 /// path so that their skip and stop decisions agree bit for bit.
 pub fn forward_tile(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&Accum, &mut [f32])>) {
+    let weights = b.num_features > 0 || acc.is_some();
     #[cfg(target_arch = "x86_64")]
     if transsplat_scene::cpu::has_avx2() {
         // SAFETY: the CPU supports AVX2 and FMA (checked above).
-        return unsafe { forward_tile_avx2(b, tile, out, acc) };
+        return unsafe {
+            match weights {
+                true => forward_tile_avx2::<true>(b, tile, out, acc),
+                false => forward_tile_avx2::<false>(b, tile, out, acc),
+            }
+        };
     }
-    forward_tile_impl(b, tile, out, acc)
+    match weights {
+        true => forward_tile_impl::<true>(b, tile, out, acc),
+        false => forward_tile_impl::<false>(b, tile, out, acc),
+    }
 }
 
 /// Backward pass over one tile, accumulating per-splat gradients into `buf`
 /// (layout [`grad_stride`]).
 pub fn backward_tile(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads, buf: &mut [f32]) {
+    let features = b.num_features > 0;
     #[cfg(target_arch = "x86_64")]
     if transsplat_scene::cpu::has_avx2() {
         // SAFETY: the CPU supports AVX2 and FMA (checked above).
-        return unsafe { backward_tile_avx2(b, tile, st, g, buf) };
+        return unsafe {
+            match features {
+                true => backward_tile_avx2::<true>(b, tile, st, g, buf),
+                false => backward_tile_avx2::<false>(b, tile, st, g, buf),
+            }
+        };
     }
-    backward_tile_impl::<false>(b, tile, st, g, buf)
+    match features {
+        true => backward_tile_impl::<false, true>(b, tile, st, g, buf),
+        false => backward_tile_impl::<false, false>(b, tile, st, g, buf),
+    }
 }
 
 #[cfg(test)]
