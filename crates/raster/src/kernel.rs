@@ -193,11 +193,6 @@ fn forward_tile_impl<const WEIGHTS: bool>(
     // no per-lane weights at all.
     debug_assert_eq!(WEIGHTS, f > 0 || acc.is_some());
     let need_weights = WEIGHTS;
-    // `last` is written as max(last, blended ? position : 0), which is the select, since
-    // positions only grow along the list. Written as a select it compiles to a masked
-    // load and store (AVX2's, slow on AMD CPUs); with the 0 opaque to the compiler, to a
-    // plain load, max and store.
-    let no_last = std::hint::black_box(0u32);
     let px: Row = std::array::from_fn(|x| (x0 + x) as f32 + 0.5);
     // Bit 2r + h: half h of row r still has a live pixel. A splat whose rows are all
     // stopped is skipped before any per-row work, and the tile ends when none is live.
@@ -273,7 +268,7 @@ fn forward_tile_impl<const WEIGHTS: bool>(
                         } else {
                             tt
                         };
-                        ol[x] = ol[x].max(if blend { lnext } else { no_last });
+                        ol[x] = if blend { lnext } else { ol[x] };
                         wrow[x] = w;
                         arow[x] = if blend { alpha } else { 0.0 };
                         any_stop |= stop;
