@@ -15,6 +15,25 @@ pub fn has_avx2() -> bool {
     }
 }
 
+/// Whether the CPU also has AVX-512 (F, VL, BW, DQ), so code compiled with
+/// `#[target_feature(enable = "avx2,fma,avx512f,avx512vl,avx512bw,avx512dq")]` may run.
+/// Always false off x86-64.
+#[inline]
+pub fn has_avx512() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        has_avx2()
+            && std::is_x86_feature_detected!("avx512f")
+            && std::is_x86_feature_detected!("avx512vl")
+            && std::is_x86_feature_detected!("avx512bw")
+            && std::is_x86_feature_detected!("avx512dq")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
 /// Hints the CPU to fetch the cache lines of `len` bytes at address `at`: for loops
 /// over scattered rows (ascending but with gaps), whose next row the hardware cannot
 /// guess. An address, not a reference: nothing is read, and a prefetch never faults.
