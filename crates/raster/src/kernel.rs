@@ -637,113 +637,103 @@ fn backward_tile_impl<const AVX: bool, const FEATURES: bool>(
     }
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn forward_tile_avx2<const WEIGHTS: bool>(
+/// The tile passes compiled for one instruction set: the same code (`forward_tile_impl`,
+/// `backward_tile_impl`) with the CPU features enabled, so the compiler emits their vector
+/// instructions. The same IEEE operations whatever the set (no fused multiply-adds are
+/// formed), so the same bits; a test runs every instance the CPU has against the plain one.
+macro_rules! tile_passes_for {
+    ($forward:ident, $backward:ident, $features:literal) => {
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $features)]
+        fn $forward<const WEIGHTS: bool>(
+            b: &Binned,
+            tile: usize,
+            out: &mut TileOut,
+            acc: Option<(&Accum, &mut [f32])>,
+        ) {
+            forward_tile_impl::<WEIGHTS>(b, tile, out, acc)
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $features)]
+        fn $backward<const FEATURES: bool>(
+            b: &Binned,
+            tile: usize,
+            st: &ForwardState,
+            g: &PixelGrads,
+            buf: &mut [f32],
+        ) {
+            backward_tile_impl::<true, FEATURES>(b, tile, st, g, buf)
+        }
+    };
+}
+
+tile_passes_for!(forward_tile_avx2, backward_tile_avx2, "avx2,fma");
+// With AVX-512 the same 8-lane code has 32 vector registers instead of 16, so the
+// compiler keeps more of a splat's per-lane sums and the row's planes in registers.
+tile_passes_for!(forward_tile_avx512, backward_tile_avx512, "avx2,fma,avx512f,avx512vl,avx512bw,avx512dq");
+
+/// [`forward_tile`] for one value of `WEIGHTS`: the best instance this CPU can run.
+#[inline(always)]
+fn forward_tile_best<const WEIGHTS: bool>(
     b: &Binned,
     tile: usize,
     out: &mut TileOut,
     acc: Option<(&Accum, &mut [f32])>,
 ) {
+    #[cfg(target_arch = "x86_64")]
+    if transsplat_scene::cpu::has_avx512() {
+        // SAFETY: the CPU supports AVX2, FMA and AVX-512 (checked above).
+        return unsafe { forward_tile_avx512::<WEIGHTS>(b, tile, out, acc) };
+    }
+    #[cfg(target_arch = "x86_64")]
+    if transsplat_scene::cpu::has_avx2() {
+        // SAFETY: the CPU supports AVX2 and FMA (checked above).
+        return unsafe { forward_tile_avx2::<WEIGHTS>(b, tile, out, acc) };
+    }
     forward_tile_impl::<WEIGHTS>(b, tile, out, acc)
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn backward_tile_avx2<const FEATURES: bool>(
+/// [`backward_tile`] for one value of `FEATURES`: the best instance this CPU can run.
+#[inline(always)]
+fn backward_tile_best<const FEATURES: bool>(
     b: &Binned,
     tile: usize,
     st: &ForwardState,
     g: &PixelGrads,
     buf: &mut [f32],
 ) {
-    backward_tile_impl::<true, FEATURES>(b, tile, st, g, buf)
-}
-
-/// [`forward_tile_avx2`] where the CPU has AVX-512: the same 8-lane code, but with 32
-/// vector registers instead of 16 the compiler keeps more of a splat's per-lane sums and
-/// the row's planes in registers. The same IEEE operations, so the same bits.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma,avx512f,avx512vl,avx512bw,avx512dq")]
-fn forward_tile_avx512<const WEIGHTS: bool>(
-    b: &Binned,
-    tile: usize,
-    out: &mut TileOut,
-    acc: Option<(&Accum, &mut [f32])>,
-) {
-    forward_tile_impl::<WEIGHTS>(b, tile, out, acc)
-}
-
-/// [`backward_tile_avx2`] where the CPU has AVX-512 ([`forward_tile_avx512`]).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma,avx512f,avx512vl,avx512bw,avx512dq")]
-fn backward_tile_avx512<const FEATURES: bool>(
-    b: &Binned,
-    tile: usize,
-    st: &ForwardState,
-    g: &PixelGrads,
-    buf: &mut [f32],
-) {
-    backward_tile_impl::<true, FEATURES>(b, tile, st, g, buf)
+    #[cfg(target_arch = "x86_64")]
+    if transsplat_scene::cpu::has_avx512() {
+        // SAFETY: the CPU supports AVX2, FMA and AVX-512 (checked above).
+        return unsafe { backward_tile_avx512::<FEATURES>(b, tile, st, g, buf) };
+    }
+    #[cfg(target_arch = "x86_64")]
+    if transsplat_scene::cpu::has_avx2() {
+        // SAFETY: the CPU supports AVX2 and FMA (checked above).
+        return unsafe { backward_tile_avx2::<FEATURES>(b, tile, st, g, buf) };
+    }
+    backward_tile_impl::<false, FEATURES>(b, tile, st, g, buf)
 }
 
 /// Forward pass over one tile. Forward and backward always take the same code
 /// path so that their skip and stop decisions agree bit for bit.
 pub fn forward_tile(b: &Binned, tile: usize, out: &mut TileOut, acc: Option<(&Accum, &mut [f32])>) {
-    let weights = b.num_features > 0 || acc.is_some();
-    #[cfg(target_arch = "x86_64")]
-    if transsplat_scene::cpu::has_avx512() {
-        // SAFETY: the CPU supports AVX2, FMA and AVX-512 (checked above).
-        return unsafe {
-            match weights {
-                true => forward_tile_avx512::<true>(b, tile, out, acc),
-                false => forward_tile_avx512::<false>(b, tile, out, acc),
-            }
-        };
-    }
-    #[cfg(target_arch = "x86_64")]
-    if transsplat_scene::cpu::has_avx2() {
-        // SAFETY: the CPU supports AVX2 and FMA (checked above).
-        return unsafe {
-            match weights {
-                true => forward_tile_avx2::<true>(b, tile, out, acc),
-                false => forward_tile_avx2::<false>(b, tile, out, acc),
-            }
-        };
-    }
-    match weights {
-        true => forward_tile_impl::<true>(b, tile, out, acc),
-        false => forward_tile_impl::<false>(b, tile, out, acc),
+    // The plain render (no features, no sums: training) keeps no per-lane weights.
+    if b.num_features > 0 || acc.is_some() {
+        forward_tile_best::<true>(b, tile, out, acc)
+    } else {
+        forward_tile_best::<false>(b, tile, out, acc)
     }
 }
 
 /// Backward pass over one tile, accumulating per-splat gradients into `buf`
 /// (layout [`grad_stride`]).
 pub fn backward_tile(b: &Binned, tile: usize, st: &ForwardState, g: &PixelGrads, buf: &mut [f32]) {
-    let features = b.num_features > 0;
-    #[cfg(target_arch = "x86_64")]
-    if transsplat_scene::cpu::has_avx512() {
-        // SAFETY: the CPU supports AVX2, FMA and AVX-512 (checked above).
-        return unsafe {
-            match features {
-                true => backward_tile_avx512::<true>(b, tile, st, g, buf),
-                false => backward_tile_avx512::<false>(b, tile, st, g, buf),
-            }
-        };
-    }
-    #[cfg(target_arch = "x86_64")]
-    if transsplat_scene::cpu::has_avx2() {
-        // SAFETY: the CPU supports AVX2 and FMA (checked above).
-        return unsafe {
-            match features {
-                true => backward_tile_avx2::<true>(b, tile, st, g, buf),
-                false => backward_tile_avx2::<false>(b, tile, st, g, buf),
-            }
-        };
-    }
-    match features {
-        true => backward_tile_impl::<false, true>(b, tile, st, g, buf),
-        false => backward_tile_impl::<false, false>(b, tile, st, g, buf),
+    if b.num_features > 0 {
+        backward_tile_best::<true>(b, tile, st, g, buf)
+    } else {
+        backward_tile_best::<false>(b, tile, st, g, buf)
     }
 }
 
