@@ -26,21 +26,11 @@ fn rows(s: &Packed, y0: usize, y1: usize) -> (usize, usize) {
     (lo.max(y0), hi.max(lo.max(y0)))
 }
 
-/// The halves `[h0, h1)` of a tile row (`dy` = mean − pixel-centre y) that can hold
-/// a pixel with σ ≤ thr: the roots of ½a dx² + b dy dx + ½c dy² = thr, padded.
+/// The halves `[h0, h1)` of a tile row holding the pixel columns whose centres lie in
+/// `[lo, hi]` (pixels from the tile's left edge, padding included); a NaN bound keeps
+/// the halves it cannot rule out.
 #[inline(always)]
-fn halves(s: &Packed, dy: f32, x0: usize) -> (usize, usize) {
-    let disc = (s.b * s.b - s.a * s.c) * dy * dy + 2.0 * s.a * s.thr;
-    if !(disc >= 0.0) {
-        return (0, 0);
-    }
-    let r = disc.sqrt();
-    // One division per splat (hoisted out of the row loop) instead of two per row: the
-    // product differs from the quotient by an ulp or so, far inside the 0.05 px padding.
-    let inv_a = 1.0 / s.a;
-    // Pixel centre px = x0 + x + 0.5 = s.x − dx with dx between the roots.
-    let lo = s.x - (-s.b * dy + r) * inv_a - 0.5 - x0 as f32 - 0.05;
-    let hi = s.x - (-s.b * dy - r) * inv_a - 0.5 - x0 as f32 + 0.05;
+fn span_halves(lo: f32, hi: f32) -> (usize, usize) {
     if hi < 0.0 || lo > (TILE - 1) as f32 {
         return (0, 0);
     }
@@ -49,43 +39,54 @@ fn halves(s: &Packed, dy: f32, x0: usize) -> (usize, usize) {
     (lo, hi)
 }
 
-/// The halves `[h0, h1)` of a tile row that the splat's box `x ± ex` reaches, padded as
-/// [`halves`] is. Every half [`halves`] returns for a row of the box lies in this range
-/// (the box is the ellipse σ ≤ thr's extent), so where the range is one half the rows
-/// need no solving: a half the ellipse misses on some row only gives pairs with
-/// α < 1/255, which the compositing rule skips, as it skips the other lanes of a half.
-#[inline(always)]
-fn box_halves(s: &Packed, x0: usize) -> (usize, usize) {
-    let lo = s.x - s.ex - 0.5 - x0 as f32 - 0.05;
-    let hi = s.x + s.ex - 0.5 - x0 as f32 + 0.05;
-    if !(hi >= 0.0 && lo <= (TILE - 1) as f32) {
-        return (0, 0);
-    }
-    let lo = lo.max(0.0) as usize / HALF;
-    let hi = (hi.min((TILE - 1) as f32) as usize) / HALF + 1;
-    (lo, hi)
+/// Which halves of a tile's rows a splat can reach, worked out once per splat and tile.
+struct Columns {
+    /// The halves `[h0, h1)` its box `x ± ex` reaches, padded by 0.05 px as the rows' are.
+    /// Every half [`Columns::row_halves`] solves for lies in them (the box is the extent
+    /// of the ellipse σ ≤ thr), so where they are one half the rows need no solving: a
+    /// half the ellipse misses on some row only gives pairs with α < 1/255, which the
+    /// compositing rule skips, as it skips the other lanes of a half.
+    halves: (usize, usize),
+    /// 1/a of the conic, for solving the rows of a splat that spans both halves.
+    inv_a: f32,
 }
 
-/// The bits of [`forward_tile`]'s live mask for the halves `[h0, h1)` of every row.
-#[inline(always)]
-fn column_mask(h0: usize, h1: usize) -> u32 {
-    const FIRST: u32 = 0x5555_5555;
-    match (h0, h1) {
-        (0, 1) => FIRST,
-        (1, 2) => FIRST << 1,
-        (0, 2) => u32::MAX,
-        _ => 0,
+impl Columns {
+    #[inline(always)]
+    fn of(s: &Packed, x0: usize) -> Self {
+        let left = s.x - 0.5 - x0 as f32;
+        Columns { halves: span_halves(left - s.ex - 0.05, left + s.ex + 0.05), inv_a: 1.0 / s.a }
     }
-}
 
-/// The halves of the row at `dy` to evaluate, given the box's halves `[bh0, bh1)`:
-/// those alone where they are one half, else the row's own ([`halves`]).
-#[inline(always)]
-fn row_halves(s: &Packed, dy: f32, x0: usize, (bh0, bh1): (usize, usize)) -> (usize, usize) {
-    if bh1 - bh0 > 1 {
-        halves(s, dy, x0)
-    } else {
-        (bh0, bh1)
+    /// The bits of [`forward_tile`]'s live mask for these halves in every row.
+    #[inline(always)]
+    fn mask(&self) -> u32 {
+        const FIRST: u32 = 0x5555_5555;
+        match self.halves {
+            (0, 1) => FIRST,
+            (1, 2) => FIRST << 1,
+            (0, 2) => u32::MAX,
+            _ => 0,
+        }
+    }
+
+    /// The halves of the row at `dy` (mean − pixel-centre y) to evaluate: the box's where
+    /// it is one half, else those that can hold a pixel with σ ≤ thr, the roots of
+    /// ½a dx² + b dy dx + ½c dy² = thr padded by 0.05 px (using 1/a: the product differs
+    /// from the quotient by an ulp or so, far inside the padding).
+    #[inline(always)]
+    fn row_halves(&self, s: &Packed, dy: f32, x0: usize) -> (usize, usize) {
+        if self.halves.1 - self.halves.0 <= 1 {
+            return self.halves;
+        }
+        let disc = (s.b * s.b - s.a * s.c) * dy * dy + 2.0 * s.a * s.thr;
+        if !(disc >= 0.0) {
+            return (0, 0);
+        }
+        let r = disc.sqrt();
+        // Pixel centre px = x0 + x + 0.5 = s.x − dx with dx between the roots.
+        let left = s.x - 0.5 - x0 as f32;
+        span_halves(left - (-s.b * dy + r) * self.inv_a - 0.05, left - (-s.b * dy - r) * self.inv_a + 0.05)
     }
 }
 
@@ -212,8 +213,8 @@ fn forward_tile_impl<const WEIGHTS: bool>(
         prefetch(b, list, li + PREFETCH);
         let s = &b.splats[j as usize];
         let (r0, r1) = rows(s, y0, y1);
-        let bh = box_halves(s, x0);
-        let cols = column_mask(bh.0, bh.1);
+        let columns = Columns::of(s, x0);
+        let cols = columns.mask();
         if live & half_mask(r0 - y0, r1 - y0) & cols == 0 {
             continue;
         }
@@ -228,7 +229,7 @@ fn forward_tile_impl<const WEIGHTS: bool>(
                 continue;
             }
             let dy = s.y - (py as f32 + 0.5);
-            let (h0, h1) = row_halves(s, dy, x0, bh);
+            let (h0, h1) = columns.row_halves(s, dy, x0);
             let cdy = 0.5 * sc * dy * dy;
             let bdy = sb * dy;
             for h in h0..h1 {
@@ -505,7 +506,7 @@ fn backward_tile_impl<const AVX: bool, const FEATURES: bool>(
         if row_last[r0 - y0..r1 - y0].iter().all(|&l| li32 >= l) {
             continue;
         }
-        let bh = box_halves(s, x0);
+        let columns = Columns::of(s, x0);
         let (sx, sa, sb, sc, so, sz) = (s.x, s.a, s.b, s.c, s.opacity, s.depth);
         let [cr, cg, cb] = s.color;
         let mut gx = [0.0f32; HALF];
@@ -525,7 +526,7 @@ fn backward_tile_impl<const AVX: bool, const FEATURES: bool>(
                 continue;
             }
             let dy = s.y - (py as f32 + 0.5);
-            let (h0, h1) = row_halves(s, dy, x0, bh);
+            let (h0, h1) = columns.row_halves(s, dy, x0);
             for h in h0..h1 {
                 if li32 >= half_last[r][h] {
                     continue;
@@ -744,9 +745,106 @@ mod tests {
     use crate::Splats;
     use transsplat_scene::{Camera, Gaussians};
 
+    type ForwardFn = fn(&Binned, usize, &mut TileOut, Option<(&Accum, &mut [f32])>);
+    type BackwardFn = fn(&Binned, usize, &ForwardState, &PixelGrads, &mut [f32]);
+
+    /// The instances of both passes this CPU can run, the plain one first.
+    fn instances<const W: bool, const F: bool>() -> Vec<(&'static str, ForwardFn, BackwardFn)> {
+        let mut all: Vec<(&'static str, ForwardFn, BackwardFn)> = vec![(
+            "plain",
+            |b, t, o, a| forward_tile_impl::<W>(b, t, o, a),
+            |b, t, st, g, buf| backward_tile_impl::<false, F>(b, t, st, g, buf),
+        )];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if transsplat_scene::cpu::has_avx2() {
+                all.push((
+                    "avx2",
+                    // SAFETY: the CPU has AVX2 and FMA (checked above).
+                    |b, t, o, a| unsafe { forward_tile_avx2::<W>(b, t, o, a) },
+                    |b, t, st, g, buf| unsafe { backward_tile_avx2::<F>(b, t, st, g, buf) },
+                ));
+            }
+            if transsplat_scene::cpu::has_avx512() {
+                all.push((
+                    "avx512",
+                    // SAFETY: the CPU has AVX2, FMA and AVX-512 (checked above).
+                    |b, t, o, a| unsafe { forward_tile_avx512::<W>(b, t, o, a) },
+                    |b, t, st, g, buf| unsafe { backward_tile_avx512::<F>(b, t, st, g, buf) },
+                ));
+            }
+        }
+        all
+    }
+
+    /// Runs every instance of both passes on every tile of `b` (with `accum`'s sums when
+    /// given) and checks each output against the plain instance's, bit for bit.
+    fn compare_instances<const W: bool, const F: bool>(b: &Binned, accum: Option<&Accum>) {
+        let (w, h, f) = (b.width, b.height, b.num_features);
+        let tiles = b.tiles_x * b.tiles_y;
+        let acc_len = accum.map_or(0, |a| b.splats.len() * a.stride());
+        // Whole-image forward state, the per-tile outputs and the sums of one instance.
+        let forward = |fwd: ForwardFn| {
+            let (mut final_t, mut last) = (vec![0.0f32; w * h], vec![0u32; w * h]);
+            let (mut outs, mut sums) = (Vec::new(), vec![0.0f32; acc_len]);
+            for tile in 0..tiles {
+                let mut o = TileOut::new(f);
+                fwd(b, tile, &mut o, accum.map(|a| (a, &mut sums[..])));
+                let (x0, y0, x1, y1) = b.tile_rect(tile);
+                for y in y0..y1 {
+                    for x in x0..x1 {
+                        final_t[y * w + x] = o.t[y - y0][x - x0];
+                        last[y * w + x] = o.last[y - y0][x - x0];
+                    }
+                }
+                outs.push(o);
+            }
+            (final_t, last, outs, sums)
+        };
+        let all = instances::<W, F>();
+        let (final_t, last, want_outs, want_sums) = forward(all[0].1);
+        let wave = |k: usize, a: f32| ((k as f32) * a).sin();
+        let rgb: Vec<f32> = (0..w * h * 3).map(|k| wave(k, 0.37)).collect();
+        let alpha: Vec<f32> = (0..w * h).map(|k| wave(k, 0.11)).collect();
+        let depth: Vec<f32> = (0..w * h).map(|k| 0.1 * wave(k, 0.23)).collect();
+        let features: Vec<f32> = (0..w * h * f).map(|k| wave(k, 0.61)).collect();
+        let pg = PixelGrads { rgb: &rgb, alpha: &alpha, depth: &depth, features: &features };
+        let st = ForwardState { final_t: &final_t, last: &last, background: [0.2, 0.5, 0.1] };
+        let backward = |bwd: BackwardFn| {
+            let mut buf = vec![0.0f32; b.splats.len() * grad_stride(f)];
+            for tile in 0..tiles {
+                bwd(b, tile, &st, &pg, &mut buf);
+            }
+            buf
+        };
+        let want_grads = backward(all[0].2);
+        let blended = want_outs.iter().flat_map(|o| o.last.iter().flatten()).filter(|&&l| l > 0).count();
+        assert!(b.splats.len() > 300 && blended > w * h / 2, "a scene worth comparing on");
+        assert!(want_grads.iter().filter(|v| **v != 0.0).count() > 1000, "gradients reached the splats");
+        assert!(accum.is_none() || want_sums.iter().any(|&v| v != 0.0), "sums were gathered");
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let first_diff =
+            |got: &[f32], want: &[f32]| (0..want.len()).find(|&k| got[k].to_bits() != want[k].to_bits());
+        for (name, fwd, bwd) in &all[1..] {
+            let (_, _, outs, sums) = forward(*fwd);
+            for (tile, (got, o)) in outs.iter().zip(&want_outs).enumerate() {
+                let planes = |t: &TileOut| {
+                    let mut v: Vec<f32> = t.t.as_flattened().to_vec();
+                    t.rgb.iter().chain([&t.depth]).chain(&t.feat).for_each(|p| v.extend(p.as_flattened()));
+                    v
+                };
+                assert_eq!(bits(&planes(got)), bits(&planes(o)), "{name} forward planes, tile {tile}");
+                assert_eq!(got.last, o.last, "{name} forward last, tile {tile}");
+            }
+            assert_eq!(first_diff(&sums, &want_sums), None, "{name} forward sums");
+            assert_eq!(first_diff(&backward(*bwd), &want_grads), None, "{name} backward");
+        }
+    }
+
     /// Every compiled instance of the tile passes this CPU can run (the plain one, AVX2,
     /// AVX-512) gives the plain one's bits, forward and backward, on a scene of narrow and
-    /// wide, round and slanted, faint and opaque splats over several tiles.
+    /// wide, round and slanted, faint and opaque splats over several tiles: as a plain
+    /// render (training), and with features and the splat-back sums (the edit's passes).
     #[test]
     fn every_compiled_instance_gives_the_bits_of_the_plain_one() {
         let mut g = Gaussians { sh_degree: 0, ..Default::default() };
@@ -760,97 +858,13 @@ mod tests {
             g.sh.extend([0.9 * (f * 0.11).sin(), 0.7 * (f * 0.19).cos(), 0.5 * (f * 0.07).sin()]);
         }
         let cam = Camera::pinhole("c", 72, 56, 60.0);
-        let b = crate::bin::bin(&Splats::new(&g), &View::new(&cam));
-        let (w, h) = (b.width, b.height);
-        let tiles = b.tiles_x * b.tiles_y;
-        type Forward = fn(&Binned, usize, &mut TileOut);
-        type Backward = fn(&Binned, usize, &ForwardState, &PixelGrads, &mut [f32]);
-        let mut instances: Vec<(&str, Forward, Backward)> = vec![(
-            "plain",
-            |b, t, o| forward_tile_impl::<false>(b, t, o, None),
-            |b, t, st, g, buf| backward_tile_impl::<false, false>(b, t, st, g, buf),
-        )];
-        #[cfg(target_arch = "x86_64")]
-        {
-            if transsplat_scene::cpu::has_avx2() {
-                instances.push((
-                    "avx2",
-                    // SAFETY: the CPU has AVX2 and FMA (checked above).
-                    |b, t, o| unsafe { forward_tile_avx2::<false>(b, t, o, None) },
-                    |b, t, st, g, buf| unsafe { backward_tile_avx2::<false>(b, t, st, g, buf) },
-                ));
-            }
-            if transsplat_scene::cpu::has_avx512() {
-                instances.push((
-                    "avx512",
-                    // SAFETY: the CPU has AVX2, FMA and AVX-512 (checked above).
-                    |b, t, o| unsafe { forward_tile_avx512::<false>(b, t, o, None) },
-                    |b, t, st, g, buf| unsafe { backward_tile_avx512::<false>(b, t, st, g, buf) },
-                ));
-            }
-        }
-        // Whole-image forward state and pixel gradients, from the plain instance.
-        let (mut final_t, mut last) = (vec![0.0f32; w * h], vec![0u32; w * h]);
-        let mut outs = Vec::new();
-        for tile in 0..tiles {
-            let mut o = TileOut::new(0);
-            (instances[0].1)(&b, tile, &mut o);
-            let (x0, y0, x1, y1) = b.tile_rect(tile);
-            for y in y0..y1 {
-                for x in x0..x1 {
-                    final_t[y * w + x] = o.t[y - y0][x - x0];
-                    last[y * w + x] = o.last[y - y0][x - x0];
-                }
-            }
-            outs.push(o);
-        }
-        let wave = |k: usize, a: f32| ((k as f32) * a).sin();
-        let rgb: Vec<f32> = (0..w * h * 3).map(|k| wave(k, 0.37)).collect();
-        let alpha: Vec<f32> = (0..w * h).map(|k| wave(k, 0.11)).collect();
-        let depth: Vec<f32> = (0..w * h).map(|k| 0.1 * wave(k, 0.23)).collect();
-        let pg = PixelGrads { rgb: &rgb, alpha: &alpha, depth: &depth, features: &[] };
-        let st = ForwardState { final_t: &final_t, last: &last, background: [0.2, 0.5, 0.1] };
-        let stride = grad_stride(0);
-        let mut want = vec![0.0f32; b.splats.len() * stride];
-        for tile in 0..tiles {
-            (instances[0].2)(&b, tile, &st, &pg, &mut want);
-        }
-        let blended = outs.iter().flat_map(|o| o.last.iter().flatten()).filter(|&&l| l > 0).count();
-        assert!(b.splats.len() > 300 && blended > w * h / 2, "a scene worth comparing on");
-        assert!(want.iter().filter(|v| **v != 0.0).count() > 1000, "gradients reached the splats");
-        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-        for (name, fwd, bwd) in &instances[1..] {
-            for (tile, o) in outs.iter().enumerate() {
-                let mut got = TileOut::new(0);
-                fwd(&b, tile, &mut got);
-                assert_eq!(
-                    bits(got.t.as_flattened()),
-                    bits(o.t.as_flattened()),
-                    "{name} forward T, tile {tile}"
-                );
-                for c in 0..3 {
-                    let (a, e) = (got.rgb[c].as_flattened(), o.rgb[c].as_flattened());
-                    assert_eq!(bits(a), bits(e), "{name} forward colour {c}, tile {tile}");
-                }
-                assert_eq!(
-                    bits(got.depth.as_flattened()),
-                    bits(o.depth.as_flattened()),
-                    "{name} depth, tile {tile}"
-                );
-                assert_eq!(got.last, o.last, "{name} forward last, tile {tile}");
-            }
-            let mut got = vec![0.0f32; want.len()];
-            for tile in 0..tiles {
-                bwd(&b, tile, &st, &pg, &mut got);
-            }
-            let first_diff = (0..want.len()).find(|&k| got[k].to_bits() != want[k].to_bits());
-            assert_eq!(
-                first_diff,
-                None,
-                "{name} backward: splat row value differs (row {})",
-                first_diff.unwrap_or(0) / stride
-            );
-        }
+        let view = View::new(&cam);
+        compare_instances::<false, false>(&crate::bin::bin(&Splats::new(&g), &view), None);
+        let feats: Vec<f32> = (0..g.len() * 2).map(|k| (k as f32 * 0.29).cos()).collect();
+        let splats = Splats { features: &feats, num_features: 2, ..Splats::new(&g) };
+        let image: Vec<f32> = (0..72 * 56 * 2).map(|k| 0.5 + 0.5 * (k as f32 * 0.13).sin()).collect();
+        let accum = Accum { image: &image, channels: 2, capped: 1 };
+        compare_instances::<true, true>(&crate::bin::bin(&splats, &view), Some(&accum));
     }
 
     #[test]
