@@ -1,5 +1,5 @@
-"""Per-view cost of InstructPix2Pix on a GPU worker, for the sweep estimate in README
-("Many scenes on a Ray cluster"). Run by hand on a GPU machine with torch, diffusers
+"""Per-view cost of InstructPix2Pix on a GPU worker, for the sweep estimate in
+docs/results.md ("Python, Ray and GPU editors"). Run by hand on a GPU machine with torch, diffusers
 and transformers; no weights needed: the SD 1.5 InstructPix2Pix architecture (UNet
 with 8 input channels, VAE, CLIP ViT-L/14 text encoder) with random weights does the
 same arithmetic as the real model.

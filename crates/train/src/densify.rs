@@ -27,15 +27,16 @@
 //! the sky then shows the background colour (the training views can paint it back
 //! only with nearer Gaussians, a likely source of floaters; not measured). On the open
 //! tabletop (`train_open` test, four seeds) the distance-scaled bound gains 4.7 dB of
-//! test PSNR on average (README, "Training on open captures"). INRIA's code zeroes `max_radii2D` just before this
+//! test PSNR on average (docs/results.md, "Training on open captures"). INRIA's code
+//! zeroes `max_radii2D` just before this
 //! test, which disables the screen-size rule in practice, and gsplat's default strategy
 //! leaves it off; so does our default. [`DensifyConfig::max_screen_radius`] applies it
 //! as the paper describes, using the largest radius (max of our per-axis radii) seen
 //! since the last densification (new Gaussians have no radius recorded yet). On a
 //! 48-view 256² open capture, 7000 steps, the 20 px rule removed the far floor and sky
 //! at every densification after a reset and the holes set off bursts of splits: 31.20
-//! dB and 315,850 Gaussians with it, 39.30 dB and 200,619 without (README, "Against a
-//! reference trainer"). [`DensifyCounts::pruned_by`] says which rule pruned how many.
+//! dB and 315,850 Gaussians with it, 39.30 dB and 200,619 without (docs/results.md, "Against
+//! reference trainers"). [`DensifyCounts::pruned_by`] says which rule pruned how many.
 //!
 //! **Budget.** [`DensifyConfig::max_gaussians`] caps the count, for a fixed memory or
 //! for comparing trainers at equal size (gsplat's MCMC strategy has such a cap, Taming
@@ -46,7 +47,7 @@
 //! Measured on the 256² open capture at 14,000 (1.43× OpenSplat's count): 22.6 dB
 //! against OpenSplat's 26.6, as the cap is spent by step 900 on texture and parts of
 //! the sky stay uncovered; growing at most 5 % per densification (MCMC's rate) was
-//! worse, 17.2 dB (README, "Against a reference trainer").
+//! worse, 17.2 dB (docs/results.md, "Against reference trainers").
 //!
 //! Every function takes an optional per-Gaussian mask: only Gaussians with
 //! `mask[i] == true` may be cloned, split, pruned or reset (their new copies inherit

@@ -11,8 +11,8 @@
 //! so this fixed-seed test checks one run, not the distribution.
 //!
 //! The run uses the paper's 20 px screen-size prune, which the trainer's default leaves
-//! off (as INRIA's code and gsplat do; at 256² over 7000 steps it cost 8 dB, README
-//! "Against a reference trainer"). At this toy scale — 96×72, where 20 px is a fifth of
+//! off (as INRIA's code and gsplat do; at 256² over 7000 steps it cost 8 dB,
+//! docs/results.md "Against reference trainers"). At this toy scale — 96×72, where 20 px is a fifth of
 //! the image, and 900 steps after the only reset — it helps: seeds 4–8 score 25.94 /
 //! 25.47 / 26.65 / 25.64 / 26.42 dB with it and 23.65 / 25.14 / 25.72 / 24.86 / 24.87 dB
 //! without, whose worst views fall 2.50 / 3.95 / 4.16 / 6.39 / 3.47 dB below the mean.

@@ -72,7 +72,7 @@ pub struct TrainArgs {
     /// After the first opacity reset, prune Gaussians whose screen radius exceeded this
     /// many pixels since the last densification (the paper states 20). Default 0 = off,
     /// as in INRIA's code and gsplat: on a 48-view 256² open capture the 20 px rule cost
-    /// 8 dB of test PSNR and 57 % more Gaussians (README, "Against a reference trainer").
+    /// 8 dB of test PSNR and 57 % more Gaussians (docs/results.md, "Against reference trainers").
     #[arg(long, value_parser = super::common::finite_f32, default_value_t = DensifyConfig::default().max_screen_radius.unwrap_or(0.0))]
     pub max_screen_radius: f32,
     /// Never grow past this many Gaussians. With `--strategy adaptive` densification
