@@ -46,6 +46,8 @@ pub fn trainer(
         densify.until_step = cfg.schedule.steps as u64 + 1;
         densify.interval = cfg.schedule.densify_every as u64;
         densify.opacity_reset_interval = 0;
+        // An edit adds detail where the edit asks for it and prunes only by opacity.
+        densify.camera_reach = None;
     }
     let config = TrainConfig {
         iterations: cfg.schedule.steps as u64,

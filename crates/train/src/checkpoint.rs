@@ -221,6 +221,9 @@ pub fn put_trainer<'a>(w: &mut Writer<'a>, p: &str, t: &'a Trainer) {
     if let Some(c) = t.centre {
         w.f32(format!("{p}.centre"), c.to_vec());
     }
+    if !t.cameras.is_empty() {
+        w.f32(format!("{p}.cameras"), t.cameras.as_flattened());
+    }
     put_rng(w, &format!("{p}.rng"), &t.rng);
 }
 
@@ -305,6 +308,13 @@ pub fn get_trainer(a: &Archive, p: &str, config: TrainConfig) -> Result<Trainer,
     if a.has(&k("centre")) {
         let c = a.f32_len(&k("centre"), 3)?;
         t.centre = Some([c[0], c[1], c[2]]);
+    }
+    if a.has(&k("cameras")) {
+        let c = a.f32(&k("cameras"))?;
+        if c.len() % 3 != 0 {
+            return Err(a.err("camera centres are not triples").into());
+        }
+        t.cameras = c.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
     }
     t.adam = adam;
     t.stats = stats;

@@ -38,6 +38,26 @@
 //! dB and 315,850 Gaussians with it, 39.30 dB and 200,619 without (docs/results.md, "Against
 //! reference trainers"). [`DensifyCounts::pruned_by`] says which rule pruned how many.
 //!
+//! **Camera reach.** Before the first opacity reset nothing bounds a Gaussian's size
+//! (INRIA's size rules wait for it), and on an open capture the far floor and the sky,
+//! where SfM gives no points, are covered by Gaussians that grow to tens of metres. From
+//! the training cameras such a Gaussian is harmless: it sits in the sky, or behind the
+//! camera and culled. But a camera whose image plane passes near its mean, a held-out
+//! view say, projects it with the affine (EWA) approximation at a depth of a fraction
+//! of a metre: the 2D covariance grows as 1/depth² and the splat covers the whole frame
+//! as a veil, though the ellipsoid itself lies far from the camera. The projected
+//! centre then lies about d/σ of its projected σ from the image, d being the mean's
+//! distance from the camera, so whether the veil shows is set by d/σ: the rasterizer
+//! draws a splat to 3.33 σ (below that, α < 1/255 even at opacity 1). So at every
+//! densification, from the first, a Gaussian whose sphere of [`DensifyConfig::camera_reach`]
+//! times its largest scale (default 3.33) reaches a training camera is pruned
+//! ([`PruneRule::CameraReach`]): no camera near the training ones can then see it as a
+//! veil. Gaussians of ordinary size (centimetres at metres from the cameras) are far
+//! inside the bound; a sparse far point cloud (metres apart at tens of metres) stays
+//! inside it too, where a bound of 0.1 × the distance applied from the start pruned it
+//! and lost the far floor (the small open-capture test, 25.9 → 23.6 dB). Measured in
+//! docs/method.md T2.
+//!
 //! **Budget.** [`DensifyConfig::max_gaussians`] caps the count, for a fixed memory or
 //! for comparing trainers at equal size (gsplat's MCMC strategy has such a cap, Taming
 //! 3DGS a scheduled one). When the candidates would grow the model past the cap, they
@@ -88,6 +108,10 @@ pub struct DensifyConfig {
     pub max_screen_radius: Option<f32>,
     /// Prune largest world scale above this × extent (after the first reset).
     pub max_world_scale: f32,
+    /// Prune, at every densification, a Gaussian whose sphere of this many times its
+    /// largest scale contains a training camera (module doc, **Camera reach**); `None`
+    /// = never, as INRIA. Needs the cameras ([`Bounds::cameras`]).
+    pub camera_reach: Option<f32>,
     /// Raise the active SH degree every this many steps (0 = start at the maximum).
     pub sh_degree_interval: u64,
     /// Never grow past this many Gaussians (module doc, **Budget**); `None` = no cap, as INRIA.
@@ -108,11 +132,16 @@ impl Default for DensifyConfig {
             opacity_reset_value: 0.01,
             max_screen_radius: None,
             max_world_scale: 0.1,
+            camera_reach: Some(CAMERA_REACH_SIGMAS),
             sh_degree_interval: 1000,
             max_gaussians: None,
         }
     }
 }
+
+/// The default [`DensifyConfig::camera_reach`]: the rasterizer's support (a splat is
+/// drawn to 3.33 σ; `raster::project`).
+pub const CAMERA_REACH_SIGMAS: f32 = 3.33;
 
 /// Steps a run needs after an opacity reset to recover (see
 /// [`DensifyConfig::resets_opacity`]).
@@ -231,7 +260,7 @@ pub struct DensifyCounts {
     pub deferred: usize,
     /// How many were pruned by each rule, indexed by [`PruneRule`] (a Gaussian failing
     /// several counts under the first: opacity, then world size, then screen size).
-    pub pruned_by: [usize; 3],
+    pub pruned_by: [usize; 4],
     /// MCMC ([`crate::mcmc`]): dead Gaussians moved onto alive ones.
     pub relocated: usize,
     /// MCMC: Gaussians added by growth.
@@ -254,6 +283,8 @@ pub enum PruneRule {
     WorldSize = 1,
     /// Largest screen radius above `max_screen_radius` (after the first reset).
     ScreenSize = 2,
+    /// A sphere of `camera_reach` × the largest scale contains a training camera.
+    CameraReach = 3,
 }
 
 /// A densification plan: the rearrangement plus the new means and log-scales of the
@@ -289,16 +320,24 @@ pub(crate) fn normal(rng: &mut ChaCha8Rng) -> f32 {
 
 /// The size of the scene for densification: INRIA's camera extent, and the cameras'
 /// centre when known (module doc, **Prune**).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Bounds {
     pub extent: f32,
     pub centre: Option<[f32; 3]>,
+    /// The training cameras' centres (empty when unknown: no camera-reach rule).
+    pub cameras: Vec<[f32; 3]>,
 }
 
 impl Bounds {
     /// INRIA's bounds: the extent alone.
     pub fn extent(extent: f32) -> Self {
-        Bounds { extent, centre: None }
+        Bounds { extent, centre: None, cameras: Vec::new() }
+    }
+
+    /// Whether a sphere of `radius` about `mean` contains a training camera.
+    fn reaches_a_camera(&self, mean: [f32; 3], radius: f32) -> bool {
+        let r2 = radius * radius;
+        self.cameras.iter().any(|c| (0..3).map(|k| (mean[k] - c[k]) * (mean[k] - c[k])).sum::<f32>() < r2)
     }
 
     /// The distance that scales the world-size prune rule at `mean`:
@@ -315,16 +354,17 @@ impl Bounds {
 }
 
 /// Whether Gaussian parameters fail the prune test.
-struct PruneTest {
+struct PruneTest<'a> {
     min_opacity: f32,
-    bounds: Bounds,
+    bounds: &'a Bounds,
     large: Option<(f32, Option<f32>)>, // (max world scale per unit of reach, max screen radius)
+    camera_reach: Option<f32>,
 }
 
-impl PruneTest {
-    fn new(cfg: &DensifyConfig, bounds: &Bounds, step: u64) -> Self {
+impl<'a> PruneTest<'a> {
+    fn new(cfg: &DensifyConfig, bounds: &'a Bounds, step: u64) -> Self {
         let large = cfg.prunes_large(step).then_some((cfg.max_world_scale, cfg.max_screen_radius));
-        PruneTest { min_opacity: cfg.min_opacity, bounds: *bounds, large }
+        PruneTest { min_opacity: cfg.min_opacity, bounds, large, camera_reach: cfg.camera_reach }
     }
     /// The first rule the Gaussian fails, if any.
     fn rule(
@@ -336,6 +376,9 @@ impl PruneTest {
     ) -> Option<PruneRule> {
         if !(sigmoid(opacity_logit) >= self.min_opacity) {
             return Some(PruneRule::Opacity);
+        }
+        if self.camera_reach.is_some_and(|k| self.bounds.reaches_a_camera(mean, k * max_scale(log_scale))) {
+            return Some(PruneRule::CameraReach);
         }
         let (ws, ss) = self.large?;
         if max_scale(log_scale) > ws * self.bounds.reach(mean) {
@@ -395,7 +438,7 @@ pub fn plan_densify(
     };
     let test = PruneTest::new(cfg, bounds, step);
     let mut src: Vec<u32> = Vec::with_capacity(n + clone.len() + split_means.len());
-    let mut pruned_by = [0usize; 3];
+    let mut pruned_by = [0usize; 4];
     // Counts the rule a candidate fails; true when it is pruned.
     let mut pruned = |rule: Option<PruneRule>| rule.map(|r| pruned_by[r as usize] += 1).is_some();
     for i in 0..n {
@@ -525,7 +568,7 @@ mod tests {
         let stats = DensifyStats::new(3);
         let kept = |b: &Bounds, step: u64| plan_prune(&g, &stats, &cfg, b, step, None).src;
         let inria = Bounds::extent(2.5);
-        let ours = Bounds { extent: 2.5, centre: Some([0.0; 3]) };
+        let ours = Bounds { extent: 2.5, centre: Some([0.0; 3]), cameras: Vec::new() };
         assert_eq!(kept(&inria, 101), Vec::<u32>::new());
         assert_eq!(kept(&ours, 101), vec![1]);
         // Before the first reset no size rule applies.
@@ -555,12 +598,12 @@ mod tests {
         stats.max_radii = vec![30.0, 30.0, 30.0, 19.0];
         let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
         let plan = plan_densify(&g, &stats, &cfg, &Bounds::extent(1.0), 101, None, &mut rng);
-        assert_eq!(plan.counts.pruned_by, [1, 1, 1]);
+        assert_eq!(plan.counts.pruned_by, [1, 1, 1, 0]);
         assert_eq!(plan.counts.pruned(), 3);
         assert_eq!(plan.reindex.src, vec![3]);
         // Before the first reset only the opacity rule applies.
         let plan = plan_densify(&g, &stats, &cfg, &Bounds::extent(1.0), 100, None, &mut rng);
-        assert_eq!(plan.counts.pruned_by, [1, 0, 0]);
+        assert_eq!(plan.counts.pruned_by, [1, 0, 0, 0]);
     }
 
     #[test]
@@ -601,5 +644,41 @@ mod tests {
         assert_eq!(plan_with(Some(41)), (0, 1, 3, 41, vec![38, 39, 2, 2]));
         // At the cap: nothing grows.
         assert_eq!(plan_with(Some(40)), (0, 0, 4, 40, vec![36, 37, 38, 39]));
+    }
+
+    #[test]
+    fn a_gaussian_whose_support_reaches_a_camera_is_pruned_from_the_first_densification() {
+        // Cameras at the origin and at (0, 0, 10). Largest scale 1 at distance 3 from the
+        // first camera (3.33 σ reaches it); 0.8 at distance 3 (2.66 does not); 3 at
+        // distance 10.5 from the second (9.99 does not); 4 at distance 13.3 from the
+        // second (13.32 reaches it); a wide transparent one, counted as opacity.
+        let means = vec![[3.0, 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, 0.0, 20.5], [0.0, 13.3, 10.0], [1.0; 3]];
+        let scales = [1.0f32, 0.8, 3.0, 4.0, 5.0];
+        let g = Gaussians {
+            log_scales: scales.iter().map(|s| [s.ln(), (0.1 * s).ln(), (0.1 * s).ln()]).collect(),
+            rotations: vec![[1.0, 0.0, 0.0, 0.0]; 5],
+            opacity_logits: vec![4.0, 4.0, 4.0, 4.0, -9.0],
+            sh_degree: 0,
+            sh: vec![0.0; 15],
+            means,
+            ..Default::default()
+        };
+        let stats = DensifyStats::new(5);
+        let bounds = Bounds {
+            extent: 100.0,
+            centre: Some([0.0, 0.0, 5.0]),
+            cameras: vec![[0.0; 3], [0.0, 0.0, 10.0]],
+        };
+        let cfg = DensifyConfig::default();
+        let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
+        // Step 600: long before the first reset, when no size rule of INRIA's applies.
+        let plan = plan_densify(&g, &stats, &cfg, &bounds, 600, None, &mut rng);
+        assert_eq!(plan.reindex.src, vec![1, 2]);
+        assert_eq!(plan.counts.pruned_by, [1, 0, 0, 2]);
+        // Off (INRIA), or without cameras: only the transparent one goes.
+        let inria = DensifyConfig { camera_reach: None, ..DensifyConfig::default() };
+        assert_eq!(plan_prune(&g, &stats, &inria, &bounds, 600, None).src, vec![0, 1, 2, 3]);
+        let blind = Bounds { cameras: Vec::new(), ..bounds };
+        assert_eq!(plan_prune(&g, &stats, &cfg, &blind, 600, None).src, vec![0, 1, 2, 3]);
     }
 }

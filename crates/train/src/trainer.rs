@@ -202,6 +202,9 @@ pub struct Trainer {
     /// ([`Trainer::for_cameras`]): scales the world-size prune rule with distance
     /// (`densify` module doc).
     pub centre: Option<[f32; 3]>,
+    /// The training cameras' centres, when made from cameras: the camera-reach prune
+    /// rule (`densify` module doc).
+    pub cameras: Vec<[f32; 3]>,
     /// Gradient buffer reused by [`Trainer::step`], all zero between steps (only the
     /// rows a step wrote are cleared after it, so a step's cost does not grow with
     /// the Gaussians its view did not reach). Empty until the first step.
@@ -256,8 +259,20 @@ impl Trainer {
             if config.densify.sh_degree_interval == 0 { model.gaussians.sh_degree } else { 0 };
         let rng = ChaCha8Rng::seed_from_u64(config.seed);
         let scratch = Grads::default();
-        let centre = None;
-        Ok(Trainer { model, adam, stats, config, extent, step: 0, active_sh_degree, rng, centre, scratch })
+        let (centre, cameras) = (None, Vec::new());
+        Ok(Trainer {
+            model,
+            adam,
+            stats,
+            config,
+            extent,
+            step: 0,
+            active_sh_degree,
+            rng,
+            centre,
+            cameras,
+            scratch,
+        })
     }
 
     /// Starts training `model` for a scene seen by `cameras`: the extent is INRIA's
@@ -265,12 +280,13 @@ impl Trainer {
     pub fn for_cameras(model: Model, cameras: &[Camera], config: TrainConfig) -> Result<Self, TrainError> {
         let mut t = Trainer::new(model, scene_extent(cameras), config)?;
         t.centre = camera_centre(cameras);
+        t.cameras = cameras.iter().map(Camera::centre).collect();
         Ok(t)
     }
 
     /// The scene's size for densification.
     pub fn bounds(&self) -> Bounds {
-        Bounds { extent: self.extent, centre: self.centre }
+        Bounds { extent: self.extent, centre: self.centre, cameras: self.cameras.clone() }
     }
 
     /// The rasterizer's view of the model at the active SH degree.
@@ -498,9 +514,9 @@ impl Trainer {
             g.log_scales[plan.first_split + k] = *s;
         }
         self.stats.clear();
-        let [by_opacity, by_world, by_screen] = plan.counts.pruned_by;
+        let [by_opacity, by_world, by_screen, by_reach] = plan.counts.pruned_by;
         tracing::debug!(
-            "step {}: cloned {}, split {} ({} held back by the budget), pruned {} (opacity {by_opacity}, world size {by_world}, screen size {by_screen}) -> {} Gaussians",
+            "step {}: cloned {}, split {} ({} held back by the budget), pruned {} (opacity {by_opacity}, world size {by_world}, screen size {by_screen}, camera reach {by_reach}) -> {} Gaussians",
             self.step,
             plan.counts.cloned,
             plan.counts.split,

@@ -125,7 +125,7 @@ fn densify_without_mask_moves_the_right_rows() {
     assert_eq!((counts.cloned, counts.split, counts.pruned()), (3, 3, 2));
     assert_eq!(
         counts.pruned_by,
-        [2, 0, 0],
+        [2, 0, 0, 0],
         "rows 6 and 7 are transparent; no size rule before the first reset"
     );
     let want = [0, 1, 2, 8, 9, 10, 11, 0, 1, 2, 3, 3, 4, 4, 5, 5];

@@ -4,19 +4,17 @@
 //! centre with its true colour, as `scene` writes `points3D.txt`), and no held-out view
 //! may fall far below the others: haze in front of one camera shows as exactly that.
 //!
-//! Measured (test PSNR, worst view below the mean), seeds 4 / 5 / 6 / 7: with the
-//! distance-scaled world-size prune rule 25.94 (1.98) / 25.47 (5.05) / 26.65 (2.09) /
-//! 25.64 (1.56) dB; with INRIA's fixed rule 18.03 (3.22) / 24.41 (1.65) / 19.66 (3.08) /
-//! 22.64 (1.78) dB. The rule removes most of the loss, not every uneven view (seed 5),
-//! so this fixed-seed test checks one run, not the distribution.
+//! The trainer's defaults, over four seeds: the camera-reach prune rule (densify.rs,
+//! **Camera reach**) is what removes the haze here. Measured (test PSNR, worst view's
+//! distance below the mean), seeds 4 / 5 / 6 / 7 / 8:
+//! - default (camera reach 3.33 σ): 26.10 (3.72) / 27.47 (2.85) / 27.35 (0.77) / 26.22
+//!   (2.06) / 27.62 (0.59) dB;
+//! - without it (INRIA's rules): 23.65 (2.50) / 25.14 (3.95) / 25.72 (4.16) / 24.86
+//!   (6.39) / 24.87 (3.47) dB: haze in four seeds of five.
 //!
-//! The run uses the paper's 20 px screen-size prune, which the trainer's default leaves
-//! off (as INRIA's code and gsplat do; at 256² over 7000 steps it cost 8 dB,
-//! docs/results.md "Against reference trainers"). At this toy scale — 96×72, where 20 px is a fifth of
-//! the image, and 900 steps after the only reset — it helps: seeds 4–8 score 25.94 /
-//! 25.47 / 26.65 / 25.64 / 26.42 dB with it and 23.65 / 25.14 / 25.72 / 24.86 / 24.87 dB
-//! without, whose worst views fall 2.50 / 3.95 / 4.16 / 6.39 / 3.47 dB below the mean.
-//! So without the rule this short run does show haze; the test checks the run with it.
+//! Single runs at this size (96×72, 1500 steps) vary by a dB or more, so the test checks
+//! four seeds: every mean above a floor that separates the two rows, and at most one
+//! seed with a view more than 3 dB below its mean.
 
 mod common;
 
@@ -27,9 +25,9 @@ use transsplat_train::{
 
 /// The bound: no test view more than 3 dB below the mean.
 const MAX_BELOW_MEAN_DB: f32 = 3.0;
-/// A floor on the mean: above every seed measured with INRIA's rule (at most 24.41 dB),
-/// below every seed with ours (at least 25.47 dB).
-const MIN_TEST_PSNR: f32 = 25.0;
+/// A floor on the mean: above every seed measured without the camera-reach rule (at
+/// most 25.72 dB), below every seed with it (at least 26.10 dB).
+const MIN_TEST_PSNR: f32 = 25.9;
 
 /// The quick open tabletop at 96×72 (24 views, 3 held out) with a sparse cloud: every
 /// 12th true centre with its true colour, as `scene` writes `points3D.txt`.
@@ -67,21 +65,29 @@ fn train(ds: &Dataset, config: TrainConfig, what: &str) -> (usize, Eval) {
 #[test]
 fn open_surroundings_train_without_a_hazy_view() {
     let (background, ds) = open_capture();
-    let config = TrainConfig {
-        iterations: 1500,
-        densify: DensifyConfig { max_screen_radius: Some(20.0), ..common::densify(100, 1000, 600, 300) },
-        background,
-        seed: 4,
-        ..Default::default()
-    };
-    let (_, eval) = train(&ds, config, "adaptive");
-    let worst = eval.worst().unwrap();
+    let mut hazy = Vec::new();
+    for seed in 4..8 {
+        let config = TrainConfig {
+            iterations: 1500,
+            densify: common::densify(100, 1000, 600, 300),
+            background,
+            seed,
+            ..Default::default()
+        };
+        let (_, eval) = train(&ds, config, &format!("adaptive, seed {seed}"));
+        let worst = eval.worst().unwrap();
+        if worst.psnr < eval.psnr - MAX_BELOW_MEAN_DB {
+            hazy.push(format!(
+                "seed {seed}: {} {:.2} dB below the mean {:.2}",
+                worst.name,
+                eval.psnr - worst.psnr,
+                eval.psnr
+            ));
+        }
+    }
     assert!(
-        worst.psnr >= eval.psnr - MAX_BELOW_MEAN_DB,
-        "{} is {:.2} dB below the mean {:.2} dB: haze in front of it?",
-        worst.name,
-        eval.psnr - worst.psnr,
-        eval.psnr
+        hazy.len() <= 1,
+        "a view far below the mean (haze in front of it?) in more than one seed: {hazy:?}"
     );
 }
 

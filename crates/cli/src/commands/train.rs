@@ -75,6 +75,13 @@ pub struct TrainArgs {
     /// 8 dB of test PSNR and 57 % more Gaussians (docs/results.md, "Against reference trainers").
     #[arg(long, value_parser = super::common::finite_f32, default_value_t = DensifyConfig::default().max_screen_radius.unwrap_or(0.0))]
     pub max_screen_radius: f32,
+    /// At every densification, prune a Gaussian whose sphere of this many times its
+    /// largest scale contains a training camera (default 3.33, the rasterizer's support;
+    /// 0 = off, as INRIA). Far sky and floor Gaussians otherwise grow to tens of metres,
+    /// and a held-out camera whose image plane passes near one sees it as a veil over
+    /// the whole frame (docs/method.md T2).
+    #[arg(long, value_parser = super::common::finite_f32, default_value_t = DensifyConfig::default().camera_reach.unwrap_or(0.0))]
+    pub camera_reach: f32,
     /// Never grow past this many Gaussians. With `--strategy adaptive` densification
     /// takes the largest gradients first while they fit (default 0 = no cap, as INRIA);
     /// with `--strategy mcmc` it is the budget the run grows to (default 0 = gsplat's
@@ -152,6 +159,9 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
     if !(0.0..1.0).contains(&args.min_opacity) {
         bail!("--min-opacity must be in [0, 1), got {}", args.min_opacity);
     }
+    if args.camera_reach < 0.0 {
+        bail!("--camera-reach must be at least 0, got {}", args.camera_reach);
+    }
     if args.max_screen_radius < 0.0 {
         bail!("--max-screen-radius must be at least 0, got {}", args.max_screen_radius);
     }
@@ -199,6 +209,7 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
                 grad_threshold: args.densify_grad_threshold,
                 min_opacity: args.min_opacity,
                 max_screen_radius: (args.max_screen_radius > 0.0).then_some(args.max_screen_radius),
+                camera_reach: (args.camera_reach > 0.0).then_some(args.camera_reach),
                 max_gaussians: (args.max_gaussians > 0).then_some(args.max_gaussians),
                 ..Default::default()
             },
@@ -292,6 +303,7 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
         "train_psnr_sample": train_psnr, "per_test_view": per_view,
         "seconds": started.elapsed().as_secs_f64(), "scene": ply, "adam": trainer.config.adam.name(),
         "clamp_grad": trainer.config.clamp_grad.name(),
+        "camera_reach": trainer.config.densify.camera_reach,
         "strategy": trainer.config.strategy.name(),
     });
     atomic::write_bytes(&staged.path().join(SUMMARY_FILE), format!("{summary:#}\n").as_bytes())?;
