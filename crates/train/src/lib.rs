@@ -32,6 +32,7 @@ pub mod bench;
 pub mod checkpoint;
 pub mod dataset;
 pub mod densify;
+pub mod diagnose;
 pub mod fit;
 pub mod init;
 pub mod loss;

@@ -8,6 +8,7 @@ use std::sync::atomic::AtomicBool;
 use transsplat_raster::ClampGrad;
 use transsplat_scene::atomic;
 use transsplat_train::dataset::Masks;
+use transsplat_train::diagnose::{diagnose, Cause, Diagnosis};
 use transsplat_train::fit::{train_run_id, SUMMARY_FILE, TRAIN_FILE};
 use transsplat_train::init::MAX_RANDOM_POINTS;
 use transsplat_train::{
@@ -289,11 +290,18 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
     let ply = write_output(staged.path(), &trainer, &ds.cameras)?;
     let ply = out.join(ply.strip_prefix(staged.path()).unwrap_or(&ply));
     write_test_renders(&staged.path().join(TEST_RENDERS), &trainer, &ds.test)?;
-    let train_psnr = warn_on_floaters(&trainer, &ds, &eval);
+    let (train_psnr, low_views) = warn_on_floaters(&trainer, &ds, &eval);
     let per_view: Vec<_> = eval
         .per_view
         .iter()
-        .map(|v| serde_json::json!({"name": v.name, "psnr": v.psnr, "ssim": v.ssim}))
+        .map(|v| {
+            let mut entry = serde_json::json!({"name": v.name, "psnr": v.psnr, "ssim": v.ssim});
+            if let Some((_, d)) = low_views.iter().find(|(name, _)| *name == v.name) {
+                entry["cause"] = d.cause.name().into();
+                entry["near_share"] = d.near_share.into();
+            }
+            entry
+        })
         .collect();
     let worst = eval.worst().map(|v| serde_json::json!({"name": v.name, "psnr": v.psnr}));
     let summary = serde_json::json!({
@@ -349,18 +357,44 @@ fn write_test_renders(dir: &Path, trainer: &Trainer, test: &[transsplat_train::V
     Ok(())
 }
 
-/// Warns when a test view lies far below the mean test PSNR or the test PSNR far below
-/// the training views' (every 8th training view is scored); returns that training PSNR.
-fn warn_on_floaters(trainer: &Trainer, ds: &dataset::Dataset, eval: &transsplat_train::Eval) -> Option<f32> {
-    let worst = eval.worst()?;
-    if worst.psnr < eval.psnr - FLOATER_WARN_DB {
+/// Warns when a test view lies far below the mean test PSNR, naming the cause
+/// (floaters or extrapolation, [`diagnose`]), or the test PSNR far below the training
+/// views' (every 8th training view is scored). Returns that training PSNR and each low
+/// view's diagnosis.
+fn warn_on_floaters(
+    trainer: &Trainer,
+    ds: &dataset::Dataset,
+    eval: &transsplat_train::Eval,
+) -> (Option<f32>, Vec<(String, Diagnosis)>) {
+    if eval.views == 0 {
+        return (None, Vec::new());
+    }
+    let train_cameras: Vec<_> = ds.train.iter().map(|v| v.camera.clone()).collect();
+    let mut low = Vec::new();
+    for (view, score) in ds.test.iter().zip(&eval.per_view) {
+        if score.psnr >= eval.psnr - FLOATER_WARN_DB {
+            continue;
+        }
+        let d = diagnose(trainer, &view.camera, &train_cameras);
+        let why = match d.cause {
+            Cause::Floaters => format!(
+                "floaters: {:.0} % of what it sees lies nearer than a quarter of the depth at which any \
+                 training view sees those splats",
+                100.0 * d.near_share
+            ),
+            Cause::Extrapolation => format!(
+                "extrapolation: it sees what the training views saw, from outside them; only {:.0} % of \
+                 what it sees lies in front of where they see it",
+                100.0 * d.near_share
+            ),
+        };
         tracing::warn!(
-            "test view {} is at {:.2} dB, {:.1} dB below the mean test PSNR: look for floaters in front of it \
-             (test_renders/)",
-            worst.name,
-            worst.psnr,
-            eval.psnr - worst.psnr
+            "test view {} is at {:.2} dB, {:.1} dB below the mean test PSNR: {why} (test_renders/)",
+            score.name,
+            score.psnr,
+            eval.psnr - score.psnr
         );
+        low.push((score.name.clone(), d));
     }
     let sample: Vec<_> = ds.train.iter().step_by(8).cloned().collect();
     let train = transsplat_train::evaluate(trainer, &sample);
@@ -372,7 +406,7 @@ fn warn_on_floaters(trainer: &Trainer, ds: &dataset::Dataset, eval: &transsplat_
             train.psnr
         );
     }
-    Some(train.psnr)
+    (Some(train.psnr), low)
 }
 
 /// Arguments of `transsplat bench train`.
