@@ -272,6 +272,8 @@ pub fn run(
         .map(|s| {
             let v = serde_json::json!({
                 "target_psnr": s.metrics.target_psnr, "background_psnr": s.metrics.background_psnr,
+                "background_psnr_worst": s.metrics.background_psnr_worst,
+                "background_psnr_views": s.metrics.background_psnr_views,
                 "psnr": s.metrics.psnr, "ssim": s.metrics.ssim, "gate_auroc": s.gate_auroc,
                 "seconds": s.seconds, "transport_seconds": s.transport_seconds,
             });
@@ -316,6 +318,7 @@ fn write_report(
                 s.name.clone(),
                 f(s.metrics.target_psnr),
                 f(s.metrics.background_psnr),
+                f(s.metrics.background_psnr_worst),
                 f(s.metrics.psnr),
                 format!("{:.4}", s.metrics.ssim),
                 s.gate_auroc.map_or("-".into(), |a| format!("{a:.4}")),
@@ -329,6 +332,7 @@ fn write_report(
             "method",
             "target PSNR",
             "background PSNR",
+            "background, worst view",
             "PSNR",
             "SSIM",
             "gate AUROC",

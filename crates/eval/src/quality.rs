@@ -215,10 +215,13 @@ pub struct Average {
     /// Mean background PSNR over `background_cases` cases (a global edit has none).
     pub background_psnr: f64,
     pub background_cases: usize,
+    /// Mean over the same cases of the worst test view's background PSNR.
+    pub background_psnr_worst: f64,
     /// Over the cases with a gate.
     pub gate_auroc: Option<f64>,
-    /// Cases where this method has the lowest target or background PSNR of all the
-    /// methods with a value (every method tied at the lowest counts; none when all tie).
+    /// Cases where this method has the lowest target PSNR, background PSNR or worst
+    /// view's background PSNR of all the methods with a value (every method tied at the
+    /// lowest counts; none when all tie).
     pub worst_cases: usize,
 }
 
@@ -240,6 +243,7 @@ pub fn averages(results: &[CaseResult]) -> BTreeMap<String, Average> {
     for r in results.iter().filter(|r| r.failed.is_none()) {
         let worst_t = worst(&r.scores, |s| s.metrics.target_psnr);
         let worst_b = worst(&r.scores, |s| s.metrics.background_psnr);
+        let worst_view = worst(&r.scores, |s| s.metrics.background_psnr_worst);
         for s in &r.scores {
             let a = out.entry(s.name.clone()).or_default();
             a.cases += 1;
@@ -249,9 +253,10 @@ pub fn averages(results: &[CaseResult]) -> BTreeMap<String, Average> {
             }
             if s.metrics.background_psnr.is_finite() {
                 a.background_psnr += s.metrics.background_psnr;
+                a.background_psnr_worst += s.metrics.background_psnr_worst;
                 a.background_cases += 1;
             }
-            if worst_t.contains(&s.name.as_str()) || worst_b.contains(&s.name.as_str()) {
+            if [&worst_t, &worst_b, &worst_view].iter().any(|w| w.contains(&s.name.as_str())) {
                 a.worst_cases += 1;
             }
             if let Some(g) = s.gate_auroc.filter(|g| g.is_finite()) {
@@ -263,6 +268,7 @@ pub fn averages(results: &[CaseResult]) -> BTreeMap<String, Average> {
     for (name, a) in out.iter_mut() {
         a.target_psnr = mean(a.target_psnr, a.target_cases);
         a.background_psnr = mean(a.background_psnr, a.background_cases);
+        a.background_psnr_worst = mean(a.background_psnr_worst, a.background_cases);
         a.gate_auroc = aurocs.get(name).map(|v| v.iter().sum::<f64>() / v.len() as f64);
     }
     out
@@ -280,12 +286,12 @@ fn db(v: f64) -> String {
 /// The suite as Markdown: one row per case and method, then the averages.
 pub fn table(results: &[CaseResult], avg: &BTreeMap<String, Average>) -> String {
     let mut s = String::from(
-        "| case | method | target PSNR | background PSNR | gate AUROC |\n|---|---|---|---|---|\n",
+        "| case | method | target PSNR | background PSNR | background, worst view | gate AUROC |\n|---|---|---|---|---|---|\n",
     );
     for r in results {
         if let Some(why) = &r.failed {
             s += &format!(
-                "| {} | **failed** | {} | | |\n",
+                "| {} | **failed** | {} | | | |\n",
                 r.case.name,
                 why.replace('|', "\\|").replace('\n', " ")
             );
@@ -293,25 +299,27 @@ pub fn table(results: &[CaseResult], avg: &BTreeMap<String, Average>) -> String 
         }
         for m in &r.scores {
             s += &format!(
-                "| {} | {} | {} | {} | {} |\n",
+                "| {} | {} | {} | {} | {} | {} |\n",
                 r.case.name,
                 m.name,
                 db(m.metrics.target_psnr),
                 db(m.metrics.background_psnr),
+                db(m.metrics.background_psnr_worst),
                 m.gate_auroc.map_or("-".into(), |a| format!("{a:.4}"))
             );
         }
     }
     s += &fidelity_table(results);
-    s += "\n| method | cases | mean target PSNR (cases) | mean background PSNR (cases) | mean gate AUROC | worst on a case |\n|---|---|---|---|---|---|\n";
+    s += "\n| method | cases | mean target PSNR (cases) | mean background PSNR (cases) | mean worst-view background PSNR | mean gate AUROC | worst on a case |\n|---|---|---|---|---|---|---|\n";
     for (name, a) in avg {
         s += &format!(
-            "| {name} | {} | {} ({}) | {} ({}) | {} | {} |\n",
+            "| {name} | {} | {} ({}) | {} ({}) | {} | {} | {} |\n",
             a.cases,
             db(a.target_psnr),
             a.target_cases,
             db(a.background_psnr),
             a.background_cases,
+            db(a.background_psnr_worst),
             a.gate_auroc.map_or("-".into(), |g| format!("{g:.4}")),
             a.worst_cases
         );
@@ -381,6 +389,7 @@ fn write_report(
                 a.cases.to_string(),
                 format!("{} ({})", db(a.target_psnr), a.target_cases),
                 format!("{} ({})", db(a.background_psnr), a.background_cases),
+                db(a.background_psnr_worst),
                 a.gate_auroc.map_or("-".into(), |g| format!("{g:.4}")),
                 a.worst_cases.to_string(),
             ]
@@ -392,6 +401,7 @@ fn write_report(
             "cases",
             "target PSNR (cases)",
             "background PSNR (cases)",
+            "background, worst view",
             "gate AUROC",
             "worst on a case",
         ],
@@ -461,7 +471,12 @@ mod tests {
     fn score(name: &str, t: f64, b: f64) -> MethodScore {
         MethodScore {
             name: name.into(),
-            metrics: GtMetrics { target_psnr: t, background_psnr: b, psnr: 0.0, ssim: 0.0 },
+            metrics: GtMetrics {
+                target_psnr: t,
+                background_psnr: b,
+                background_psnr_worst: b,
+                ..Default::default()
+            },
             gate_auroc: None,
             seconds: 0.0,
             transport_seconds: 0.0,
@@ -526,13 +541,13 @@ mod tests {
         // per case); b: worst target in case 0; no one is worst on a NaN background
         assert_eq!((avg["a"].worst_cases, avg["b"].worst_cases), (2, 1));
         let t = table(&results, &avg);
-        assert!(t.contains("| garden-built-global-s0 | a | 10.00 | - | - |"), "{t}");
-        assert!(t.contains("| a | 2 | 20.00 (2) | 40.00 (1) | - | 2 |"), "{t}");
+        assert!(t.contains("| garden-built-global-s0 | a | 10.00 | - | - | - |"), "{t}");
+        assert!(t.contains("| a | 2 | 20.00 (2) | 40.00 (1) | 40.00 | - | 2 |"), "{t}");
         // a method without any value shows "-"
         let only_nan = vec![ran(c[1].clone(), vec![score("a", f64::NAN, f64::NAN)])];
         let avg = averages(&only_nan);
         assert!(avg["a"].target_psnr.is_nan() && avg["a"].worst_cases == 0);
-        assert!(table(&only_nan, &avg).contains("| a | 1 | - (0) | - (0) | - | 0 |"));
+        assert!(table(&only_nan, &avg).contains("| a | 1 | - (0) | - (0) | - | - | 0 |"));
         // ties: both methods at the lowest value are worst; when all tie, none is
         let tied = vec![ran(
             c[1].clone(),
@@ -543,6 +558,17 @@ mod tests {
         let all_tie = vec![ran(c[1].clone(), vec![score("a", 20.0, 30.0), score("b", 20.0, 30.0)])];
         let avg = averages(&all_tie);
         assert_eq!((avg["a"].worst_cases, avg["b"].worst_cases), (0, 0));
+    }
+
+    #[test]
+    fn a_leak_in_one_view_counts_as_worst_though_the_mean_is_best() {
+        let c = cases(0);
+        let mut leaky = score("a", 30.0, 50.0);
+        leaky.metrics.background_psnr_worst = 34.0;
+        let results = vec![ran(c[0].clone(), vec![leaky, score("b", 30.0, 45.0)])];
+        let avg = averages(&results);
+        assert_eq!((avg["a"].worst_cases, avg["b"].worst_cases), (1, 1));
+        assert_eq!((avg["a"].background_psnr_worst, avg["b"].background_psnr_worst), (34.0, 45.0));
     }
 
     #[test]
