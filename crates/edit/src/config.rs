@@ -75,7 +75,9 @@ impl Method {
                 cfg.loss.colour_gate = 0.0;
                 cfg.semantic_init = SemanticInit::Source;
                 cfg.prototypes.close_radius = 0.0;
-                cfg.schedule.colour_lift = false;
+                // The colour lift is an initialisation of the optimisation, not part of
+                // the formulation: `paper` keeps it, so the row compares formulations
+                // (docs/method.md M9).
             }
             Method::Geometric => {
                 cfg.transport.lambda_sem = 0.0;
@@ -178,7 +180,7 @@ pub struct ScheduleConfig {
     pub delta_render: bool,
     /// Before the first step, move the colour of every Gaussian the method lets
     /// change by the blend-weighted mean of the edited views' residuals over the
-    /// pixels it blends (docs/method.md#m9-the-edit-loop); off in `paper`.
+    /// pixels it blends (docs/method.md#m9-the-edit-loop); every method has it.
     pub colour_lift: bool,
 }
 
