@@ -102,6 +102,17 @@ fn main() {
             | Command::Bench(BenchCommand::Edit(_))
             | Command::Bench(BenchCommand::Quality(_))
     );
+    if !polls_cancel {
+        // The short commands print and end: a reader that closes the pipe early
+        // (`transsplat info SCENE | head`) ends them quietly, as it does any Unix tool,
+        // instead of a panic on the failed write. Their files are written to a temporary
+        // name and renamed, so nothing half-written is left.
+        // SAFETY: called before any other thread starts; SIG_DFL is a valid disposition.
+        #[cfg(unix)]
+        unsafe {
+            libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+        }
+    }
     if polls_cancel {
         // SIGINT, SIGTERM (what `timeout`, docker and batch schedulers send) and SIGHUP.
         let _ = ctrlc::set_handler(|| {

@@ -75,6 +75,27 @@ fn info_reports_count_and_degree() {
     assert!(String::from_utf8_lossy(&text.stdout).contains("gaussians    3000"));
 }
 
+/// `transsplat info SCENE | head`: a reader that closes the pipe before the output ends
+/// the command quietly (SIGPIPE, as any Unix tool), not with a panic.
+#[test]
+fn info_into_a_closed_pipe_ends_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    let dir = tempfile::tempdir().unwrap();
+    let (scene, _) = write_inputs(dir.path());
+    let mut child = bin()
+        .arg("info")
+        .arg(&scene)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take()); // the reader is gone before anything is printed
+    let o = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(o.status.signal(), Some(libc::SIGPIPE), "{:?}: {stderr}", o.status);
+}
+
 #[test]
 fn bad_inputs_exit_2_with_a_message_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();
