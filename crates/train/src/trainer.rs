@@ -154,6 +154,68 @@ pub enum TrainError {
     /// Reading or writing a checkpoint failed (the message names the file).
     #[error(transparent)]
     Checkpoint(#[from] transsplat_scene::Error),
+    /// A setting out of its range ([`TrainConfig::validate`]).
+    #[error(transparent)]
+    Setting(#[from] InvalidSetting),
+}
+
+/// A training setting out of its range: `key` names it as the config does
+/// (`densify.min_opacity`), so each front can name it its own way (a flag, a keyword).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("{key} {problem}")]
+pub struct InvalidSetting {
+    pub key: &'static str,
+    /// What is wrong, e.g. "must be in [0, 1), got 1.5".
+    pub problem: String,
+}
+
+/// The most halvings [`Downscale::levels`] may ask for (1/64 of the size).
+pub const MAX_DOWNSCALES: u32 = 6;
+
+impl TrainConfig {
+    /// Checks every setting against its range, naming the first one out of it (as
+    /// `EditConfig::validate` does for the edit).
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
+        let bad = |key: &'static str, problem: String| Err(InvalidSetting { key, problem });
+        let d = &self.densify;
+        if self.iterations == 0 {
+            return bad("iterations", "must be at least 1".into());
+        }
+        if !(self.lr.opacity.is_finite() && self.lr.opacity >= 0.0) {
+            return bad("lr.opacity", format!("must be a non-negative number, got {}", self.lr.opacity));
+        }
+        if !(d.grad_threshold.is_finite() && d.grad_threshold > 0.0) {
+            return bad("densify.grad_threshold", format!("must be positive, got {}", d.grad_threshold));
+        }
+        if !(0.0..1.0).contains(&d.min_opacity) {
+            return bad("densify.min_opacity", format!("must be in [0, 1), got {}", d.min_opacity));
+        }
+        if let Some(k) = d.camera_reach.filter(|k| !(k.is_finite() && *k > 0.0)) {
+            return bad("densify.camera_reach", format!("must be positive (or off), got {k}"));
+        }
+        if let Some(r) = d.max_screen_radius.filter(|r| !(r.is_finite() && *r > 0.0)) {
+            return bad("densify.max_screen_radius", format!("must be positive (or off), got {r}"));
+        }
+        if self.downscale.levels > MAX_DOWNSCALES {
+            return bad(
+                "downscale.levels",
+                format!("must be at most {MAX_DOWNSCALES}, got {}", self.downscale.levels),
+            );
+        }
+        if self.downscale.levels > 0 && self.downscale.every == 0 {
+            return bad(
+                "downscale.every",
+                format!("must be at least 1 with {} levels", self.downscale.levels),
+            );
+        }
+        if !(0.0..=1.0).contains(&self.lambda_dssim) {
+            return bad("lambda_dssim", format!("must be in [0, 1], got {}", self.lambda_dssim));
+        }
+        if !self.background.iter().all(|c| c.is_finite()) {
+            return bad("background", format!("must be finite, got {:?}", self.background));
+        }
+        Ok(())
+    }
 }
 
 /// Rendering, loss and gradients of one view.
@@ -249,6 +311,7 @@ pub fn scene_extent(cameras: &[Camera]) -> f32 {
 impl Trainer {
     /// Starts training `model` in a scene of size `extent`.
     pub fn new(model: Model, extent: f32, config: TrainConfig) -> Result<Self, TrainError> {
+        config.validate()?;
         model.validate().map_err(TrainError::Mismatch)?;
         if !(extent.is_finite() && extent > 0.0) {
             return Err(TrainError::Mismatch(format!("scene extent {extent} is not positive")));

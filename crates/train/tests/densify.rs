@@ -218,3 +218,33 @@ fn schedule_defaults_follow_inria() {
     assert!(!d.prunes_large(3000) && d.prunes_large(3001));
     assert!(!DensifyConfig::disabled().densifies(600) && !DensifyConfig::disabled().records(1));
 }
+
+/// `TrainConfig::validate` names the first setting out of its range; `Trainer::new`
+/// refuses such a config.
+#[test]
+fn train_config_validates_itself() {
+    let ok = TrainConfig::default();
+    assert!(ok.validate().is_ok());
+    let key = |c: TrainConfig| c.validate().unwrap_err().key;
+    assert_eq!(key(TrainConfig { iterations: 0, ..ok.clone() }), "iterations");
+    let d = |densify: DensifyConfig| TrainConfig { densify, ..TrainConfig::default() };
+    assert_eq!(key(d(DensifyConfig { min_opacity: 1.0, ..Default::default() })), "densify.min_opacity");
+    assert_eq!(
+        key(d(DensifyConfig { grad_threshold: f32::NAN, ..Default::default() })),
+        "densify.grad_threshold"
+    );
+    assert_eq!(
+        key(d(DensifyConfig { camera_reach: Some(-1.0), ..Default::default() })),
+        "densify.camera_reach"
+    );
+    assert_eq!(
+        key(d(DensifyConfig { max_screen_radius: Some(0.0), ..Default::default() })),
+        "densify.max_screen_radius"
+    );
+    let e = TrainConfig { lambda_dssim: 1.5, ..ok.clone() }.validate().unwrap_err();
+    assert_eq!(e.to_string(), "lambda_dssim must be in [0, 1], got 1.5");
+    let mut t = trainer();
+    t.config.densify.min_opacity = -0.5;
+    let model = t.model.clone();
+    assert!(Trainer::new(model, EXTENT, t.config).is_err());
+}

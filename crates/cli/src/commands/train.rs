@@ -137,28 +137,13 @@ fn parse_adam(s: &str) -> Result<AdamRule, String> {
     AdamRule::from_name(s).ok_or_else(|| format!("unknown Adam rule {s:?}; one of: {}", names.join(", ")))
 }
 
-/// Halvings `--downscales` may ask for (1/64 of the size).
-const MAX_DOWNSCALES: u32 = 6;
-
 /// Runs `transsplat train`.
 pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
-    if args.iters == 0 {
-        bail!("--iters must be at least 1");
-    }
     if !matches!(args.resolution, 1..=64) {
         bail!("--resolution must be between 1 and 64, got {}", args.resolution);
     }
     if args.sh_degree > 3 {
         bail!("--sh-degree must be 0 to 3, got {}", args.sh_degree);
-    }
-    if !(args.opacity_lr.is_finite() && args.opacity_lr >= 0.0) {
-        bail!("--opacity-lr must be a non-negative number");
-    }
-    if args.densify_grad_threshold <= 0.0 {
-        bail!("--densify-grad-threshold must be positive, got {}", args.densify_grad_threshold);
-    }
-    if !(0.0..1.0).contains(&args.min_opacity) {
-        bail!("--min-opacity must be in [0, 1), got {}", args.min_opacity);
     }
     if args.camera_reach < 0.0 {
         bail!("--camera-reach must be at least 0, got {}", args.camera_reach);
@@ -166,15 +151,39 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
     if args.max_screen_radius < 0.0 {
         bail!("--max-screen-radius must be at least 0, got {}", args.max_screen_radius);
     }
-    if args.downscales > MAX_DOWNSCALES {
-        bail!("--downscales must be at most {MAX_DOWNSCALES}, got {}", args.downscales);
-    }
     if args.downscales > 0 && args.downscale_every == 0 {
         bail!("--downscale-every must be at least 1 with --downscales {}", args.downscales);
     }
     if args.random_points > MAX_RANDOM_POINTS {
         bail!("--random-points must be at most {MAX_RANDOM_POINTS}, got {}", args.random_points);
     }
+    let opts = FitOptions {
+        config: TrainConfig {
+            iterations: args.iters,
+            lr: LearningRates { opacity: args.opacity_lr, ..Default::default() },
+            densify: DensifyConfig {
+                until_step: args.densify_until,
+                grad_threshold: args.densify_grad_threshold,
+                min_opacity: args.min_opacity,
+                max_screen_radius: (args.max_screen_radius > 0.0).then_some(args.max_screen_radius),
+                camera_reach: (args.camera_reach > 0.0).then_some(args.camera_reach),
+                max_gaussians: (args.max_gaussians > 0).then_some(args.max_gaussians),
+                ..Default::default()
+            },
+            background: args.background,
+            seed: args.seed,
+            adam: args.adam,
+            clamp_grad: args.clamp_grad,
+            strategy: args.strategy,
+            downscale: Downscale { levels: args.downscales, every: args.downscale_every },
+            ..Default::default()
+        },
+        max_sh_degree: args.sh_degree,
+        random_points: args.random_points,
+        eval_every: args.eval_every,
+    };
+    // The settings are checked before anything is read or written, each named by its flag.
+    opts.config.validate().map_err(|e| anyhow::anyhow!("{} {}", flag_of(e.key), e.problem))?;
     let masks = match (&args.masks, args.no_masks) {
         (Some(dir), _) => Masks::Folder(dir.clone()),
         (None, true) => Masks::Off,
@@ -201,31 +210,6 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
         ds.train.len(),
         ds.test.len()
     );
-    let opts = FitOptions {
-        config: TrainConfig {
-            iterations: args.iters,
-            lr: LearningRates { opacity: args.opacity_lr, ..Default::default() },
-            densify: DensifyConfig {
-                until_step: args.densify_until,
-                grad_threshold: args.densify_grad_threshold,
-                min_opacity: args.min_opacity,
-                max_screen_radius: (args.max_screen_radius > 0.0).then_some(args.max_screen_radius),
-                camera_reach: (args.camera_reach > 0.0).then_some(args.camera_reach),
-                max_gaussians: (args.max_gaussians > 0).then_some(args.max_gaussians),
-                ..Default::default()
-            },
-            background: args.background,
-            seed: args.seed,
-            adam: args.adam,
-            clamp_grad: args.clamp_grad,
-            strategy: args.strategy,
-            downscale: Downscale { levels: args.downscales, every: args.downscale_every },
-            ..Default::default()
-        },
-        max_sh_degree: args.sh_degree,
-        random_points: args.random_points,
-        eval_every: args.eval_every,
-    };
     let mut control = args.checkpoints.control(&out, 500, TRAIN_FILE, cancel)?;
     if let Some(ck) = control.checkpoint.as_mut() {
         ck.id = train_run_id(&ds, &opts, &load);
@@ -333,6 +317,22 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
     );
     println!("{summary}");
     Ok(())
+}
+
+/// The `train` flag that sets a `TrainConfig` setting (`TrainConfig::validate`'s keys).
+fn flag_of(key: &str) -> &'static str {
+    match key {
+        "iterations" => "--iters",
+        "lr.opacity" => "--opacity-lr",
+        "densify.grad_threshold" => "--densify-grad-threshold",
+        "densify.min_opacity" => "--min-opacity",
+        "densify.camera_reach" => "--camera-reach",
+        "densify.max_screen_radius" => "--max-screen-radius",
+        "downscale.levels" => "--downscales",
+        "downscale.every" => "--downscale-every",
+        "background" => "--background",
+        _ => "a setting",
+    }
 }
 
 /// Folder of the test views' renders in a training output.
