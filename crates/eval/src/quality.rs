@@ -310,6 +310,7 @@ pub fn table(results: &[CaseResult], avg: &BTreeMap<String, Average>) -> String 
         }
     }
     s += &fidelity_table(results);
+    s += &ceiling_table(results);
     s += "\n| method | cases | mean target PSNR (cases) | mean background PSNR (cases) | mean worst-view background PSNR | mean gate AUROC | worst on a case |\n|---|---|---|---|---|---|---|\n";
     for (name, a) in avg {
         s += &format!(
@@ -365,6 +366,52 @@ pub fn fidelity_table(results: &[CaseResult]) -> String {
             db(r.retrained.unwrap_or(f64::NAN)),
             gaps.join(" | ")
         );
+    }
+    s
+}
+
+/// The method whose target PSNR with perfect edits is the ceiling of a trained scene:
+/// the image loss alone, every Gaussian free.
+pub const CEILING_METHOD: &str = "naive";
+
+/// The trained cases against their ceiling: `naive` fed the uncorrupted edits of the
+/// same trained scene (the severity-0 case of the same scene and edit). Per method, its
+/// target PSNR minus the ceiling; and the default's distance to the best method of the
+/// case. As Markdown; empty without trained cases that have a ceiling.
+pub fn ceiling_table(results: &[CaseResult]) -> String {
+    let ran: Vec<&CaseResult> = results.iter().filter(|r| r.failed.is_none() && r.case.trained > 0).collect();
+    let ceiling_of = |c: &Case| {
+        ran.iter()
+            .find(|r| {
+                r.case.severity == 0.0
+                    && (&r.case.scene, r.case.trained, &r.case.edit) == (&c.scene, c.trained, &c.edit)
+            })
+            .and_then(|r| r.scores.iter().find(|m| m.name == CEILING_METHOD))
+            .map(|m| m.metrics.target_psnr)
+            .filter(|v| v.is_finite())
+    };
+    let rows: Vec<(&CaseResult, f64)> = ran.iter().filter_map(|r| Some((*r, ceiling_of(&r.case)?))).collect();
+    let Some((first, _)) = rows.first() else { return String::new() };
+    let names: Vec<&str> = first.scores.iter().map(|m| m.name.as_str()).collect();
+    let mut s = format!(
+        "\nTrained cases against the ceiling ({CEILING_METHOD} fed the uncorrupted edits of the same \
+         trained scene): each method's target PSNR minus the ceiling, and the default's distance \
+         to the best method of the case\n\n| case | ceiling | {} | default − best |\n|---|---|{}---|\n",
+        names.join(" | "),
+        "---|".repeat(names.len())
+    );
+    for (r, ceiling) in rows {
+        let target = |n: &str| r.scores.iter().find(|m| m.name == n).map(|m| m.metrics.target_psnr);
+        let gaps: Vec<String> = names
+            .iter()
+            .map(|n| {
+                target(n).filter(|t| t.is_finite()).map_or("-".into(), |t| format!("{:+.2}", t - ceiling))
+            })
+            .collect();
+        let best =
+            r.scores.iter().map(|m| m.metrics.target_psnr).filter(|v| v.is_finite()).fold(f64::NAN, f64::max);
+        let to_best = target(Method::Transsplat.name()).map_or("-".into(), |t| db(t - best));
+        s += &format!("| {} | {} | {} | {to_best} |\n", r.case.name, db(ceiling), gaps.join(" | "));
     }
     s
 }
@@ -608,6 +655,29 @@ mod tests {
         assert!(t.contains("| tabletop-trained-recolour-s0 | 33.00 | 35.50 | -1.50 | +1.25 |"), "{t}");
         assert!(!t.contains("built"), "built cases have no fidelity row: {t}");
         assert_eq!(fidelity_table(&results[..1]), "");
+        assert!(table(&results, &averages(&results)).contains(&t));
+    }
+
+    #[test]
+    fn trained_cases_are_measured_against_naive_with_perfect_edits() {
+        let c = cases(500);
+        let find = |sev: f32| {
+            c.iter()
+                .find(|c| c.trained > 0 && c.edit == "recolour" && c.scene == "tabletop" && c.severity == sev)
+                .unwrap()
+                .clone()
+        };
+        let results = vec![
+            ran(c[0].clone(), vec![score("transsplat", 30.0, 40.0), score("naive", 20.0, 50.0)]),
+            ran(find(0.0), vec![score("transsplat", 33.0, 40.0), score("naive", 34.0, 50.0)]),
+            ran(find(1.0), vec![score("transsplat", 25.5, 40.0), score("naive", 26.0, 50.0)]),
+        ];
+        let t = ceiling_table(&results);
+        assert!(t.contains("| case | ceiling | transsplat | naive | default − best |"), "{t}");
+        assert!(t.contains("| tabletop-trained-recolour-s0 | 34.00 | -1.00 | +0.00 | -1.00 |"), "{t}");
+        assert!(t.contains("| tabletop-trained-recolour-s1 | 34.00 | -8.50 | -8.00 | -0.50 |"), "{t}");
+        assert!(!t.contains("built"), "built cases have no ceiling: {t}");
+        assert_eq!(ceiling_table(&results[..1]), "");
         assert!(table(&results, &averages(&results)).contains(&t));
     }
 }
