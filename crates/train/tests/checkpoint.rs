@@ -180,10 +180,11 @@ fn a_poisoned_learning_rate_stops_naming_the_step_and_group() {
     let msg = e.to_string();
     assert!(matches!(e, TrainError::NonFinite { step: 1 | 2, .. }), "{msg}");
     assert!(msg.contains("scales") && msg.contains("NaN or infinite"), "{msg}");
-    // NaN learning rate on the opacities: caught at step 1 after the update.
-    let mut opts = options();
-    opts.config.lr.opacity = f32::NAN;
+    // NaN learning rate on the opacities, poisoned after the start (a NaN setting is
+    // refused by TrainConfig::validate before it): caught at step 1 after the update.
+    let opts = options();
     let (mut t, mut state) = fresh(&ds, &opts);
+    t.config.lr.opacity = f32::NAN;
     let e = fit_with(&ds, &mut t, &mut state, 0, &mut Control::default(), |_| {}).unwrap_err().to_string();
     assert!(e.starts_with("step 1: the opacities became NaN"), "{e}");
     // The output writer refuses such a model.
