@@ -48,6 +48,10 @@ fn train_on_a_built_in_scene_writes_an_inria_folder() {
     let worst = summary["worst_test_view"]["psnr"].as_f64().unwrap();
     assert!(views.iter().all(|v| v["psnr"].as_f64().unwrap() >= worst));
     assert!(summary["train_psnr_sample"].as_f64().unwrap().is_finite());
+    // The typed reader of train.json reads what the command wrote.
+    let typed = transsplat_train::fit::TrainSummary::read(&out).unwrap();
+    assert_eq!((typed.steps, typed.test_views), (60, views.len()));
+    assert_eq!(typed.camera_reach, Some(3.33));
     let renders = dir.path().join("renders");
     ok(&bin().args(["render", "--scene"]).arg(&out).arg("--out").arg(&renders).output().unwrap());
     assert!(renders.join("view_001.png").is_file());

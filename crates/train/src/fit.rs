@@ -326,6 +326,67 @@ impl CoarseViews {
 /// PSNR); it also marks the folder as `train`'s own, which a rerun may replace.
 pub const SUMMARY_FILE: &str = "train.json";
 
+/// `train.json`: what a training run did and how its test views score. Written by
+/// [`TrainSummary::write`] and read back by [`TrainSummary::read`].
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TrainSummary {
+    pub steps: u64,
+    pub gaussians: usize,
+    /// Mean test PSNR and SSIM over whole images (none without test views).
+    pub test_psnr: Option<f32>,
+    pub test_ssim: Option<f32>,
+    /// Mean test PSNR inside the test views' masks, when they have masks.
+    pub test_psnr_masked: Option<f32>,
+    pub test_views: usize,
+    pub worst_test_view: Option<WorstView>,
+    /// Mean PSNR of every 8th training view.
+    pub train_psnr_sample: Option<f32>,
+    pub per_test_view: Vec<TestView>,
+    pub seconds: f64,
+    /// The written scene.
+    pub scene: PathBuf,
+    /// The settings that name the run's rules (`adam`, `clamp_grad`, `strategy` by name).
+    pub adam: String,
+    pub clamp_grad: String,
+    pub camera_reach: Option<f32>,
+    pub strategy: String,
+}
+
+/// The lowest-scoring test view.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct WorstView {
+    pub name: String,
+    pub psnr: f32,
+}
+
+/// One test view's scores and, for a view far below the mean, its diagnosis.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TestView {
+    pub name: String,
+    pub psnr: f32,
+    pub ssim: f32,
+    /// `floaters` or `extrapolation` ([`crate::diagnose`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cause: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub near_share: Option<f32>,
+}
+
+impl TrainSummary {
+    /// Writes `dir/train.json` atomically.
+    pub fn write(&self, dir: &Path) -> transsplat_scene::Result<()> {
+        let text = serde_json::to_string_pretty(self).expect("a summary serialises");
+        transsplat_scene::atomic::write_bytes(&dir.join(SUMMARY_FILE), format!("{text}\n").as_bytes())
+    }
+
+    /// Reads `dir/train.json`, naming the file in an error.
+    pub fn read(dir: &Path) -> transsplat_scene::Result<Self> {
+        let path = dir.join(SUMMARY_FILE);
+        let bytes = transsplat_scene::atomic::read(&path)?;
+        serde_json::from_slice(&bytes).map_err(|e| Error::format(&path, format!("not a train.json: {e}")))
+    }
+}
+
 /// Writes the INRIA output layout: `out/point_cloud/iteration_N/point_cloud.ply`
 /// and `out/cameras.json`, each file atomically. Returns the PLY path.
 /// Refuses (naming the parameter group) to write a model holding NaN or infinite values.

@@ -6,10 +6,9 @@ use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use transsplat_raster::ClampGrad;
-use transsplat_scene::atomic;
 use transsplat_train::dataset::Masks;
 use transsplat_train::diagnose::{diagnose, Cause, Diagnosis};
-use transsplat_train::fit::{train_run_id, SUMMARY_FILE, TRAIN_FILE};
+use transsplat_train::fit::{train_run_id, TestView, TrainSummary, WorstView, SUMMARY_FILE, TRAIN_FILE};
 use transsplat_train::init::MAX_RANDOM_POINTS;
 use transsplat_train::{
     dataset, fit_with, start, write_output, AdamRule, DensifyConfig, Downscale, FitOptions, FitState,
@@ -275,30 +274,38 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
     let ply = out.join(ply.strip_prefix(staged.path()).unwrap_or(&ply));
     write_test_renders(&staged.path().join(TEST_RENDERS), &trainer, &ds.test)?;
     let (train_psnr, low_views) = warn_on_floaters(&trainer, &ds, &eval);
-    let per_view: Vec<_> = eval
+    let per_test_view = eval
         .per_view
         .iter()
         .map(|v| {
-            let mut entry = serde_json::json!({"name": v.name, "psnr": v.psnr, "ssim": v.ssim});
-            if let Some((_, d)) = low_views.iter().find(|(name, _)| *name == v.name) {
-                entry["cause"] = d.cause.name().into();
-                entry["near_share"] = d.near_share.into();
+            let diagnosis = low_views.iter().find(|(name, _)| *name == v.name).map(|(_, d)| d);
+            TestView {
+                name: v.name.clone(),
+                psnr: v.psnr,
+                ssim: v.ssim,
+                cause: diagnosis.map(|d| d.cause.name().to_string()),
+                near_share: diagnosis.map(|d| d.near_share),
             }
-            entry
         })
         .collect();
-    let worst = eval.worst().map(|v| serde_json::json!({"name": v.name, "psnr": v.psnr}));
-    let summary = serde_json::json!({
-        "steps": trainer.step, "gaussians": trainer.model.len(),
-        "test_psnr": (eval.views > 0).then_some(eval.psnr), "test_ssim": (eval.views > 0).then_some(eval.ssim),
-        "test_psnr_masked": eval.masked_psnr, "test_views": eval.views, "worst_test_view": worst,
-        "train_psnr_sample": train_psnr, "per_test_view": per_view,
-        "seconds": started.elapsed().as_secs_f64(), "scene": ply, "adam": trainer.config.adam.name(),
-        "clamp_grad": trainer.config.clamp_grad.name(),
-        "camera_reach": trainer.config.densify.camera_reach,
-        "strategy": trainer.config.strategy.name(),
-    });
-    atomic::write_bytes(&staged.path().join(SUMMARY_FILE), format!("{summary:#}\n").as_bytes())?;
+    let summary = TrainSummary {
+        steps: trainer.step,
+        gaussians: trainer.model.len(),
+        test_psnr: (eval.views > 0).then_some(eval.psnr),
+        test_ssim: (eval.views > 0).then_some(eval.ssim),
+        test_psnr_masked: eval.masked_psnr,
+        test_views: eval.views,
+        worst_test_view: eval.worst().map(|v| WorstView { name: v.name.clone(), psnr: v.psnr }),
+        train_psnr_sample: train_psnr,
+        per_test_view,
+        seconds: started.elapsed().as_secs_f64(),
+        scene: ply.clone(),
+        adam: trainer.config.adam.name().into(),
+        clamp_grad: trainer.config.clamp_grad.name().into(),
+        camera_reach: trainer.config.densify.camera_reach,
+        strategy: trainer.config.strategy.name().into(),
+    };
+    summary.write(staged.path())?;
     staged.commit()?;
     if let Some(ck) = &control.checkpoint {
         ck.remove();
@@ -315,7 +322,7 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
         eval.views,
         ply.display()
     );
-    println!("{summary}");
+    println!("{}", serde_json::to_string(&summary).expect("a summary serialises"));
     Ok(())
 }
 
