@@ -337,20 +337,21 @@ impl Bounds {
     /// Whether a sphere of `radius` about `mean` contains a training camera.
     fn reaches_a_camera(&self, mean: [f32; 3], radius: f32) -> bool {
         let r2 = radius * radius;
-        self.cameras.iter().any(|c| (0..3).map(|k| (mean[k] - c[k]) * (mean[k] - c[k])).sum::<f32>() < r2)
+        self.cameras.iter().any(|&c| squared_distance(mean, c) < r2)
     }
 
     /// The distance that scales the world-size prune rule at `mean`:
     /// max(extent, ‖mean − centre‖), or the extent when the centre is unknown.
     fn reach(&self, mean: [f32; 3]) -> f32 {
         match self.centre {
-            Some(c) => {
-                let d = (0..3).map(|k| (mean[k] - c[k]) * (mean[k] - c[k])).sum::<f32>().sqrt();
-                self.extent.max(d)
-            }
+            Some(c) => self.extent.max(squared_distance(mean, c).sqrt()),
             None => self.extent,
         }
     }
+}
+
+fn squared_distance(a: [f32; 3], b: [f32; 3]) -> f32 {
+    (0..3).map(|k| (a[k] - b[k]) * (a[k] - b[k])).sum()
 }
 
 /// Whether Gaussian parameters fail the prune test.

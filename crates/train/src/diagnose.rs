@@ -23,6 +23,7 @@
 use crate::trainer::Trainer;
 use rayon::prelude::*;
 use transsplat_raster::gaussian_stats;
+use transsplat_raster::project::View;
 use transsplat_scene::Camera;
 
 /// A splat nearer than this fraction of where the training views see it is "near".
@@ -59,10 +60,9 @@ pub struct Diagnosis {
     pub near_share: f32,
 }
 
-/// Camera-space depth of a world point.
-fn depth(cam: &Camera, p: [f32; 3]) -> f32 {
-    let r = cam.rotation[2];
-    r[0] * p[0] + r[1] * p[1] + r[2] * p[2] + cam.translation[2]
+/// Camera-space depth of a world point, as the rasterizer computes it.
+fn depth(view: &View, p: [f32; 3]) -> f32 {
+    view.to_camera(p)[2]
 }
 
 /// Diagnoses `test` against the training cameras `train` (module doc). Renders the
@@ -71,15 +71,17 @@ pub fn diagnose(trainer: &Trainer, test: &Camera, train: &[Camera]) -> Diagnosis
     let splats = trainer.splats();
     let means = &trainer.model.gaussians.means;
     let seen_in_test = gaussian_stats(&splats, test, None).weight_sum;
+    let test_view = View::new(test);
     // Per splat, the nearest depth at which a training view sees it (∞ if none does).
     let nearest = train
         .par_iter()
         .map(|cam| {
             let w = gaussian_stats(&splats, cam, None).weight_sum;
+            let view = View::new(cam);
             means
                 .iter()
                 .zip(&w)
-                .map(|(&m, &w)| if w >= SEEN_WEIGHT { depth(cam, m) } else { f32::INFINITY })
+                .map(|(&m, &w)| if w >= SEEN_WEIGHT { depth(&view, m) } else { f32::INFINITY })
                 .collect::<Vec<f32>>()
         })
         .reduce(
@@ -91,7 +93,7 @@ pub fn diagnose(trainer: &Trainer, test: &Camera, train: &[Camera]) -> Diagnosis
         .zip(means)
         .zip(&nearest)
         .filter(|((&w, _), _)| w > 0.0)
-        .map(|((&w, &m), &near)| (w, depth(test, m), near))
+        .map(|((&w, &m), &near)| (w, depth(&test_view, m), near))
         .collect();
     let total: f32 = contributing.iter().map(|c| c.0).sum();
     if !(total > 0.0) {
