@@ -6,7 +6,8 @@
 
 CAPTURE is what `transsplat scene SCENE --open` writes (COLMAP text model in
 `sparse/0`, images in `images/`), the same capture `tools/reference_trainer.py` gives
-OpenSplat and transsplat. This script trains on it with gsplat's library the way gsplat's
+OpenSplat and transsplat, or a nerfstudio capture (`transforms.json` with its
+`ply_file_path` points, as `tools/mesh_captures.py` writes). This script trains on it with gsplat's library the way gsplat's
 `examples/simple_trainer.py` does with its defaults (that example is not in gsplat's
 wheel and wants COLMAP binaries and a dozen packages, so its training loop is restated
 here, setting for setting):
@@ -92,7 +93,10 @@ def build_extension():
 
 def read_capture(capture):
     """Views sorted by name: (name, 4×4 world-to-camera (OpenCV), K, w, h), and the
-    points (xyz, rgb in [0, 1]), read by `reference_trainer.py`'s COLMAP text reader."""
+    points (xyz, rgb in [0, 1]), read by `reference_trainer.py`'s COLMAP text reader or,
+    where the capture has a `transforms.json`, by `read_transforms`."""
+    if os.path.exists(os.path.join(capture, "transforms.json")):
+        return read_transforms(capture)
     sparse = os.path.join(capture, "sparse", "0")
     cams, images = read_colmap_text(sparse)
     views = []
@@ -105,6 +109,53 @@ def read_capture(capture):
     views.sort(key=lambda v: v[0])
     xyz, rgb = read_points(sparse)
     return views, xyz, rgb.astype(np.float32) / 255.0
+
+
+def read_transforms(capture):
+    """A nerfstudio capture: OpenGL camera-to-world matrices turned into OpenCV
+    world-to-camera ones (y and z axes negated), focal lengths from `fl_x`/`fl_y` or
+    `camera_angle_x`, principal point `cx`/`cy` or the image centre; the points from the
+    binary PLY at `ply_file_path` (float x, y, z and uchar red, green, blue)."""
+    meta = json.load(open(os.path.join(capture, "transforms.json")))
+    views = []
+    for frame in meta["frames"]:
+        w = int(frame.get("w", meta.get("w")))
+        h = int(frame.get("h", meta.get("h")))
+        fx = frame.get("fl_x", meta.get("fl_x"))
+        if fx is None:
+            fx = 0.5 * w / math.tan(0.5 * meta["camera_angle_x"])
+        fy = frame.get("fl_y", meta.get("fl_y", fx))
+        cx = frame.get("cx", meta.get("cx", 0.5 * w))
+        cy = frame.get("cy", meta.get("cy", 0.5 * h))
+        c2w = np.array(frame["transform_matrix"], np.float64) @ np.diag([1.0, -1.0, -1.0, 1.0])
+        vm = np.linalg.inv(c2w)
+        name = os.path.relpath(frame["file_path"], "images")
+        views.append((name, vm, np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]]), w, h))
+    views.sort(key=lambda v: v[0])
+    xyz, rgb = read_binary_points(os.path.join(capture, meta["ply_file_path"]))
+    return views, xyz, rgb.astype(np.float32) / 255.0
+
+
+def read_binary_points(path):
+    """Positions and colours of a little-endian binary PLY of float x, y, z and uchar
+    red, green, blue vertices (any other float properties skipped)."""
+    with open(path, "rb") as f:
+        header = []
+        while True:
+            line = f.readline()
+            if not line:
+                sys.exit(f"{path}: no end_header")
+            line = line.decode("ascii").strip()
+            if line == "end_header":
+                break
+            header.append(line.split())
+        count = next(int(p[2]) for p in header if p[:2] == ["element", "vertex"])
+        types = {"float": "<f4", "uchar": "u1", "double": "<f8"}
+        props = [(p[2], types[p[1]]) for p in header if p[0] == "property"]
+        data = np.frombuffer(f.read(), dtype=np.dtype(props), count=count)
+    xyz = np.stack([data[k] for k in ("x", "y", "z")], 1).astype(np.float32)
+    rgb = np.stack([data[k] for k in ("red", "green", "blue")], 1).astype(np.uint8)
+    return xyz, rgb
 
 
 def load_image(capture, name):

@@ -39,6 +39,46 @@ def test_gsplat_reference_reads_the_capture_as_transsplat_does(tmp_path):
     assert len(held) == 3
 
 
+def test_gsplat_reference_reads_a_nerfstudio_capture_as_transsplat_does(tmp_path):
+    """A transforms.json capture (what tools/mesh_captures.py writes): the OpenGL-to-OpenCV
+    flip, the focal length from camera_angle_x and the binary points, against the library."""
+    import json
+    import math
+
+    rng = np.random.default_rng(3)
+    frames = []
+    for i in range(9):
+        a, b = rng.normal(size=3), rng.normal(size=3)
+        q, _ = np.linalg.qr(np.stack([a, b, rng.normal(size=3)], 1))
+        c2w = np.eye(4)
+        c2w[:3, :3] = q * np.sign(np.linalg.det(q))
+        c2w[:3, 3] = rng.normal(size=3) * 3
+        frames.append({"file_path": f"images/view_{8 - i:03d}.png", "transform_matrix": c2w.tolist()})
+    meta = {"camera_angle_x": 0.9, "w": 40, "h": 30, "ply_file_path": "points3d.ply", "frames": frames}
+    (tmp_path / "transforms.json").write_text(json.dumps(meta))
+    xyz = rng.normal(size=(5, 3)).astype("<f4")
+    rgb = rng.integers(0, 256, size=(5, 3)).astype("u1")
+    rows = np.zeros(5, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    for k, col in zip(("x", "y", "z"), xyz.T):
+        rows[k] = col
+    for k, col in zip(("red", "green", "blue"), rgb.T):
+        rows[k] = col
+    header = "ply\nformat binary_little_endian 1.0\nelement vertex 5\n"
+    header += "".join(f"property float {k}\n" for k in "xyz")
+    header += "".join(f"property uchar {k}\n" for k in ("red", "green", "blue")) + "end_header\n"
+    (tmp_path / "points3d.ply").write_bytes(header.encode() + rows.tobytes())
+
+    views, got_xyz, got_rgb = tool("gsplat_reference").read_capture(tmp_path)
+    cams = transsplat.load_cameras(tmp_path / "transforms.json")
+    order = np.argsort(cams["names"])
+    assert [v[0] for v in views] == [f"view_{i:03d}.png" for i in range(9)]
+    np.testing.assert_allclose(np.stack([v[1] for v in views]), cams["viewmats"][order], atol=1e-5)
+    np.testing.assert_allclose(np.stack([v[2] for v in views]), cams["Ks"][order], atol=1e-3)
+    assert abs(views[0][2][0, 0] - 20 / math.tan(0.45)) < 1e-9
+    np.testing.assert_array_equal(got_xyz, xyz)
+    np.testing.assert_allclose(got_rgb, rgb / 255.0, atol=1e-7)
+
+
 def test_gsplat_reference_ply_round_trips_through_load_ply(tmp_path):
     g = tool("gsplat_reference")
     rng = np.random.default_rng(3)
