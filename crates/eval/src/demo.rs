@@ -4,16 +4,16 @@
 //! against the ground truth on the test views, and writes `metrics.json`, the
 //! edited scenes and `report.html`.
 
-use crate::edit_output::{self, EditOutput};
 use crate::ground_truth::{GtMetrics, Reference};
 use crate::metrics::auroc;
-use crate::report::Page;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use transsplat_edit::{semantic, EditConfig, EditError, EditJob, EditResult, Method, Progress};
 use transsplat_editors::simulated::SimulatedEditor;
 use transsplat_scene::{atomic::StagedDir, image, Gaussians};
 use transsplat_scenes::{build, labels_from_extra, Scene, SceneConfig};
+use transsplat_session::edit_folder::{self, EditOutput};
+use transsplat_session::report::Page;
 
 /// Settings of a demo run.
 #[derive(Clone, Debug)]
@@ -243,9 +243,9 @@ pub fn run(
             target: Some(&is_target),
             formats: &[],
         };
-        edit_output::write(&dir.join(name), &output)?;
+        edit_folder::write(&dir.join(name), &output)?;
         if viewer.is_none() {
-            viewer = Some((name.to_string(), edit_output::viewer_section(&output)?));
+            viewer = Some((name.to_string(), edit_folder::viewer_section(&output)?));
         }
         tracing::info!(
             "{name}: target PSNR {:.2}, background PSNR {:.2}, PSNR {:.2}, SSIM {:.4}, gate AUROC {}, {:.1} s (transport {:.1} s)",

@@ -8,18 +8,14 @@
 //!   the target mask against the ground-truth edit, background PSNR outside it
 //!   against the original, SSIM, gate AUROC against the per-Gaussian target label).
 //! - [`trained`]: a built-in scene trained from its own renders (`demo --trained N`).
-//! - [`heatmap`]: per-Gaussian values (the gate) rendered as a colour map.
 //! - [`quality`]: the ground-truth suite over many demo cases (`bench quality`).
 //! - [`demo`]: the built-in benchmark: a scene, the simulated editor, TransSplat and
-//!   every baseline and ablation, `metrics.json` and `report.html` ([`report`]).
+//!   every baseline and ablation, `metrics.json` and `report.html`.
 
 pub mod bench_edit;
 pub mod clip_metrics;
 pub mod demo;
-pub mod edit_output;
 pub mod ground_truth;
-pub mod heatmap;
 pub mod metrics;
 pub mod quality;
-pub mod report;
 pub mod trained;

@@ -30,12 +30,12 @@
 //! no_leaksup are often identical); when every method has the same value none is worst.
 
 use crate::demo::{self, DemoError, DemoOptions, MethodScore};
-use crate::report::{esc, Page};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use transsplat_edit::{EditConfig, Method, Progress};
 use transsplat_scene::atomic::StagedDir;
+use transsplat_session::report::{esc, Page};
 
 /// Marker file of a finished suite folder.
 pub const MARKER: &str = "quality.json";

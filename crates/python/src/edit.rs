@@ -12,12 +12,13 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Mutex;
-use transsplat_edit::{semantic, EditConfig, EditError, EditJob, Progress};
+use std::sync::{Arc, Mutex};
+use transsplat_edit::{EditConfig, EditError, Progress};
 use transsplat_editors::{change_attention, EditedView, Editor, SourceView};
-use transsplat_eval::edit_output::{self, EditOutput, MARKER};
-use transsplat_scene::atomic::{check_output, StagedDir};
 use transsplat_scene::Camera;
+use transsplat_session as session;
+use transsplat_session::edit::{EditRequest, EditorSpec, Features, OutputRequest};
+use transsplat_session::SessionError;
 
 /// Name of the Python editor in logs and outputs.
 const EDITOR_NAME: &str = "python";
@@ -26,7 +27,7 @@ const EDITOR_NAME: &str = "python";
 /// uses the others.
 #[pyfunction]
 pub fn is_test_view(index: usize) -> bool {
-    transsplat_scenes::is_test(index)
+    transsplat_scene::cameras::is_held_out(index, transsplat_scene::cameras::LLFF_HOLD)
 }
 
 /// An editor that calls `adapter(views, prompt)`; the adapter (Python,
@@ -35,7 +36,7 @@ pub fn is_test_view(index: usize) -> bool {
 struct PyEditor {
     adapter: Py<PyAny>,
     /// The Python exception that stopped the editor, raised again by [`edit`].
-    raised: Mutex<Option<PyErr>>,
+    raised: Arc<Mutex<Option<PyErr>>>,
 }
 
 impl PyEditor {
@@ -205,28 +206,22 @@ pub fn edit<'py>(
         return Err(value_error(format!("background: non-finite value in {background:?}")));
     }
     let cfg = config(config_toml.as_deref(), &overrides, method.as_deref(), steps)?;
-    let staged = match &out {
-        Some(o) => {
-            let refs: Vec<&std::path::Path> = inputs.iter().map(PathBuf::as_path).collect();
-            check_output(o, &refs).map_err(scene_error)?;
-            Some(StagedDir::begin(o, MARKER).map_err(scene_error)?)
-        }
-        None => None,
-    };
-    let (test, edit_views) = transsplat_scenes::split_views(cams.len());
-    let mut editor = PyEditor { adapter, raised: Mutex::new(None) };
-    let cancel = AtomicBool::new(false);
-    let interrupt: Mutex<Option<PyErr>> = Mutex::new(None);
-    let semantic_fn = semantic::builtin;
-    let job = EditJob {
+    let output = out.map(|path| OutputRequest { path, inputs, formats: Vec::new(), checkpoints: None });
+    let raised = Arc::new(Mutex::new(None));
+    let request = EditRequest {
         gaussians: &g,
         cameras: &cams,
-        edit_views: edit_views.clone(),
-        background,
         prompt: &prompt,
-        semantic: &semantic_fn,
+        editor: EditorSpec::Custom(Box::new(PyEditor { adapter, raised: raised.clone() })),
+        features: Features::Builtin,
+        config: cfg,
+        background,
+        output,
+        target: None,
     };
-    let result = py.allow_threads(|| {
+    let cancel = AtomicBool::new(false);
+    let interrupt: Mutex<Option<PyErr>> = Mutex::new(None);
+    let outcome = py.allow_threads(|| {
         let mut report = |p: Progress| {
             Python::with_gil(|py| {
                 if let Err(e) = py.check_signals() {
@@ -246,53 +241,36 @@ pub fn edit<'py>(
                 }
             })
         };
-        transsplat_edit::run(&job, &mut editor, &cfg, Some(&cancel), &mut report)
+        session::edit::run(request, Some(&cancel), &mut report)
     });
     // The exception that asked for the stop; one raised in the last step's report
     // comes after the loop's last check, so it is looked at on success too.
     let stop = interrupt.into_inner().unwrap_or_else(|p| p.into_inner());
-    let result = match (result, stop) {
+    let outcome = match (outcome, stop) {
         (Ok(r), None) => r,
         (Ok(_), Some(stop)) => return Err(stop),
         (Err(e), stop) => {
-            if let Some(raised) = editor.raised.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            if let Some(raised) = raised.lock().unwrap_or_else(|p| p.into_inner()).take() {
                 return Err(raised);
             }
             return Err(match e {
-                EditError::Interrupted(step) => stop.unwrap_or_else(|| {
+                SessionError::Edit(EditError::Interrupted(step)) => stop.unwrap_or_else(|| {
                     PyKeyboardInterrupt::new_err(format!("edit interrupted at step {step}"))
                 }),
-                EditError::Input(m) => value_error(m),
-                e @ EditError::NoEvidence => value_error(e.to_string()),
-                EditError::Editor(transsplat_editors::Error::Invalid(m)) => value_error(m),
+                SessionError::Interrupted { message, .. } => {
+                    stop.unwrap_or_else(|| PyKeyboardInterrupt::new_err(message))
+                }
+                SessionError::Edit(EditError::Input(m)) | SessionError::Input(m) => value_error(m),
+                SessionError::Edit(e @ EditError::NoEvidence) => value_error(e.to_string()),
+                SessionError::Edit(EditError::Editor(transsplat_editors::Error::Invalid(m))) => {
+                    value_error(m)
+                }
+                SessionError::Io(e) => scene_error(e),
                 e => PyRuntimeError::new_err(e.to_string()),
             });
         }
     };
-    let written = match staged {
-        Some(staged) => {
-            let o = EditOutput {
-                source: &g,
-                result: &result,
-                cameras: &cams,
-                test_views: &test,
-                edit_views: &edit_views,
-                background,
-                prompt: &prompt,
-                editor: EDITOR_NAME,
-                config: &cfg,
-                target: None,
-                formats: &[],
-            };
-            py.allow_threads(|| {
-                edit_output::write(staged.path(), &o)?;
-                staged.commit()
-            })
-            .map_err(scene_error)?;
-            out
-        }
-        None => None,
-    };
+    let session::edit::EditOutcome { result, out: written, edit_views, .. } = outcome;
     let d = PyDict::new(py);
     let json = |v: serde_json::Value| v.to_string();
     d.set_item("rounds_json", json(serde_json::json!(result.rounds)))?;

@@ -152,10 +152,11 @@ impl StagedDir {
         std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
         remove_abandoned(parent, &name);
         let temp = parent.join(format!(".{name}.partial-{}", std::process::id()));
+        // Errors name the output the user gave, not the hidden staging folder.
         if temp.exists() {
-            std::fs::remove_dir_all(&temp).map_err(|e| Error::io(&temp, e))?;
+            std::fs::remove_dir_all(&temp).map_err(|e| Error::io(target, e))?;
         }
-        std::fs::create_dir_all(&temp).map_err(|e| Error::io(&temp, e))?;
+        std::fs::create_dir_all(&temp).map_err(|e| Error::io(target, e))?;
         STAGED.lock().unwrap_or_else(|e| e.into_inner()).push(temp.clone());
         Ok(StagedDir { target: target.to_path_buf(), temp, committed: false })
     }
@@ -163,6 +164,18 @@ impl StagedDir {
     /// The temporary folder to write into.
     pub fn path(&self) -> &Path {
         &self.temp
+    }
+
+    /// `error` with a path inside the staging folder renamed to the same path inside
+    /// the target: a failure while writing names the output the user gave (`OUT/x.png`),
+    /// not the hidden staging name.
+    pub fn user_error(&self, error: Error) -> Error {
+        let Ok(rest) = error.path().strip_prefix(&self.temp) else { return error };
+        let path = self.target.join(rest);
+        match error {
+            Error::Format { msg, .. } => Error::Format { path, msg },
+            Error::Io { err, .. } => Error::Io { path, err },
+        }
     }
 
     /// Replaces the target with the written folder.
@@ -197,6 +210,21 @@ mod tests {
     /// stage folders run one at a time (CI once saw one test's `remove_staged` remove
     /// the other's folder while it was being committed).
     static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+    #[test]
+    fn staged_errors_name_the_users_output_not_the_staging_folder() {
+        let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("out");
+        let s = StagedDir::begin(&target, "done.json").unwrap();
+        let inside = s.path().join("renders/a.png");
+        let e = s.user_error(Error::format(&inside, "disk full"));
+        assert_eq!(e.path(), target.join("renders/a.png"));
+        assert_eq!(e.to_string(), format!("{}: disk full", target.join("renders/a.png").display()));
+        // Errors about other files are left alone.
+        let other = dir.path().join("input.ply");
+        assert_eq!(s.user_error(Error::format(&other, "bad")).path(), other);
+    }
 
     #[test]
     fn staged_dir_replaces_only_its_own_output_and_cleans_up() {

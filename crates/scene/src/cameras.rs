@@ -33,6 +33,15 @@ pub fn is_held_out(index: usize, every: usize) -> bool {
     every > 0 && index.is_multiple_of(every)
 }
 
+/// The held-out test views and the edit views of `n` cameras in name order (every
+/// [`LLFF_HOLD`]-th one held out); when every camera is held out (a single camera), all
+/// of them are edited.
+pub fn split_views(n: usize) -> (Vec<usize>, Vec<usize>) {
+    let (test, edit): (Vec<usize>, Vec<usize>) = (0..n).partition(|&i| is_held_out(i, LLFF_HOLD));
+    let edit = if edit.is_empty() { (0..n).collect() } else { edit };
+    (test, edit)
+}
+
 /// Loads cameras from `path`, detecting the format:
 ///
 /// - a `.json` file: an INRIA `cameras.json` (a list) or a `transforms.json` (an object

@@ -30,7 +30,7 @@ pub use catalog::{
 pub use dataset::{write_dataset, DatasetSummary, WriteOptions};
 pub use edit::{recolor, restyle, retexture, Material, Style};
 pub use masks::{one_hot, render_labels, LabelRender};
-pub use rig::{is_test, split_views, Rig};
+pub use rig::{is_test, Rig};
 
 use std::path::PathBuf;
 

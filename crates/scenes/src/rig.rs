@@ -13,14 +13,6 @@ pub fn is_test(index: usize) -> bool {
     is_held_out(index, LLFF_HOLD)
 }
 
-/// The test views and the edit views of `n` cameras ([`is_test`]); when every camera
-/// is held out (a single camera), all of them are edited.
-pub fn split_views(n: usize) -> (Vec<usize>, Vec<usize>) {
-    let (test, edit): (Vec<usize>, Vec<usize>) = (0..n).partition(|&i| is_test(i));
-    let edit = if edit.is_empty() { (0..n).collect() } else { edit };
-    (test, edit)
-}
-
 /// Where the cameras are and what they look at.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Rig {

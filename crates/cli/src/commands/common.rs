@@ -2,10 +2,9 @@
 
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
 use transsplat_scene::atomic::StagedDir;
 use transsplat_scene::{cameras, formats, ply, scene_paths, Camera, Gaussians};
-use transsplat_train::{Checkpointer, Control};
+use transsplat_session::Checkpoints;
 
 /// Options shared by every command that reads a scene.
 #[derive(clap::Args, Debug, Clone)]
@@ -128,91 +127,9 @@ pub struct CheckpointArgs {
     pub stop_after: Option<u64>,
 }
 
-/// The checkpoint folder of an output folder: `OUT.checkpoint` beside it.
-pub fn checkpoint_dir(out: &Path) -> PathBuf {
-    let abs = std::path::absolute(out).unwrap_or_else(|_| out.to_path_buf());
-    let name = abs.file_name().map_or("out".into(), |n| n.to_string_lossy().into_owned());
-    abs.with_file_name(format!("{name}.checkpoint"))
-}
-
 impl CheckpointArgs {
-    /// The loop control: Ctrl-C, the checkpointer (`file` is the checkpoint's name in
-    /// the folder) and the test stop. Refuses to start afresh over an earlier run's
-    /// checkpoint, and to resume from a folder without one.
-    pub fn control<'a>(
-        &self,
-        out: &Path,
-        default_every: u64,
-        file: &str,
-        cancel: &'a AtomicBool,
-    ) -> Result<Control<'a>> {
-        let every = self.checkpoint_every.unwrap_or(default_every);
-        let dir = match &self.resume {
-            // The checkpoint file itself names its folder too.
-            Some(p) if p.is_file() => p.parent().map_or(PathBuf::from("."), Path::to_path_buf),
-            Some(p) => p.clone(),
-            None => checkpoint_dir(out),
-        };
-        let has = dir.join(file).is_file();
-        match &self.resume {
-            Some(_) if !has => bail!("{}: no checkpoint ({file}) to resume from", dir.display()),
-            None if has => bail!(
-                "{}: holds a checkpoint of an earlier run; continue it with --resume {}, or delete the folder \
-                 to start over",
-                dir.display(),
-                dir.display()
-            ),
-            _ => {}
-        }
-        let checkpoint = (every > 0 || self.resume.is_some()).then(|| Checkpointer::new(dir, every));
-        Ok(Control {
-            cancel: Some(cancel),
-            checkpoint,
-            stop_after: self.stop_after,
-            resume: self.resume.is_some(),
-        })
-    }
-
-    /// The message after a stop at `step`: where the checkpoint is and the exact
-    /// command line that continues the run.
-    pub fn interrupted(&self, step: u64, control: &Control, out: &Path) -> String {
-        match control.checkpoint.as_ref().filter(|c| c.last.is_some()) {
-            Some(ck) => format!(
-                "interrupted after step {step}; nothing was written to {}; checkpoint in {}; continue with: {}",
-                out.display(),
-                ck.dir.display(),
-                resume_command(&ck.dir)
-            ),
-            None => format!(
-                "interrupted after step {step}; nothing was written to {} (checkpoints are off)",
-                out.display()
-            ),
-        }
-    }
-}
-
-/// This process's command line with `--resume DIR` (replacing any earlier
-/// `--resume` and dropping `--stop-after`), quoted for a POSIX shell.
-pub fn resume_command(dir: &Path) -> String {
-    let mut args: Vec<String> = Vec::new();
-    let mut it = std::env::args();
-    while let Some(a) = it.next() {
-        if a == "--resume" || a == "--stop-after" {
-            it.next();
-        } else if !(a.starts_with("--resume=") || a.starts_with("--stop-after=")) {
-            args.push(a);
-        }
-    }
-    args.push("--resume".into());
-    args.push(dir.display().to_string());
-    args.iter().map(|a| shell_quote(a)).collect::<Vec<_>>().join(" ")
-}
-
-fn shell_quote(a: &str) -> String {
-    let plain = !a.is_empty() && a.chars().all(|c| c.is_ascii_alphanumeric() || "_-./,:=@%+".contains(c));
-    if plain {
-        a.to_string()
-    } else {
-        format!("'{}'", a.replace('\'', "'\\''"))
+    /// The session layer's description of these flags.
+    pub fn spec(&self) -> Checkpoints {
+        Checkpoints { every: self.checkpoint_every, resume: self.resume.clone(), stop_after: self.stop_after }
     }
 }

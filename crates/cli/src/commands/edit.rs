@@ -1,21 +1,15 @@
 //! `transsplat edit`: language-driven editing of a scene with any 2D editor.
 
-use super::common::{check_output, load_cameras, load_scene, parse_rgb, progress, CheckpointArgs, SceneArgs};
+use super::common::{load_cameras, load_scene, parse_rgb, progress, CheckpointArgs, SceneArgs};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
-use transsplat_edit::checkpoint::STATE_FILE;
-use transsplat_edit::{semantic, EditConfig, EditError, EditJob, Progress};
-use transsplat_editors::{CommandEditor, Editor, FolderEditor, SimulatedEditor};
-use transsplat_eval::edit_output::{self, EditOutput, MARKER};
-use transsplat_scene::atomic::StagedDir;
+use std::time::Duration;
+use transsplat_edit::{EditConfig, Progress};
+use transsplat_editors::SimulatedEditor;
 use transsplat_scene::formats::SceneFormat;
-use transsplat_scenes::split_views;
-
-/// DINOv2 features are reduced to this many channels (a fixed random projection) before
-/// the engine's PCA to `semantic_dim`: 384 or 768 channels per pixel of every view would
-/// not fit in memory for a real capture.
-const DINO_CHANNELS: usize = 64;
+use transsplat_session as session;
+use transsplat_session::edit::{EditRequest, EditorSpec, Features, OutputRequest};
 
 /// Which 2D editor produces the edits.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -128,7 +122,7 @@ fn builtin_scene(scene_arg: &Path) -> Result<transsplat_scenes::Scene> {
     Ok(transsplat_scenes::build(name, &cfg)?)
 }
 
-/// Runs `transsplat edit`.
+/// Runs `transsplat edit`: the arguments as a [`EditRequest`] for the session layer.
 pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
     if args.prompt.trim().is_empty() {
         bail!("--prompt is empty: give an instruction such as \"make the ball blue\"");
@@ -139,80 +133,58 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
     };
     let config = base.assemble(args.method.as_deref(), &args.set, args.steps).map_err(anyhow::Error::msg)?;
     let (g, scene_path) = load_scene(&args.scene)?;
-    let cam_arg = args.cameras.as_deref().or(args.data.as_deref());
-    let (cams, cam_path) = load_cameras(cam_arg, &args.scene.scene)?;
+    let (cams, cam_path) = load_cameras(args.cameras.as_deref().or(args.data.as_deref()), &args.scene.scene)?;
     for c in &cams {
         c.validate().map_err(|e| anyhow::anyhow!("{}: {e}", cam_path.display()))?;
     }
-    let mut inputs = vec![args.scene.scene.as_path(), scene_path.as_path(), cam_path.as_path()];
+    let mut inputs = vec![args.scene.scene.clone(), scene_path.clone(), cam_path];
     for extra in [&args.edits, &args.config, &args.ip2p_weights, &args.dino_weights] {
-        inputs.extend(extra.as_deref());
+        inputs.extend(extra.clone());
     }
-    check_output(&args.out, &inputs)?;
-    let (test, edit_views) = split_views(cams.len());
-    let dino = match &args.dino_weights {
-        Some(dir) => {
-            use transsplat_models::{dinov2::Dinov2, ModelDir};
-            let hint = format!("hf download facebook/dinov2-small --local-dir {}", dir.display());
-            Some(Dinov2::load(&ModelDir::open(dir, "DINOv2", &hint)?, &transsplat_models::default_device())?)
-        }
-        None => None,
-    };
-    let mut control = args.checkpoints.control(&args.out, 100, STATE_FILE, cancel)?;
-    let staged = StagedDir::begin(&args.out, MARKER)?;
     // Ground truth for the viewer's target colour mode (built-in scenes only).
-    let mut target: Option<Vec<bool>> = None;
-    let mut editor: Box<dyn Editor + '_> = match args.editor {
+    let mut target = None;
+    let editor = match args.editor {
         EditorKind::Folder => {
-            let dir = args.edits.as_ref().context("--editor folder needs --edits DIR")?;
-            Box::new(FolderEditor::new(dir).for_scene(transsplat_scene::fingerprint::scene(&g)))
+            EditorSpec::Folder(args.edits.clone().context("--editor folder needs --edits DIR")?)
         }
-        EditorKind::Command => {
-            let cmd = args.command.as_ref().context("--editor command needs --command CMD")?;
-            let mut e = CommandEditor::new(cmd.clone(), staged.path().join("editor")).with_cancel(cancel);
-            if args.editor_timeout > 0 {
-                e = e.with_timeout(std::time::Duration::from_secs(args.editor_timeout));
-            }
-            Box::new(e)
-        }
+        EditorKind::Command => EditorSpec::Command {
+            command: args.command.clone().context("--editor command needs --command CMD")?,
+            timeout: (args.editor_timeout > 0).then(|| Duration::from_secs(args.editor_timeout)),
+        },
         EditorKind::Simulated => {
-            let scene = builtin_scene(&args.scene.scene)?;
-            if scene.gaussians.len() != g.len() {
-                bail!("{}: the scene does not match its built-in source (labels.json)", scene_path.display());
-            }
-            let mut sim = SimulatedEditor::new(&scene, args.severity, config.seed);
-            // the instruction's target labels (the Gaussians the ground truth changes)
-            sim.instruct(&args.prompt)?;
-            target = Some(scene.labels.iter().map(|l| sim.target_labels().contains(l)).collect());
-            Box::new(sim)
+            let (sim, is_target) = simulated_editor(&args.scene.scene, &scene_path, &g, args, &config)?;
+            target = Some(is_target);
+            EditorSpec::Custom(Box::new(sim))
         }
-        EditorKind::Ip2p => {
-            use transsplat_models::ip2p::{download_hint, Ip2pEditor, Settings};
-            let dir = args.ip2p_weights.as_deref().with_context(|| {
+        EditorKind::Ip2p => EditorSpec::Ip2p {
+            weights: args.ip2p_weights.clone().with_context(|| {
                 format!(
                     "--editor ip2p needs --ip2p-weights DIR; get it with `{}`",
-                    download_hint(Path::new("DIR"))
+                    transsplat_models::ip2p::download_hint(Path::new("DIR"))
                 )
-            })?;
-            let device = transsplat_models::default_device();
-            Box::new(Ip2pEditor::load(dir, Settings::default(), config.seed, &device)?.with_cancel(cancel))
-        }
+            })?,
+        },
     };
-    // The one semantic model of the job, for source renders and edited images alike.
-    let semantic = move |img: &[f32], w: usize, h: usize| match &dino {
-        Some(m) => m.features_projected(img, w, h, DINO_CHANNELS).map_err(|e| format!("DINOv2: {e}")),
-        None => semantic::builtin(img, w, h),
-    };
-    let job = EditJob {
+    let request = EditRequest {
         gaussians: &g,
         cameras: &cams,
-        edit_views: edit_views.clone(),
-        background: args.background,
         prompt: &args.prompt,
-        semantic: &semantic,
+        editor,
+        features: args.dino_weights.clone().map_or(Features::Builtin, Features::Dinov2),
+        background: args.background,
+        output: Some(OutputRequest {
+            path: args.out.clone(),
+            inputs,
+            formats: args.format.clone(),
+            checkpoints: Some(args.checkpoints.spec()),
+        }),
+        target,
+        config,
     };
-    let bar = progress(config.schedule.steps as u64, "edit");
-    let result = transsplat_edit::run_with(&job, editor.as_mut(), &config, &mut control, &mut |p| match p {
+    let steps = request.config.schedule.steps as u64;
+    let editor_name = request.editor.name();
+    let bar = progress(steps, "edit");
+    let outcome = session::edit::run(request, Some(cancel), &mut |p| match p {
         Progress::Step { step, loss, .. } => {
             bar.set_position(step as u64);
             if step % 10 == 0 {
@@ -226,54 +198,38 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
             r.mean_gate
         ),
         Progress::Edited { views, seconds } => {
-            tracing::info!("editor {} edited {views} views in {seconds:.1} s", editor_name(args.editor))
+            tracing::info!("editor {editor_name} edited {views} views in {seconds:.1} s")
         }
     });
     bar.finish_and_clear();
-    let result = result.map_err(|e| match e {
-        EditError::Interrupted(s) => {
-            anyhow::anyhow!(args.checkpoints.interrupted(s as u64, &control, &args.out))
-        }
-        e @ EditError::Train(_) => {
-            anyhow::anyhow!("{e}; no scene was written to {}; {}", args.out.display(), control.note())
-        }
-        e => e.into(),
-    })?;
-    edit_output::write(
-        staged.path(),
-        &EditOutput {
-            source: &g,
-            result: &result,
-            cameras: &cams,
-            test_views: &test,
-            edit_views: &edit_views,
-            background: args.background,
-            prompt: &args.prompt,
-            editor: editor_name(args.editor),
-            config: &config,
-            target: target.as_deref(),
-            formats: &args.format,
-        },
-    )?;
-    let out = staged.commit()?;
-    if let Some(ck) = &control.checkpoint {
-        ck.remove();
-    }
+    let outcome = outcome?;
+    let result = &outcome.result;
     println!(
         "edited {} Gaussians in {:.1} s (transport {:.1} s); wrote {}",
         result.gaussians.len(),
         result.timing.total,
         result.timing.transport,
-        out.display()
+        outcome.out.unwrap_or_default().display()
     );
     Ok(())
 }
 
-fn editor_name(k: EditorKind) -> &'static str {
-    match k {
-        EditorKind::Folder => "folder",
-        EditorKind::Command => "command",
-        EditorKind::Simulated => "simulated",
-        EditorKind::Ip2p => "ip2p",
+/// The simulated editor of the built-in scene `scene_arg` came from, told the
+/// instruction, and the ground-truth target per Gaussian.
+fn simulated_editor(
+    scene_arg: &Path,
+    scene_path: &Path,
+    g: &transsplat_scene::Gaussians,
+    args: &EditArgs,
+    config: &EditConfig,
+) -> Result<(SimulatedEditor, Vec<bool>)> {
+    let scene = builtin_scene(scene_arg)?;
+    if scene.gaussians.len() != g.len() {
+        bail!("{}: the scene does not match its built-in source (labels.json)", scene_path.display());
     }
+    let mut sim = SimulatedEditor::new(&scene, args.severity, config.seed);
+    // the instruction's target labels (the Gaussians the ground truth changes)
+    sim.instruct(&args.prompt)?;
+    let target = scene.labels.iter().map(|l| sim.target_labels().contains(l)).collect();
+    Ok((sim, target))
 }

@@ -1,18 +1,16 @@
 //! `transsplat train`: 3DGS training from a COLMAP, transforms.json or INRIA-layout
 //! dataset into an INRIA output folder; and `transsplat bench train`.
 
-use super::common::{parse_rgb, progress, staged_output, CheckpointArgs};
-use anyhow::{bail, Context, Result};
-use std::path::{Path, PathBuf};
+use super::common::{parse_rgb, progress, CheckpointArgs};
+use anyhow::{bail, Result};
+use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use transsplat_raster::ClampGrad;
+use transsplat_session::train::TrainRequest;
 use transsplat_train::dataset::Masks;
-use transsplat_train::diagnose::{diagnose, Cause, Diagnosis};
-use transsplat_train::fit::{train_run_id, TestView, TrainSummary, WorstView, SUMMARY_FILE, TRAIN_FILE};
 use transsplat_train::init::MAX_RANDOM_POINTS;
 use transsplat_train::{
-    dataset, fit_with, start, write_output, AdamRule, DensifyConfig, Downscale, FitOptions, FitState,
-    InitSource, LearningRates, LoadOptions, Strategy, TrainConfig, TrainError, Trainer,
+    AdamRule, DensifyConfig, Downscale, FitOptions, LearningRates, LoadOptions, Strategy, TrainConfig,
 };
 
 /// Arguments of `transsplat train`.
@@ -188,145 +186,37 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
         (None, true) => Masks::Off,
         (None, false) => Masks::Declared,
     };
-    let load =
-        LoadOptions { resolution: args.resolution, background: args.background, masks, ..Default::default() };
-    // The dataset is checked before anything is written: a bad dataset leaves nothing behind.
-    let ds = dataset::load(&args.data, &load)?;
-    if ds.train.is_empty() {
-        bail!("{}: no training views", args.data.display());
-    }
-    // The output is written into a hidden staging folder beside it and appears only when
-    // complete: any failure or signal leaves no output folder and no partial files.
-    let mut inputs: Vec<&Path> = vec![&args.data];
-    inputs.extend(args.masks.as_deref());
-    let staged = staged_output(&args.out, &inputs, SUMMARY_FILE)?;
-    let out = std::path::absolute(&args.out).unwrap_or_else(|_| args.out.clone());
-    let (w, h) = (ds.train[0].camera.width, ds.train[0].camera.height);
-    tracing::info!(
-        "{}: {:?} dataset, {} training and {} test views at {w}x{h}",
-        args.data.display(),
-        ds.kind,
-        ds.train.len(),
-        ds.test.len()
-    );
-    let mut control = args.checkpoints.control(&out, 500, TRAIN_FILE, cancel)?;
-    if let Some(ck) = control.checkpoint.as_mut() {
-        ck.id = train_run_id(&ds, &opts, &load);
-    }
-    let (mut trainer, mut state) = match control.checkpoint.as_mut().filter(|_| control.resume) {
-        Some(ck) => {
-            let (t, s) = ck.load_train(opts.config.clone())?;
-            tracing::info!("resuming at step {} from {}", t.step, ck.dir.display());
-            (t, s)
-        }
-        None => {
-            let (t, source) = start(&ds, &opts).context("cannot start training")?;
-            match source {
-                InitSource::Points { count } => {
-                    tracing::info!("initialised {count} Gaussians from the point cloud")
-                }
-                InitSource::Random { count } => tracing::warn!(
-                    "no point cloud in the dataset: initialised {count} Gaussians at random in the cameras' view"
-                ),
-            }
-            if let (Strategy::Mcmc(_), Some(cap)) = (t.config.strategy, t.config.densify.max_gaussians) {
-                if t.model.len() > cap {
-                    tracing::warn!(
-                        "the initial cloud has {} Gaussians, more than --max-gaussians {cap}: MCMC only relocates, it does not prune down to the budget",
-                        t.model.len()
-                    );
-                }
-            }
-            if t.model.is_empty() {
-                bail!(
-                    "{}: no initial Gaussians (empty point cloud and --random-points 0)",
-                    args.data.display()
-                );
-            }
-            (t, FitState::new(opts.config.seed))
-        }
+    let request = TrainRequest {
+        data: args.data.clone(),
+        out: args.out.clone(),
+        other_inputs: args.masks.iter().cloned().collect(),
+        fit: opts,
+        load: LoadOptions {
+            resolution: args.resolution,
+            background: args.background,
+            masks,
+            ..Default::default()
+        },
+        checkpoints: args.checkpoints.spec(),
     };
-    let pb = progress(args.iters, "train");
-    pb.set_style(
+    let bar = progress(args.iters, "train");
+    bar.set_style(
         indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta}")
             .expect("valid template")
             .progress_chars("=> "),
     );
-    pb.set_position(trainer.step);
-    let started = std::time::Instant::now();
-    let eval = fit_with(&ds, &mut trainer, &mut state, args.eval_every, &mut control, |p| {
+    let outcome = transsplat_session::train::run(&request, Some(cancel), &mut |p| {
         if p.step % 10 == 0 || p.step == p.iterations {
             let test = p.test.as_ref().map_or(String::from("-"), |e| format!("{:.2}", e.psnr));
-            pb.set_message(format!("loss {:.4} test PSNR {test} Gaussians {}", p.ema_loss, p.gaussians));
-            pb.set_position(p.step);
+            bar.set_message(format!("loss {:.4} test PSNR {test} Gaussians {}", p.ema_loss, p.gaussians));
+            bar.set_position(p.step);
         }
     });
-    pb.finish_and_clear();
-    let eval = match eval {
-        Ok(e) => e,
-        Err(TrainError::Interrupted { step }) => bail!(args.checkpoints.interrupted(step, &control, &out)),
-        Err(e) => {
-            bail!("training stopped: {e}; no scene was written to {}; {}", out.display(), control.note())
-        }
-    };
-    pb.finish_and_clear();
-    let ply = write_output(staged.path(), &trainer, &ds.cameras)?;
-    let ply = out.join(ply.strip_prefix(staged.path()).unwrap_or(&ply));
-    write_test_renders(&staged.path().join(TEST_RENDERS), &trainer, &ds.test)?;
-    let (train_psnr, low_views) = warn_on_floaters(&trainer, &ds, &eval);
-    let per_test_view = eval
-        .per_view
-        .iter()
-        .map(|v| {
-            let diagnosis = low_views.iter().find(|(name, _)| *name == v.name).map(|(_, d)| d);
-            TestView {
-                name: v.name.clone(),
-                psnr: v.psnr,
-                ssim: v.ssim,
-                cause: diagnosis.map(|d| d.cause.name().to_string()),
-                near_share: diagnosis.map(|d| d.near_share),
-            }
-        })
-        .collect();
-    let summary = TrainSummary {
-        steps: trainer.step,
-        gaussians: trainer.model.len(),
-        test_psnr: (eval.views > 0).then_some(eval.psnr),
-        test_ssim: (eval.views > 0).then_some(eval.ssim),
-        test_psnr_masked: eval.masked_psnr,
-        test_views: eval.views,
-        worst_test_view: eval.worst().map(|v| WorstView { name: v.name.clone(), psnr: v.psnr }),
-        train_psnr_sample: train_psnr,
-        per_test_view,
-        seconds: started.elapsed().as_secs_f64(),
-        scene: ply.clone(),
-        adam: trainer.config.adam.name().into(),
-        clamp_grad: trainer.config.clamp_grad.name().into(),
-        camera_reach: trainer.config.densify.camera_reach,
-        strategy: trainer.config.strategy.name().into(),
-    };
-    summary.write(staged.path())?;
-    staged.commit()?;
-    if let Some(ck) = &control.checkpoint {
-        ck.remove();
-    }
-    let masked = eval.masked_psnr.map_or(String::new(), |m| format!(" ({m:.2} dB inside the masks)"));
-    let worst = eval.worst().map_or(String::new(), |v| format!(", worst {} {:.2} dB", v.name, v.psnr));
-    tracing::info!(
-        "{} steps in {:.1} s: {} Gaussians, test PSNR {:.2} dB, SSIM {:.4} over {} whole views{masked}{worst}; wrote {}",
-        trainer.step,
-        started.elapsed().as_secs_f64(),
-        trainer.model.len(),
-        eval.psnr,
-        eval.ssim,
-        eval.views,
-        ply.display()
-    );
-    println!("{}", serde_json::to_string(&summary).expect("a summary serialises"));
+    bar.finish_and_clear();
+    println!("{}", serde_json::to_string(&outcome?.summary).expect("a summary serialises"));
     Ok(())
 }
 
-/// The `train` flag that sets a `TrainConfig` setting (`TrainConfig::validate`'s keys).
 fn flag_of(key: &str) -> &'static str {
     match key {
         "iterations" => "--iters",
@@ -340,80 +230,6 @@ fn flag_of(key: &str) -> &'static str {
         "background" => "--background",
         _ => "a setting",
     }
-}
-
-/// Folder of the test views' renders in a training output.
-pub const TEST_RENDERS: &str = "test_renders";
-
-/// A test view this far (dB) below the mean test PSNR, or a mean test PSNR this far
-/// below the training views', is warned about: the floater symptom (haze in front of
-/// cameras the training views do not constrain).
-const FLOATER_WARN_DB: f32 = 3.0;
-
-/// Renders every test view to `dir/<image stem>.png`.
-fn write_test_renders(dir: &Path, trainer: &Trainer, test: &[transsplat_train::View]) -> Result<()> {
-    if test.is_empty() {
-        return Ok(());
-    }
-    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
-    for v in test {
-        let (img, _) = trainer.render(&v.camera);
-        let path = dir.join(format!("{}.png", v.camera.stem()));
-        transsplat_scene::image::write_png(&path, img.width, img.height, &img.rgb)?;
-    }
-    Ok(())
-}
-
-/// Warns when a test view lies far below the mean test PSNR, naming the cause
-/// (floaters or extrapolation, [`diagnose`]), or the test PSNR far below the training
-/// views' (every 8th training view is scored). Returns that training PSNR and each low
-/// view's diagnosis.
-fn warn_on_floaters(
-    trainer: &Trainer,
-    ds: &dataset::Dataset,
-    eval: &transsplat_train::Eval,
-) -> (Option<f32>, Vec<(String, Diagnosis)>) {
-    if eval.views == 0 {
-        return (None, Vec::new());
-    }
-    let train_cameras: Vec<_> = ds.train.iter().map(|v| v.camera.clone()).collect();
-    let mut low = Vec::new();
-    for (view, score) in ds.test.iter().zip(&eval.per_view) {
-        if score.psnr >= eval.psnr - FLOATER_WARN_DB {
-            continue;
-        }
-        let d = diagnose(trainer, &view.camera, &train_cameras);
-        let why = match d.cause {
-            Cause::Floaters => format!(
-                "floaters: {:.0} % of what it sees lies nearer than a quarter of the depth at which any \
-                 training view sees those splats",
-                100.0 * d.near_share
-            ),
-            Cause::Extrapolation => format!(
-                "extrapolation: it sees what the training views saw, from outside them; only {:.0} % of \
-                 what it sees lies in front of where they see it",
-                100.0 * d.near_share
-            ),
-        };
-        tracing::warn!(
-            "test view {} is at {:.2} dB, {:.1} dB below the mean test PSNR: {why} (test_renders/)",
-            score.name,
-            score.psnr,
-            eval.psnr - score.psnr
-        );
-        low.push((score.name.clone(), d));
-    }
-    let sample: Vec<_> = ds.train.iter().step_by(8).cloned().collect();
-    let train = transsplat_train::evaluate(trainer, &sample);
-    if train.psnr - eval.psnr > FLOATER_WARN_DB {
-        tracing::warn!(
-            "test PSNR {:.2} dB is {:.1} dB below the training views' {:.2} dB: the test views may see floaters",
-            eval.psnr,
-            train.psnr - eval.psnr,
-            train.psnr
-        );
-    }
-    (Some(train.psnr), low)
 }
 
 /// Arguments of `transsplat bench train`.

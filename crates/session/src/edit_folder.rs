@@ -6,7 +6,7 @@ use crate::heatmap::render_values;
 use crate::report::Page;
 use std::path::Path;
 use transsplat_edit::EditConfig;
-use transsplat_edit::EditResult;
+use transsplat_edit::{EditResult, RoundStats, StepLosses, Timing};
 use transsplat_raster::{render, RenderOptions, Splats};
 use transsplat_scene::formats::{self, SceneFormat};
 use transsplat_scene::{atomic, cameras, image, ply, Camera, Gaussians};
@@ -14,6 +14,24 @@ use transsplat_viewer::{Layer, LayerKind, Role, Viewer};
 
 /// File that marks a finished edit folder.
 pub const MARKER: &str = "transport.json";
+
+/// `transport.json`, the marker of a finished edit folder: what was asked, each
+/// transport round's statistics, each step's losses and the timing by stage.
+#[derive(Debug, serde::Serialize)]
+pub struct EditSummary<'a> {
+    pub prompt: &'a str,
+    pub editor: &'a str,
+    pub method: &'a str,
+    pub rounds: &'a [RoundStats],
+    pub losses: &'a [StepLosses],
+    pub timing: &'a Timing,
+    /// The Gaussians chosen as prototypes (indices into the source scene).
+    pub prototypes: &'a [usize],
+    /// Gaussians in the edited scene.
+    pub gaussians: usize,
+    /// The mean gate γ over the edited scene's Gaussians (methods with a gate).
+    pub mean_gate: Option<f64>,
+}
 
 /// Everything `write` needs.
 pub struct EditOutput<'a> {
@@ -89,12 +107,17 @@ pub fn write(dir: &Path, o: &EditOutput) -> Result<(), transsplat_scene::Error> 
             ],
         ));
     }
-    let stats = serde_json::json!({
-        "prompt": o.prompt, "editor": o.editor, "method": o.config.method.name(),
-        "rounds": r.rounds, "losses": r.losses, "timing": r.timing, "prototypes": r.prototypes,
-        "gaussians": r.gaussians.len(),
-        "mean_gate": r.gate.as_ref().map(|g| g.iter().map(|&x| x as f64).sum::<f64>() / g.len().max(1) as f64),
-    });
+    let stats = EditSummary {
+        prompt: o.prompt,
+        editor: o.editor,
+        method: o.config.method.name(),
+        rounds: &r.rounds,
+        losses: &r.losses,
+        timing: &r.timing,
+        prototypes: &r.prototypes,
+        gaussians: r.gaussians.len(),
+        mean_gate: r.gate.as_ref().map(|g| g.iter().map(|&x| x as f64).sum::<f64>() / g.len().max(1) as f64),
+    };
     let mut p = Page::new(&format!("transsplat edit: \"{}\"", o.prompt));
     p.paragraph(&format!(
         "Editor {}, method {}, {} Gaussians, {:.1} s (editor {:.1} s, transport {:.1} s, optimisation {:.1} s).",

@@ -1,0 +1,232 @@
+//! An edit job: a scene, its cameras and an instruction, a 2D editor, the edit engine
+//! (`transsplat_edit`) and, when an output folder is asked for, that folder
+//! ([`crate::edit_folder`]) committed only when complete.
+//!
+//! The order is fixed so every front keeps the same guarantees: the output rule and
+//! staging come before anything slow (a model load, the editor); the view split is
+//! [`transsplat_scene::cameras::split_views`] (every 8th camera held out); a stop or a
+//! failure leaves the output as it was and says where the checkpoint is.
+
+use crate::checkpoints::{self, Checkpoints};
+use crate::edit_folder::{self, EditOutput, MARKER};
+use crate::output::Output;
+use crate::SessionError;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+use transsplat_edit::checkpoint::STATE_FILE;
+use transsplat_edit::{semantic, EditConfig, EditError, EditJob, EditResult, Progress};
+use transsplat_editors::{CommandEditor, Editor, FolderEditor};
+use transsplat_scene::cameras::split_views;
+use transsplat_scene::formats::SceneFormat;
+use transsplat_scene::{Camera, Gaussians};
+
+/// DINOv2 features are reduced to this many channels (a fixed random projection) before
+/// the engine's PCA to `semantic_dim`: 384 or 768 channels per pixel of every view would
+/// not fit in memory for a real capture.
+const DINO_CHANNELS: usize = 64;
+
+/// Edit checkpoints are written every this many steps unless asked otherwise.
+const CHECKPOINT_EVERY: u64 = 100;
+
+/// Which 2D editor makes the edits.
+pub enum EditorSpec<'a> {
+    /// Edited images made by any tool, in a folder (`transsplat views export` layout).
+    Folder(PathBuf),
+    /// A command run on exported views (file protocol in the editors crate docs),
+    /// ended with its process group after `timeout`. Needs an output folder: it works
+    /// inside the staged output.
+    Command { command: String, timeout: Option<Duration> },
+    /// InstructPix2Pix from a local diffusers folder.
+    Ip2p { weights: PathBuf },
+    /// Any other editor: a Python callable, the benchmark's simulated editor.
+    Custom(Box<dyn Editor + Send + 'a>),
+}
+
+impl EditorSpec<'_> {
+    /// The editor's name in logs and outputs.
+    pub fn name(&self) -> String {
+        match self {
+            EditorSpec::Folder(_) => "folder".into(),
+            EditorSpec::Command { .. } => "command".into(),
+            EditorSpec::Ip2p { .. } => "ip2p".into(),
+            EditorSpec::Custom(e) => e.name().into(),
+        }
+    }
+}
+
+/// Where the semantic features E of the renders and edited views come from.
+#[derive(Clone, Debug, Default)]
+pub enum Features {
+    /// The built-in features (`transsplat_edit::semantic::builtin`).
+    #[default]
+    Builtin,
+    /// DINOv2 from a local Hugging Face folder (`facebook/dinov2-small` or `-base`).
+    Dinov2(PathBuf),
+}
+
+/// The output folder of an edit.
+#[derive(Clone, Debug)]
+pub struct OutputRequest {
+    /// The folder (replaced only if it holds an earlier edit's output).
+    pub path: PathBuf,
+    /// Every input path (as given and as resolved), for the output rule.
+    pub inputs: Vec<PathBuf>,
+    /// Formats written beside `point_cloud.ply`.
+    pub formats: Vec<SceneFormat>,
+    /// Checkpoints beside the output (`None`: none).
+    pub checkpoints: Option<Checkpoints>,
+}
+
+/// An edit job.
+pub struct EditRequest<'a> {
+    pub gaussians: &'a Gaussians,
+    pub cameras: &'a [Camera],
+    pub prompt: &'a str,
+    pub editor: EditorSpec<'a>,
+    pub features: Features,
+    pub config: EditConfig,
+    pub background: [f32; 3],
+    /// The output folder; `None` returns the result only (the Python API's default).
+    pub output: Option<OutputRequest>,
+    /// Ground truth: which Gaussians are the edit's target, for the report's viewer.
+    pub target: Option<Vec<bool>>,
+}
+
+/// What an edit produced.
+pub struct EditOutcome {
+    pub result: EditResult,
+    /// The committed output folder, if one was asked for.
+    pub out: Option<PathBuf>,
+    /// The held-out test views and the edited views (camera indices).
+    pub test_views: Vec<usize>,
+    pub edit_views: Vec<usize>,
+}
+
+/// Runs an edit job; `cancel` stops it between steps, `progress` hears every step,
+/// transport round and editor call.
+pub fn run(
+    request: EditRequest,
+    cancel: Option<&AtomicBool>,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<EditOutcome, SessionError> {
+    let EditRequest { gaussians, cameras, prompt, editor, features, config, background, output, target } =
+        request;
+    if gaussians.is_empty() {
+        return Err(SessionError::Input("scene: the scene has no Gaussians".into()));
+    }
+    if background.iter().any(|v| !v.is_finite()) {
+        return Err(SessionError::Input(format!("background: non-finite value in {background:?}")));
+    }
+    let staged = match &output {
+        Some(o) => {
+            let inputs: Vec<&Path> = o.inputs.iter().map(PathBuf::as_path).collect();
+            Some(Output::begin(&o.path, &inputs, MARKER)?)
+        }
+        None => None,
+    };
+    let mut control = match output.as_ref().and_then(|o| o.checkpoints.as_ref().map(|c| (o, c))) {
+        Some((o, checkpoints)) => checkpoints.control(&o.path, CHECKPOINT_EVERY, STATE_FILE, cancel)?,
+        None => transsplat_train::Control { cancel, ..Default::default() },
+    };
+    let (test_views, edit_views) = split_views(cameras.len());
+    let dino = match &features {
+        Features::Dinov2(dir) => {
+            use transsplat_models::{dinov2::Dinov2, ModelDir};
+            let hint = format!("hf download facebook/dinov2-small --local-dir {}", dir.display());
+            let model = ModelDir::open(dir, "DINOv2", &hint)
+                .and_then(|d| Dinov2::load(&d, &transsplat_models::default_device()))
+                .map_err(|e| SessionError::Model(e.to_string()))?;
+            Some(model)
+        }
+        Features::Builtin => None,
+    };
+    let editor_name = editor.name();
+    let mut editor = build_editor(editor, gaussians, staged.as_ref(), &config, cancel)?;
+    // The one semantic model of the job, for source renders and edited images alike.
+    let semantic = move |img: &[f32], w: usize, h: usize| match &dino {
+        Some(m) => m.features_projected(img, w, h, DINO_CHANNELS).map_err(|e| format!("DINOv2: {e}")),
+        None => semantic::builtin(img, w, h),
+    };
+    let job = EditJob {
+        gaussians,
+        cameras,
+        edit_views: edit_views.clone(),
+        background,
+        prompt,
+        semantic: &semantic,
+    };
+    let result = transsplat_edit::run_with(&job, editor.as_mut(), &config, &mut control, progress);
+    let result = match (result, &output) {
+        (Ok(r), _) => r,
+        (Err(EditError::Interrupted(step)), Some(o)) => {
+            return Err(checkpoints::interrupted(step as u64, &control, &o.path))
+        }
+        (Err(e @ EditError::Train(_)), Some(o)) => return Err(checkpoints::failed(e, &control, &o.path)),
+        (Err(e), _) => return Err(e.into()),
+    };
+    let out = match (staged, &output) {
+        (Some(staged), Some(o)) => {
+            let folder = EditOutput {
+                source: gaussians,
+                result: &result,
+                cameras,
+                test_views: &test_views,
+                edit_views: &edit_views,
+                background,
+                prompt,
+                editor: &editor_name,
+                config: &config,
+                target: target.as_deref(),
+                formats: &o.formats,
+            };
+            staged.write(|dir| edit_folder::write(dir, &folder))?;
+            let out = staged.commit()?;
+            if let Some(ck) = &control.checkpoint {
+                ck.remove();
+            }
+            Some(out)
+        }
+        _ => None,
+    };
+    Ok(EditOutcome { result, out, test_views, edit_views })
+}
+
+/// The editor an [`EditorSpec`] describes.
+fn build_editor<'a>(
+    spec: EditorSpec<'a>,
+    gaussians: &Gaussians,
+    staged: Option<&Output>,
+    config: &EditConfig,
+    cancel: Option<&'a AtomicBool>,
+) -> Result<Box<dyn Editor + 'a>, SessionError> {
+    Ok(match spec {
+        EditorSpec::Folder(dir) => {
+            Box::new(FolderEditor::new(dir).for_scene(transsplat_scene::fingerprint::scene(gaussians)))
+        }
+        EditorSpec::Command { command, timeout } => {
+            let staged = staged.ok_or_else(|| {
+                SessionError::Input("the command editor needs an output folder to work in".into())
+            })?;
+            let mut e = CommandEditor::new(command, staged.dir().join("editor"));
+            if let Some(flag) = cancel {
+                e = e.with_cancel(flag);
+            }
+            if let Some(limit) = timeout {
+                e = e.with_timeout(limit);
+            }
+            Box::new(e)
+        }
+        EditorSpec::Ip2p { weights } => {
+            use transsplat_models::ip2p::{Ip2pEditor, Settings};
+            let device = transsplat_models::default_device();
+            let mut e = Ip2pEditor::load(&weights, Settings::default(), config.seed, &device)
+                .map_err(|e| SessionError::Model(e.to_string()))?;
+            if let Some(flag) = cancel {
+                e = e.with_cancel(flag);
+            }
+            Box::new(e)
+        }
+        EditorSpec::Custom(editor) => editor as Box<dyn Editor + 'a>,
+    })
+}
