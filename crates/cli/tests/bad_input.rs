@@ -11,7 +11,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use transsplat_raster::bench;
+use transsplat_raster::synthetic as bench;
 use transsplat_scene::{cameras, npy, ply, spz, Camera, Gaussians};
 
 // ---------------------------------------------------------------------------------
@@ -221,6 +221,18 @@ fn cases() -> Vec<Case> {
             .dir("ro")
             .setup(make_read_only)
             .expect(&["ro/out", "cannot create output folder"]),
+        // The error names the output the user gave, not the hidden staging folder
+        // beside it (`ro/.out.partial-PID`); skipped where the user can write anyway (root).
+        Case::new(
+            "edit: read-only output location",
+            "edit --scene {d}/in/scene.ply --editor folder --edits {d}/edits --out {d}/ro/out --prompt",
+        )
+        .arg("make it blue")
+        .with_scene()
+        .dir("edits")
+        .dir("ro")
+        .setup(make_read_only)
+        .expect(&["ro/out"]),
         Case::new(
             "edit: output folder contains the input",
             "edit --scene {d}/in/scene.ply --editor folder --edits {d}/edits --out {d}/in --prompt",
@@ -383,6 +395,11 @@ fn cases() -> Vec<Case> {
             .file("ds/images/view_0.png", png(40, 30))
             .file("ds/images/view_1.png", png(30, 30))
             .expect(&["view_1.png", "30x30"]),
+        Case::new("train: read-only output location", "train --data {d}/ds --out {d}/ro/out --iters 1")
+            .with_dataset()
+            .dir("ro")
+            .setup(make_read_only)
+            .expect(&["ro/out"]),
         Case::new("train: output folder is the dataset", "train --data {d}/ds --out {d}/ds --iters 1")
             .with_dataset()
             .expect(&["the output is the input", "ds"]),

@@ -2,7 +2,8 @@
 
 use std::path::Path;
 use std::process::Command;
-use transsplat_raster::{bench, render, RenderOptions, Splats};
+use transsplat_raster::synthetic as bench;
+use transsplat_raster::{render, RenderOptions, Splats};
 use transsplat_scene::{cameras, image, npy, ply, Camera};
 
 fn bin() -> Command {

@@ -9,7 +9,8 @@
 
 use transsplat_edit::checkpoint::{EDITOR_FILE, STATE_FILE};
 use transsplat_edit::{run_with, semantic, EditConfig, EditError, EditJob, EditResult, Method};
-use transsplat_editors::{EditedView, Editor, SimulatedEditor, SourceView};
+use transsplat_editors::{EditedView, Editor, SourceView};
+use transsplat_scenes::SimulatedEditor;
 use transsplat_scenes::{build, Scene, SceneConfig};
 use transsplat_train::{Checkpointer, Control};
 

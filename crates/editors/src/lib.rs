@@ -8,8 +8,6 @@
 //!   possibly assembled from shards.
 //! - [`command`]: runs a user command on an exported folder (a file protocol), as a
 //!   [`child`] process: own process group, output to logs, time limit, cancellation.
-//! - [`simulated`]: ground-truth edits of the built-in scenes, corrupted per view the
-//!   way 2D editors fail, at a chosen severity.
 //! - [`features`]: built-in appearance features Φ (CIELAB + local texture statistics),
 //!   the fallback semantic features E used when no feature model is given, and the
 //!   change map that serves as attention when an editor gives none.
@@ -19,7 +17,6 @@ pub mod command;
 pub mod features;
 pub mod folder;
 pub mod resize;
-pub mod simulated;
 
 pub use command::CommandEditor;
 pub use features::{appearance, change_attention, semantic_fallback};
@@ -27,7 +24,6 @@ pub use folder::{
     content_name, export_views, exported_shard, ExportSpec, Exported, FolderEditor, Shard, ViewEntry,
 };
 pub use resize::resize_bilinear;
-pub use simulated::SimulatedEditor;
 
 use transsplat_scene::Camera;
 
@@ -115,8 +111,6 @@ pub enum Error {
     Invalid(String),
     #[error(transparent)]
     Io(#[from] transsplat_scene::Error),
-    #[error(transparent)]
-    Scene(#[from] transsplat_scenes::Error),
 }
 
 /// A 2D editor. `edit` returns one entry per input view, `None` where the editor

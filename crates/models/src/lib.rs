@@ -7,7 +7,6 @@
 //! - [`clip`]: CLIP image and text features for the CLIP-sim / CLIP-dir metrics.
 //! - [`tokenizer`]: the CLIP byte-pair tokenizer with its vocabulary bundled.
 //! - [`resample`]: torch-exact bicubic / bilinear resizing for the models' preprocessing.
-//! - [`bench`](mod@bench): the model cases of `transsplat bench models`.
 //! - [`check`]: field-by-field checks of model configs before building.
 //! - [`weights`]: locating, validating and memory-mapping weight folders.
 //!
@@ -15,7 +14,6 @@
 //! transformers) on tiny randomly initialised configurations; the fixtures are written by
 //! `tools/model_fixtures_*.py` and committed under `tests/fixtures`.
 
-pub mod bench;
 pub mod check;
 pub mod clip;
 pub mod dinov2;

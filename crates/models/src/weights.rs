@@ -253,7 +253,7 @@ pub fn default_device() -> Device {
 /// initialised variables, and the returned builder holds detached copies of them.
 /// Operations on variables record the graph for back-propagation and would keep every
 /// activation alive; weights loaded from files are plain tensors, like these.
-pub(crate) fn random_weights(
+pub fn random_weights(
     device: &Device,
     build: impl FnOnce(VarBuilder) -> Result<(), Error>,
 ) -> Result<VarBuilder<'static>, Error> {

@@ -224,8 +224,8 @@ pub fn bench_scene(py: Python<'_>, n: usize, size: u32) -> PyResult<(Bound<'_, P
     if n > 50_000_000 || size == 0 || size > 1 << 15 {
         return Err(value_error(format!("bench_scene: n = {n} or size = {size} out of range")));
     }
-    let g = py.allow_threads(|| transsplat_raster::bench::bench_scene(n, 7));
-    let cam = transsplat_raster::bench::bench_camera(size, size);
+    let g = py.allow_threads(|| transsplat_raster::synthetic::bench_scene(n, 7));
+    let cam = transsplat_raster::synthetic::bench_camera(size, size);
     Ok((gaussians_to_dict(py, g)?, cameras_to_dict(py, &[cam])?))
 }
 

@@ -22,7 +22,6 @@
 // purpose where NaN must take the rejecting branch.
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
 
-pub mod bench;
 pub mod bin;
 pub mod fastexp;
 pub mod kernel;
@@ -31,6 +30,7 @@ mod par;
 mod per_gaussian;
 pub mod project;
 pub mod sh;
+pub mod synthetic;
 pub mod weights;
 
 use bin::Binned;

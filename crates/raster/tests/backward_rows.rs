@@ -1,7 +1,7 @@
 //! The rows `backward` reports are exactly the rows it wrote, and clearing them
 //! returns the gradient buffer to zero (the trainer's reuse of one buffer rests on it).
 
-use transsplat_raster::bench::{bench_camera, bench_scene};
+use transsplat_raster::synthetic::{bench_camera, bench_scene};
 use transsplat_raster::{backward, render, Grads, ImageGrads, RenderOptions, Splats};
 
 /// Row `i` of every gradient array, flattened.

@@ -155,8 +155,8 @@ fn four_gaussians_degree_1_and_2() {
 
 #[test]
 fn gradients_and_statistics_are_bit_reproducible() {
-    let g = transsplat_raster::bench::bench_scene(20_000, 3);
-    let cam = transsplat_raster::bench::bench_camera(96, 80);
+    let g = transsplat_raster::synthetic::bench_scene(20_000, 3);
+    let cam = transsplat_raster::synthetic::bench_camera(96, 80);
     let s = Splats::new(&g);
     let v: Vec<f32> = (0..96 * 80 * 3).map(|i| ((i * 31) % 7) as f32 - 3.0).collect();
     let run = || {

@@ -12,8 +12,7 @@
 //! - [`fingerprint`]: content fingerprints of scenes and views (content-named files).
 //! - [`archive`]: named little-endian arrays with a checksum (checkpoints).
 //! - [`resample`]: separable resampling of interleaved images by per-axis taps.
-//! - [`cpu`], [`timing`]: run-time CPU feature detection and best-of-N benchmark
-//!   timing, shared by the crates above this one.
+//! - [`cpu`]: run-time CPU feature detection, shared by the crates above this one.
 //!
 //! Every error names the file it is about ([`Error`]).
 
@@ -33,7 +32,6 @@ pub mod resample;
 pub mod rng;
 pub mod scene_paths;
 pub mod spz;
-pub mod timing;
 
 pub use camera::Camera;
 pub use error::{Error, Result};

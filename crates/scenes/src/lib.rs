@@ -11,6 +11,9 @@
 //! - [`masks`]: per-view label masks and soft masks rendered with the rasterizer.
 //! - [`dataset`]: [`write_dataset`], the folder `transsplat scene NAME --out DIR` writes.
 //! - [`texture`]: the procedural noise and patterns.
+//! - [`simulated`]: the simulated 2D editor: ground-truth edits of these scenes,
+//!   corrupted per view the way 2D editors fail, at a chosen severity. It is the
+//!   benchmark's editor, not a production one, so it lives beside the scenes.
 //!
 //! Same name, config and seed give the same Gaussians bit for bit: sampling uses a
 //! built-in SplitMix64 generator and no parallelism.
@@ -22,6 +25,7 @@ pub mod edit;
 pub mod masks;
 pub mod rig;
 mod rng;
+pub mod simulated;
 pub mod texture;
 
 pub use catalog::{
@@ -31,6 +35,7 @@ pub use dataset::{write_dataset, DatasetSummary, WriteOptions};
 pub use edit::{recolor, restyle, retexture, Material, Style};
 pub use masks::{one_hot, render_labels, LabelRender};
 pub use rig::{is_test, Rig};
+pub use simulated::SimulatedEditor;
 
 use std::path::PathBuf;
 
@@ -47,6 +52,16 @@ pub enum Error {
     Output { path: PathBuf, msg: String },
     #[error(transparent)]
     Io(#[from] transsplat_scene::Error),
+}
+
+/// A scene error met by the simulated editor, as an editor error.
+impl From<Error> for transsplat_editors::Error {
+    fn from(e: Error) -> Self {
+        match e {
+            Error::Io(io) => transsplat_editors::Error::Io(io),
+            e => transsplat_editors::Error::Invalid(e.to_string()),
+        }
+    }
 }
 
 impl Scene {

@@ -19,7 +19,6 @@
 //!   PSNR and its checkpoints, and the INRIA output folder.
 //! - [`checkpoint`]: checkpoints of long runs (bit-identical resume), the run's
 //!   identity, and [`Control`] (Ctrl-C, checkpoint interval, deterministic stop).
-//! - [`bench`](mod@bench): time per training step against forward + backward alone.
 //!
 //! Everything random is seeded (ChaCha8).
 
@@ -28,7 +27,6 @@
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod adam;
-pub mod bench;
 pub mod checkpoint;
 pub mod dataset;
 pub mod densify;

@@ -1,13 +1,13 @@
 //! `transsplat bench raster`: forward, backward and splat-back timings on the
-//! reproducible synthetic scene of `transsplat_raster::bench`; `transsplat bench
-//! edit`: a whole edit at a stated real size (`transsplat_eval::bench_edit`).
+//! reproducible synthetic scene of `transsplat_raster::synthetic`; `transsplat bench
+//! edit`: a whole edit at a stated real size (`transsplat_bench::edit`).
 
 use super::common::{load_cameras, load_scene, progress, SceneArgs};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
+use transsplat_bench::edit as bench_edit;
+use transsplat_bench::raster as bench;
 use transsplat_edit::{EditConfig, Progress};
-use transsplat_eval::bench_edit;
-use transsplat_raster::bench;
 use transsplat_scene::{Camera, Gaussians};
 
 /// Arguments of `transsplat bench raster`.
@@ -123,7 +123,7 @@ pub struct ModelsArgs {
 pub fn models(args: &ModelsArgs) -> anyhow::Result<()> {
     let device = transsplat_models::default_device();
     println!("{:<28} {:>10}", "case", "seconds");
-    for case in transsplat_models::bench::cases() {
+    for case in transsplat_bench::models::cases() {
         if args.only.as_deref().is_some_and(|o| !case.name.contains(o)) {
             continue;
         }
@@ -257,12 +257,12 @@ pub struct QualityArgs {
 
 /// Runs `transsplat bench quality`: the ground-truth suite, its table on stdout.
 pub fn quality(args: &QualityArgs, cancel: &AtomicBool) -> anyhow::Result<()> {
-    use transsplat_eval::quality;
+    use transsplat_bench::quality;
     let cases = quality::select(quality::cases(args.trained), &args.cases).map_err(anyhow::Error::msg)?;
     let quick = !args.full;
     let mut config = EditConfig::default();
     if quick {
-        transsplat_eval::demo::quick_schedule(&mut config);
+        transsplat_bench::demo::quick_schedule(&mut config);
     }
     let config = config.with_overrides(&args.set).map_err(anyhow::Error::msg)?;
     let opts = quality::SuiteOptions {
@@ -287,7 +287,7 @@ pub fn quality(args: &QualityArgs, cancel: &AtomicBool) -> anyhow::Result<()> {
         }
     })
     .map_err(|e| match e {
-        transsplat_eval::demo::DemoError::Edit(transsplat_edit::EditError::Interrupted(_)) => {
+        transsplat_bench::demo::DemoError::Edit(transsplat_edit::EditError::Interrupted(_)) => {
             anyhow::anyhow!("interrupted; nothing was written to {}", args.out.display())
         }
         e => e.into(),

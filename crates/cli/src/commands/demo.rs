@@ -4,10 +4,10 @@ use super::common::progress;
 use anyhow::Result;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
+use transsplat_bench::demo::{self, DemoOptions};
 use transsplat_edit::EditConfig;
 use transsplat_edit::Method;
 use transsplat_edit::Progress;
-use transsplat_eval::demo::{self, DemoOptions};
 
 /// Arguments of `transsplat demo`.
 #[derive(clap::Args, Debug)]
@@ -71,7 +71,7 @@ pub fn run(args: &DemoArgs, cancel: &AtomicBool) -> Result<()> {
         None => EditConfig::default(),
     };
     if args.quick {
-        transsplat_eval::demo::quick_schedule(&mut config);
+        transsplat_bench::demo::quick_schedule(&mut config);
     }
     let config = config.with_overrides(&args.set).map_err(anyhow::Error::msg)?;
     let methods = parse_methods(args.methods.as_deref())?;

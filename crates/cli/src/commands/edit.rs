@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 use transsplat_edit::{EditConfig, Progress};
-use transsplat_editors::SimulatedEditor;
 use transsplat_scene::formats::SceneFormat;
+use transsplat_scenes::SimulatedEditor;
 use transsplat_session as session;
 use transsplat_session::edit::{EditRequest, EditorSpec, Features, OutputRequest};
 

@@ -267,7 +267,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
     );
     for &n in &args.gaussians {
         for &s in &args.sizes {
-            let r = transsplat_train::bench::run(n, s, s, args.reps);
+            let r = transsplat_bench::train::run(n, s, s, args.reps);
             println!(
                 "{:>10} {:>9} {:>12.4} {:>10.4} {:>7.2} {:>11.4} {:>9.4} {:>9.4} {:>9.4} {:>10.4} {:>10.4}",
                 n,

@@ -5,8 +5,8 @@ use anyhow::{bail, Context, Result};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+use transsplat_bench::timing::try_best_of;
 use transsplat_scene::npy;
-use transsplat_scene::timing::try_best_of;
 use transsplat_transport::{reference, solve, solve_with, Params, Problem, Solution, Workspace};
 
 /// Parses a marginal relaxation: a positive number or `inf`.

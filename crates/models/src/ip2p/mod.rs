@@ -6,10 +6,8 @@
 //! - [`vae`]: the auto-encoder; the image-conditioning latent is its posterior mode.
 //! - [`ddim`]: DDIM (η = 0) with the start-span usage of Instruct-NeRF2NeRF.
 //! - [`pipeline`]: one edit with three-way guidance and the DiffEdit-style attention.
-//! - [`bench`](mod@bench): benchmark cases at the real SD 1.5 sizes (random weights).
 //! - [`editor`]: [`Ip2pEditor`], the pipeline with its CLIP text encoder as an `Editor`.
 
-pub mod bench;
 pub mod ddim;
 pub mod editor;
 pub mod pipeline;

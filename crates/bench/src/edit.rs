@@ -7,12 +7,12 @@
 //! for tests. Every 8th camera is a test view, so 48 and 46 cameras.
 
 use crate::demo::{scene_job, DemoError};
-use crate::ground_truth::{GtMetrics, Reference};
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 use transsplat_edit::{EditConfig, Progress, Timing};
-use transsplat_editors::SimulatedEditor;
+use transsplat_eval::ground_truth::{GtMetrics, Reference};
+use transsplat_scenes::SimulatedEditor;
 use transsplat_scenes::{build, SceneConfig};
 
 /// One benchmark size.

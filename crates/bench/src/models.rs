@@ -2,14 +2,14 @@
 //! model with the real architecture sizes and random weights (real weights cannot be
 //! downloaded here; the arithmetic is the same) and timing one forward pass.
 
+use crate::timing::try_best_of;
 use candle_core::Device;
-use transsplat_scene::timing::try_best_of;
 
-use crate::clip::{Clip, ClipConfig, ClipTextConfig, ClipVisionConfig};
-use crate::dinov2::{Dinov2, Dinov2Config};
-use crate::ip2p::bench::{sd15_models, Case as Ip2pCase, Sd15};
-use crate::weights::random_weights;
-use crate::Error;
+use crate::ip2p::{sd15_models, Case as Ip2pCase, Sd15};
+use transsplat_models::clip::{Clip, ClipConfig, ClipTextConfig, ClipVisionConfig};
+use transsplat_models::dinov2::{Dinov2, Dinov2Config};
+use transsplat_models::weights::random_weights;
+use transsplat_models::Error;
 
 /// One benchmark: a name and a function that builds its model and returns the seconds
 /// of one timed run (after one untimed warm-up run).

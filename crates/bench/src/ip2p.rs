@@ -8,8 +8,8 @@
 
 use candle_core::{Device, Tensor};
 
-use super::unet::{UNet, UNetConfig};
-use super::vae::{Vae, VaeConfig};
+use transsplat_models::ip2p::unet::{UNet, UNetConfig};
+use transsplat_models::ip2p::vae::{Vae, VaeConfig};
 
 /// The `unet/config.json` of `timbrooks/instruct-pix2pix` (SD 1.5 with 8 input channels).
 pub const SD15_UNET: &str = r#"{
@@ -40,8 +40,8 @@ pub fn sd15_models(device: &Device) -> candle_core::Result<Sd15> {
     let parse = |e: serde_json::Error| candle_core::Error::Msg(e.to_string());
     let unet_cfg = serde_json::from_str::<UNetConfig>(SD15_UNET).map_err(parse)?;
     let vae_cfg = serde_json::from_str::<VaeConfig>(SD15_VAE).map_err(parse)?;
-    let to_candle = |e: crate::Error| candle_core::Error::Msg(e.to_string());
-    let vb = crate::weights::random_weights(device, |vb| {
+    let to_candle = |e: transsplat_models::Error| candle_core::Error::Msg(e.to_string());
+    let vb = transsplat_models::weights::random_weights(device, |vb| {
         UNet::new(vb.pp("unet"), unet_cfg.clone())?;
         Vae::new(vb.pp("vae"), vae_cfg.clone())?;
         Ok(())

@@ -2,9 +2,9 @@
 //! reproduces the truth on the held-out views, and `demo` with `trained` edits that
 //! scene (not the built-in Gaussians) and scores it against the same ground truth.
 
+use transsplat_bench::demo::{self, DemoOptions};
+use transsplat_bench::trained::train_from_renders;
 use transsplat_edit::{EditConfig, Method};
-use transsplat_eval::demo::{self, DemoOptions};
-use transsplat_eval::trained::train_from_renders;
 use transsplat_scenes::{build, SceneConfig};
 
 #[test]

@@ -4,13 +4,13 @@
 //! against the ground truth on the test views, and writes `metrics.json`, the
 //! edited scenes and `report.html`.
 
-use crate::ground_truth::{GtMetrics, Reference};
-use crate::metrics::auroc;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use transsplat_edit::{semantic, EditConfig, EditError, EditJob, EditResult, Method, Progress};
-use transsplat_editors::simulated::SimulatedEditor;
+use transsplat_eval::ground_truth::{GtMetrics, Reference};
+use transsplat_eval::metrics::auroc;
 use transsplat_scene::{atomic::StagedDir, image, Gaussians};
+use transsplat_scenes::SimulatedEditor;
 use transsplat_scenes::{build, labels_from_extra, Scene, SceneConfig};
 use transsplat_session::edit_folder::{self, EditOutput};
 use transsplat_session::report::Page;

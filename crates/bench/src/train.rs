@@ -1,15 +1,16 @@
 //! Time per training step on the rasterizer's synthetic benchmark scene
-//! (`transsplat_raster::bench`), against forward + backward alone, so the cost of the
+//! (`transsplat_raster::synthetic`), against forward + backward alone, so the cost of the
 //! loss, the optimiser and the densification bookkeeping is a ratio.
 
-use crate::adam::{Adam, AdamRule, Update};
-use crate::densify::{DensifyConfig, DensifyStats};
-use crate::loss::image_loss;
-use crate::mcmc::McmcConfig;
-use crate::model::Model;
-use crate::trainer::{Strategy, TrainConfig, Trainer};
-use transsplat_raster::{backward, bench, render, Grads, ImageGrads, RenderOptions};
-use transsplat_scene::timing::best_of;
+use crate::timing::best_of;
+use transsplat_raster::synthetic as bench;
+use transsplat_raster::{backward, render, Grads, ImageGrads, RenderOptions};
+use transsplat_train::adam::{Adam, AdamRule, Update};
+use transsplat_train::densify::{DensifyConfig, DensifyStats};
+use transsplat_train::loss::image_loss;
+use transsplat_train::mcmc::McmcConfig;
+use transsplat_train::model::Model;
+use transsplat_train::trainer::{Strategy, TrainConfig, Trainer};
 
 /// Seconds per operation for one configuration (best of the repetitions).
 #[derive(Clone, Debug, Default)]

@@ -1,6 +1,6 @@
 use super::*;
+use crate::{build, SceneConfig};
 use std::sync::OnceLock;
-use transsplat_scenes::{build, SceneConfig};
 
 fn scene() -> &'static Scene {
     static S: OnceLock<Scene> = OnceLock::new();
@@ -420,7 +420,7 @@ fn two_objects_are_both_edited() {
     let (ball, cone) = (s.label_of("ball").unwrap(), s.label_of("cone").unwrap());
     assert_eq!(ed.target_labels(), [ball, cone]);
     let blue = [0.1, 0.2, 0.9];
-    let want = transsplat_scenes::recolor(&s.recolor(ball, blue).unwrap(), &s.labels, cone, blue).unwrap();
+    let want = crate::recolor(&s.recolor(ball, blue).unwrap(), &s.labels, cone, blue).unwrap();
     assert_eq!(ed.ground_truth(), &want);
     for ((i, _), v) in sources().iter().zip(&out) {
         let r = s.render_edited(&want, *i).unwrap();
@@ -433,7 +433,7 @@ fn two_objects_are_both_edited() {
 fn a_global_edit_gets_only_the_cast_and_the_hue_and_attention_one() {
     let s = scene();
     let (ed, out) = run(0.0, 4, "make it autumn");
-    assert_eq!(ed.ground_truth(), &s.restyle(transsplat_scenes::Style::Autumn).unwrap());
+    assert_eq!(ed.ground_truth(), &s.restyle(crate::Style::Autumn).unwrap());
     assert_eq!(ed.target_labels(), [0, 1, 2, 3, 4]);
     for ((i, _), v) in sources().iter().zip(&out) {
         assert_eq!(v.image, s.render_edited(ed.ground_truth(), *i).unwrap().rgb);

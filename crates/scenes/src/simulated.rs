@@ -73,14 +73,12 @@
 //! [`SimulatedEditor::ground_truth`], [`SimulatedEditor::target_labels`],
 //! [`SimulatedEditor::describe`].
 
-use crate::features::gaussian_blur;
-use crate::{EditedView, Editor, Error, SourceView};
+use crate::{edit::dc_colour, recolor, render_labels, retexture, LabelRender, Material, Scene, Style};
 use rayon::prelude::*;
+use transsplat_editors::features::gaussian_blur;
+use transsplat_editors::{EditedView, Editor, Error, SourceView};
 use transsplat_scene::rng::SplitMix64;
 use transsplat_scene::Gaussians;
-use transsplat_scenes::{
-    edit::dc_colour, recolor, render_labels, retexture, LabelRender, Material, Scene, Style,
-};
 
 /// Named colours of instructions, sRGB in [0, 1].
 pub const COLOURS: &[(&str, [f32; 3])] = &[

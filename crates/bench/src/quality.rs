@@ -513,7 +513,7 @@ fn write_report(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ground_truth::GtMetrics;
+    use transsplat_eval::ground_truth::GtMetrics;
 
     fn score(name: &str, t: f64, b: f64) -> MethodScore {
         MethodScore {
@@ -551,7 +551,7 @@ mod tests {
 
     #[test]
     fn the_edits_cover_three_scenes_and_six_kinds_and_each_parses_on_its_scene() {
-        use transsplat_editors::simulated::parse_instruction;
+        use transsplat_scenes::simulated::parse_instruction;
         use transsplat_scenes::{build, SceneConfig};
         let mut scenes: Vec<&str> = EDITS.iter().map(|e| e.0).collect();
         scenes.dedup();
