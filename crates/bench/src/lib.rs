@@ -2,6 +2,7 @@
 //! `bench` and `demo` commands depends on this crate.
 //!
 //! - [`raster`]: forward, binning, backward and splat-back timings (`bench raster`).
+//! - [`transport`]: the transport solver on view-like random problems (`bench transport`).
 //! - [`train`]: time per training step against forward + backward alone (`bench train`).
 //! - [`models`], [`ip2p`]: CLIP, DINOv2 and InstructPix2Pix at real sizes with random
 //!   weights (`bench models`).
@@ -21,3 +22,4 @@ pub mod raster;
 pub mod timing;
 pub mod train;
 pub mod trained;
+pub mod transport;
