@@ -29,7 +29,6 @@ use crate::catalog::{Scene, LABEL_PROPERTY};
 use crate::edit::dc_colour;
 use crate::rig::{is_test, LLFF_HOLD};
 use crate::Error;
-use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use transsplat_scene::{atomic, cameras, image, ply};
 
@@ -118,6 +117,90 @@ pub fn write_grey_png(path: &Path, width: usize, height: usize, values: &[u8]) -
     Ok(())
 }
 
+/// `labels.json`'s mask encoding.
+const MASK_ENCODING: &str = "8-bit greyscale PNG; pixel value = label id (0 = background or nothing); \
+                             a pixel is labelled where the rendered alpha > 0.5, by the label with the \
+                             largest blend weight";
+
+/// `labels.json`: the scene's objects and label ids, its test views, and what rebuilds
+/// it ([`Labels::scene_config`]). Written by [`write_dataset`], read by [`Labels::read`].
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Labels {
+    pub scene: String,
+    pub description: String,
+    pub target: String,
+    pub seed: u64,
+    pub detail: f32,
+    pub open: bool,
+    pub width: u32,
+    pub height: u32,
+    pub num_gaussians: usize,
+    pub sh_degree: u32,
+    pub background: [f32; 3],
+    pub ply: String,
+    pub label_property: String,
+    pub mask_encoding: String,
+    pub llffhold: usize,
+    pub labels: Vec<Label>,
+    pub objects: Vec<LabelledObject>,
+    pub test_views: Vec<String>,
+    pub train_views: Vec<String>,
+    pub views: Vec<LabelledView>,
+}
+
+/// One label id of `labels.json`.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Label {
+    pub id: usize,
+    pub name: String,
+    pub gaussians: usize,
+}
+
+/// One object of `labels.json`.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct LabelledObject {
+    pub name: String,
+    pub label: u32,
+    pub colour: String,
+    pub base_rgb: [f32; 3],
+    pub shape: String,
+    pub centre: [f32; 3],
+    pub gaussians: usize,
+}
+
+/// One view of `labels.json`: its image and mask and the pixels of each object in it.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct LabelledView {
+    pub index: usize,
+    pub name: String,
+    pub image: String,
+    pub mask: String,
+    pub test: bool,
+    pub object_pixels: std::collections::BTreeMap<String, usize>,
+}
+
+impl Labels {
+    /// Reads `labels.json`; the error names the file.
+    pub fn read(path: &Path) -> Result<Labels, Error> {
+        let bytes = atomic::read(path)?;
+        serde_json::from_slice(&bytes).map_err(|e| {
+            Error::Io(transsplat_scene::Error::format(path, format!("not a labels.json of `transsplat scene`: {e}")))
+        })
+    }
+
+    /// The settings that rebuild the scene bit for bit with [`crate::build`].
+    pub fn scene_config(&self) -> crate::SceneConfig {
+        crate::SceneConfig {
+            seed: self.seed,
+            detail: self.detail,
+            width: self.width,
+            height: self.height,
+            views: self.views.len(),
+            open: self.open,
+        }
+    }
+}
+
 fn write_into(
     scene: &Scene,
     dir: &Path,
@@ -143,71 +226,60 @@ fn write_into(
         image::write_png(&dir.join("images").join(format!("{stem}.png")), r.width, r.height, &r.rgb)?;
         let grey: Vec<u8> = r.labels.iter().map(|&l| l.min(255) as u8).collect();
         write_grey_png(&dir.join("masks").join(format!("{stem}.png")), r.width, r.height, &grey)?;
-        let mut pixels = serde_json::Map::new();
+        let mut object_pixels = std::collections::BTreeMap::new();
         for (k, o) in scene.objects.iter().enumerate() {
             let a = r.area(o.label);
             if a > 0 {
                 views_visible[k] += 1;
             }
-            pixels.insert(o.name.clone(), json!(a));
+            object_pixels.insert(o.name.clone(), a);
         }
-        views.push(json!({
-            "index": i,
-            "name": stem,
-            "image": format!("images/{stem}.png"),
-            "mask": format!("masks/{stem}.png"),
-            "test": is_test(i),
-            "object_pixels": Value::Object(pixels),
-        }));
+        views.push(LabelledView {
+            index: i,
+            name: stem.clone(),
+            image: format!("images/{stem}.png"),
+            mask: format!("masks/{stem}.png"),
+            test: is_test(i),
+            object_pixels,
+        });
         progress(i + 1, total);
     }
 
     let counts = scene.label_counts();
-    let labels: Vec<Value> = names
-        .iter()
-        .enumerate()
-        .map(|(id, n)| json!({"id": id, "name": n, "gaussians": counts.get(id).copied().unwrap_or(0)}))
-        .collect();
-    let objects: Vec<Value> = scene
-        .objects
-        .iter()
-        .map(|o| {
-            json!({
-                "name": o.name,
-                "label": o.label,
-                "colour": o.colour,
-                "base_rgb": o.base_rgb,
-                "shape": o.shape,
-                "centre": o.centre,
-                "gaussians": counts.get(o.label as usize).copied().unwrap_or(0),
-            })
-        })
-        .collect();
-    let stems: Vec<String> = scene.cameras.iter().map(|c| c.stem()).collect();
-    let doc = json!({
-        "scene": scene.name,
-        "description": scene.description,
-        "target": scene.target,
-        "seed": scene.config.seed,
-        "detail": scene.config.detail,
-        "open": scene.config.open,
-        "width": scene.config.width,
-        "height": scene.config.height,
-        "num_gaussians": scene.gaussians.len(),
-        "sh_degree": scene.gaussians.sh_degree,
-        "background": scene.background,
-        "ply": PLY_PATH,
-        "label_property": LABEL_PROPERTY,
-        "mask_encoding": "8-bit greyscale PNG; pixel value = label id (0 = background or nothing); \
-                          a pixel is labelled where the rendered alpha > 0.5, by the label with the \
-                          largest blend weight",
-        "llffhold": LLFF_HOLD,
-        "labels": labels,
-        "objects": objects,
-        "test_views": stems.iter().enumerate().filter(|(i, _)| is_test(*i)).map(|(_, s)| s).collect::<Vec<_>>(),
-        "train_views": stems.iter().enumerate().filter(|(i, _)| !is_test(*i)).map(|(_, s)| s).collect::<Vec<_>>(),
-        "views": views,
+    let gaussians_of = |label: usize| counts.get(label).copied().unwrap_or(0);
+    let labels = names.iter().enumerate().map(|(id, n)| Label { id, name: n.clone(), gaussians: gaussians_of(id) });
+    let objects = scene.objects.iter().map(|o| LabelledObject {
+        name: o.name.clone(),
+        label: o.label,
+        colour: o.colour.clone(),
+        base_rgb: o.base_rgb,
+        shape: o.shape.clone(),
+        centre: o.centre,
+        gaussians: gaussians_of(o.label as usize),
     });
+    let stems: Vec<String> = scene.cameras.iter().map(|c| c.stem()).collect();
+    let doc = Labels {
+        scene: scene.name.clone(),
+        description: scene.description.clone(),
+        target: scene.target.clone(),
+        seed: scene.config.seed,
+        detail: scene.config.detail,
+        open: scene.config.open,
+        width: scene.config.width,
+        height: scene.config.height,
+        num_gaussians: scene.gaussians.len(),
+        sh_degree: scene.gaussians.sh_degree,
+        background: scene.background,
+        ply: PLY_PATH.into(),
+        label_property: LABEL_PROPERTY.into(),
+        mask_encoding: MASK_ENCODING.into(),
+        llffhold: LLFF_HOLD,
+        labels: labels.collect(),
+        objects: objects.collect(),
+        test_views: stems.iter().enumerate().filter(|(i, _)| is_test(*i)).map(|(_, s)| s.clone()).collect(),
+        train_views: stems.iter().enumerate().filter(|(i, _)| !is_test(*i)).map(|(_, s)| s.clone()).collect(),
+        views,
+    };
     let text = serde_json::to_string_pretty(&doc).map_err(|e| out_err(&dir.join("labels.json"), e))?;
     atomic::write_bytes(&dir.join("labels.json"), text.as_bytes())?;
     Ok(DatasetSummary {

@@ -31,7 +31,7 @@ pub mod texture;
 pub use catalog::{
     build, labels_from_extra, with_labels, Scene, SceneConfig, SceneObject, LABEL_PROPERTY, SCENE_NAMES,
 };
-pub use dataset::{write_dataset, DatasetSummary, WriteOptions};
+pub use dataset::{write_dataset, DatasetSummary, Labels, WriteOptions};
 pub use edit::{recolor, restyle, retexture, Material, Style};
 pub use masks::{one_hot, render_labels, LabelRender};
 pub use rig::{is_test, Rig};

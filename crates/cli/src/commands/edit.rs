@@ -101,24 +101,15 @@ fn builtin_scene(scene_arg: &Path) -> Result<transsplat_scenes::Scene> {
             .map(Path::to_path_buf)
             .unwrap_or_default()
     };
-    let labels = root.join("labels.json");
-    let text = std::fs::read_to_string(&labels).with_context(|| {
-        format!(
+    let path = root.join("labels.json");
+    if !path.is_file() {
+        bail!(
             "{}: the simulated editor needs a built-in scene folder written by `transsplat scene`",
-            labels.display()
-        )
-    })?;
-    let v: serde_json::Value =
-        serde_json::from_str(&text).with_context(|| format!("{}: not JSON", labels.display()))?;
-    let name = v["scene"].as_str().with_context(|| format!("{}: no scene name", labels.display()))?;
-    let cfg = transsplat_scenes::SceneConfig {
-        seed: v["seed"].as_u64().unwrap_or(0),
-        detail: v["detail"].as_f64().unwrap_or(1.0) as f32,
-        width: v["width"].as_u64().unwrap_or(256) as u32,
-        height: v["height"].as_u64().unwrap_or(192) as u32,
-        views: v["views"].as_array().map_or(32, |a| a.len()),
-        open: v["open"].as_bool().unwrap_or(false),
-    };
+            path.display()
+        );
+    }
+    let labels = transsplat_scenes::Labels::read(&path)?;
+    let (name, cfg) = (&labels.scene, labels.scene_config());
     Ok(transsplat_scenes::build(name, &cfg)?)
 }
 
