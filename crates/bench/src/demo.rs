@@ -106,6 +106,34 @@ pub enum DemoError {
     Trained(#[from] crate::trained::TrainedError),
 }
 
+/// `metrics.json`, the marker of a finished demo folder: the case and each method's
+/// scores against the ground truth on the test views.
+#[derive(Debug, serde::Serialize)]
+pub struct DemoMetrics<'a> {
+    pub scene: &'a str,
+    pub prompt: &'a str,
+    /// The simulated editor's description of the edit.
+    pub edit: &'a str,
+    pub severity: f32,
+    pub quick: bool,
+    /// Gaussians of the edited source (built or trained).
+    pub gaussians: usize,
+    pub test_views: &'a [usize],
+    pub trained_steps: u64,
+    pub trained: Option<Fidelity>,
+    pub methods: std::collections::BTreeMap<&'a str, MethodMetrics<'a>>,
+}
+
+/// One method's entry of [`DemoMetrics`].
+#[derive(Debug, serde::Serialize)]
+pub struct MethodMetrics<'a> {
+    #[serde(flatten)]
+    pub metrics: &'a GtMetrics,
+    pub gate_auroc: Option<f64>,
+    pub seconds: f64,
+    pub transport_seconds: f64,
+}
+
 /// Marker file of a finished demo folder.
 pub const MARKER: &str = "metrics.json";
 
@@ -267,25 +295,29 @@ pub fn run(
         results.push((m, res));
     }
 
-    let methods: serde_json::Map<String, serde_json::Value> = scores
-        .iter()
-        .map(|s| {
-            let v = serde_json::json!({
-                "target_psnr": s.metrics.target_psnr, "background_psnr": s.metrics.background_psnr,
-                "background_psnr_worst": s.metrics.background_psnr_worst,
-                "background_psnr_views": s.metrics.background_psnr_views,
-                "psnr": s.metrics.psnr, "ssim": s.metrics.ssim, "gate_auroc": s.gate_auroc,
-                "seconds": s.seconds, "transport_seconds": s.transport_seconds,
-            });
-            (s.name.clone(), v)
-        })
-        .collect();
-    let metrics = serde_json::json!({
-        "scene": scene.name, "prompt": opts.prompt, "edit": description, "severity": opts.severity,
-        "quick": opts.quick, "gaussians": source.len(), "test_views": test,
-        "trained_steps": opts.trained, "trained": trained,
-        "methods": methods,
-    });
+    let metrics = DemoMetrics {
+        scene: &scene.name,
+        prompt: &opts.prompt,
+        edit: &description,
+        severity: opts.severity,
+        quick: opts.quick,
+        gaussians: source.len(),
+        test_views: &test,
+        trained_steps: opts.trained,
+        trained,
+        methods: scores
+            .iter()
+            .map(|s| {
+                let entry = MethodMetrics {
+                    metrics: &s.metrics,
+                    gate_auroc: s.gate_auroc,
+                    seconds: s.seconds,
+                    transport_seconds: s.transport_seconds,
+                };
+                (s.name.as_str(), entry)
+            })
+            .collect(),
+    };
     write_report(&dir, &opts.prompt, &description, &scene.name, &stems, &scores, &results, &config, viewer)?;
     transsplat_scene::atomic::write_bytes(
         &dir.join(MARKER),

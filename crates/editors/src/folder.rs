@@ -26,7 +26,6 @@
 use crate::features::change_attention;
 use crate::resize::resize_bilinear;
 use crate::{EditedView, Editor, Error, SourceView};
-use serde_json::json;
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use transsplat_scene::{atomic, fingerprint, image, npy, Camera};
@@ -402,9 +401,9 @@ pub fn export_views(
     unique_names(entries.iter().map(|e| e.name.as_str()))?;
     std::fs::create_dir_all(dir).map_err(|e| transsplat_scene::Error::io(dir, e))?;
     let mut reused = 0;
-    let reuse = spec
-        .reuse
-        .filter(|d| spec.scene.is_some() && listing(d, "background") == Some(json!(spec.background)));
+    let reuse = spec.reuse.filter(|d| {
+        spec.scene.is_some() && ViewsListing::read(d).is_some_and(|l| l.background == spec.background)
+    });
     for (k, (&(index, cam), e)) in cameras.iter().zip(&entries).enumerate() {
         let earlier = reuse.map(|d| d.join(&e.file));
         if let Some(earlier) = earlier.filter(|p| p.is_file()) {
@@ -425,27 +424,43 @@ pub fn export_views(
         }
         image::write_png(&dir.join(&e.file), e.width, e.height, &img)?;
     }
-    let json = json!({
-        "scene": spec.scene,
-        "shard": spec.shard.map(|s| s.to_string()),
-        "background": spec.background,
-        "views": entries,
-    });
-    let text = serde_json::to_string_pretty(&json).expect("plain data serialises");
-    atomic::write_bytes(&dir.join("views.json"), text.as_bytes())?;
-    Ok(Exported { entries, reused })
+    let listing = ViewsListing {
+        scene: spec.scene.map(str::to_string),
+        shard: spec.shard.map(|s| s.to_string()),
+        background: spec.background,
+        views: entries,
+    };
+    let text = serde_json::to_string_pretty(&listing).expect("plain data serialises");
+    atomic::write_bytes(&dir.join(LISTING), text.as_bytes())?;
+    Ok(Exported { entries: listing.views, reused })
 }
 
-/// Field `key` of the `views.json` an earlier export left in `dir`, if any.
-fn listing(dir: &Path, key: &str) -> Option<serde_json::Value> {
-    let text = std::fs::read(dir.join("views.json")).ok()?;
-    let mut json: serde_json::Value = serde_json::from_slice(&text).ok()?;
-    Some(json.get_mut(key)?.take())
+/// The listing [`export_views`] writes beside the images.
+pub const LISTING: &str = "views.json";
+
+/// `views.json`: the exported views and what they were rendered for.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ViewsListing {
+    /// The scene's [`fingerprint::scene`] when the files have content names.
+    pub scene: Option<String>,
+    /// The shard these views are (`I/N`), if sharded.
+    pub shard: Option<String>,
+    /// The render background.
+    pub background: [f32; 3],
+    pub views: Vec<ViewEntry>,
+}
+
+impl ViewsListing {
+    /// The listing an earlier export left in `dir`, if it is there and readable.
+    pub fn read(dir: &Path) -> Option<ViewsListing> {
+        let text = std::fs::read(dir.join(LISTING)).ok()?;
+        serde_json::from_slice(&text).ok()
+    }
 }
 
 /// The shard recorded in an earlier export's `views.json` in `dir`, if any.
 pub fn exported_shard(dir: &Path) -> Option<String> {
-    listing(dir, "shard")?.as_str().map(str::to_string)
+    ViewsListing::read(dir)?.shard
 }
 
 #[cfg(test)]

@@ -22,6 +22,7 @@ pub use command::CommandEditor;
 pub use features::{appearance, change_attention, semantic_fallback};
 pub use folder::{
     content_name, export_views, exported_shard, ExportSpec, Exported, FolderEditor, Shard, ViewEntry,
+    ViewsListing,
 };
 pub use resize::resize_bilinear;
 

@@ -184,7 +184,10 @@ impl Labels {
     pub fn read(path: &Path) -> Result<Labels, Error> {
         let bytes = atomic::read(path)?;
         serde_json::from_slice(&bytes).map_err(|e| {
-            Error::Io(transsplat_scene::Error::format(path, format!("not a labels.json of `transsplat scene`: {e}")))
+            Error::Io(transsplat_scene::Error::format(
+                path,
+                format!("not a labels.json of `transsplat scene`: {e}"),
+            ))
         })
     }
 
@@ -247,7 +250,8 @@ fn write_into(
 
     let counts = scene.label_counts();
     let gaussians_of = |label: usize| counts.get(label).copied().unwrap_or(0);
-    let labels = names.iter().enumerate().map(|(id, n)| Label { id, name: n.clone(), gaussians: gaussians_of(id) });
+    let labels =
+        names.iter().enumerate().map(|(id, n)| Label { id, name: n.clone(), gaussians: gaussians_of(id) });
     let objects = scene.objects.iter().map(|o| LabelledObject {
         name: o.name.clone(),
         label: o.label,
