@@ -666,14 +666,120 @@ impl Source for Ascii<'_> {
     }
 }
 
-fn read_body(bytes: &[u8], h: &Header, plan: &Plan) -> std::result::Result<Gaussians, String> {
+/// Where the vertex rows go: one `f32` per property (a list property's slot is left
+/// as it was), in header order.
+trait RowSink {
+    fn reserve(&mut self, rows: usize);
+    fn push(&mut self, row: &[f32]);
+}
+
+/// The Gaussians a [`Plan`] maps the rows into.
+struct GaussianSink<'a> {
+    plan: &'a Plan,
+    gaussians: Gaussians,
+}
+
+impl RowSink for GaussianSink<'_> {
+    fn reserve(&mut self, rows: usize) {
+        self.plan.reserve(&mut self.gaussians, rows);
+    }
+    fn push(&mut self, row: &[f32]) {
+        self.plan.push_row(&mut self.gaussians, row);
+    }
+}
+
+/// Every vertex row as it is.
+impl RowSink for Vec<f32> {
+    fn reserve(&mut self, rows: usize) {
+        Vec::reserve(self, rows);
+    }
+    fn push(&mut self, row: &[f32]) {
+        self.extend_from_slice(row);
+    }
+}
+
+/// Reads the rows of element `vertex` into `sink`, skipping the elements before it.
+fn read_rows(
+    bytes: &[u8],
+    h: &Header,
+    vertex: usize,
+    sink: &mut dyn RowSink,
+) -> std::result::Result<(), String> {
     let body = bytes.get(h.body..).unwrap_or(&[]);
     match h.format {
-        Format::Ascii => read_elements(&mut Ascii { bytes: body, pos: 0 }, h, plan, 2),
+        Format::Ascii => read_elements(&mut Ascii { bytes: body, pos: 0 }, h, vertex, 2, sink),
         Format::LittleEndian | Format::BigEndian => {
             let mut src = Binary { bytes: body, pos: 0, big: h.format == Format::BigEndian };
-            read_elements(&mut src, h, plan, 1)
+            read_elements(&mut src, h, vertex, 1, sink)
         }
+    }
+}
+
+fn read_body(bytes: &[u8], h: &Header, plan: &Plan) -> std::result::Result<Gaussians, String> {
+    let gaussians = Gaussians {
+        sh_degree: plan.sh_degree,
+        extra: crate::Extra { names: plan.extra_names.clone(), values: Vec::new() },
+        ..Default::default()
+    };
+    let mut sink = GaussianSink { plan, gaussians };
+    read_rows(bytes, h, plan.vertex, &mut sink)?;
+    Ok(sink.gaussians)
+}
+
+/// The `vertex` element of any PLY file as a table: one row of `f32` per vertex, one
+/// column per property (a list property's column is 0), for readers of other vertex
+/// layouts (plain point clouds). The same header parser and bounds as the scene reader:
+/// allocation is bounded by the file size whatever the header claims.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct VertexTable {
+    /// Each column's property name and scalar type (`None` for a list property).
+    pub columns: Vec<(String, Option<Scalar>)>,
+    /// `rows × columns.len()` values, row-major.
+    pub values: Vec<f32>,
+}
+
+impl VertexTable {
+    /// Parses the `vertex` element of PLY `bytes` (`path` is named in errors).
+    pub fn parse(bytes: &[u8], path: &Path) -> Result<VertexTable> {
+        let err = |m: String| Error::format(path, m);
+        let header = parse_header(bytes).map_err(err)?;
+        let vertex = header
+            .elements
+            .iter()
+            .position(|e| e.name == "vertex")
+            .ok_or_else(|| err("PLY has no 'vertex' element".into()))?;
+        let columns = header.elements[vertex]
+            .props
+            .iter()
+            .map(|p| {
+                let scalar = match p.kind {
+                    Kind::Scalar(t) => Some(t),
+                    Kind::List { .. } => None,
+                };
+                (p.name.clone(), scalar)
+            })
+            .collect();
+        let mut values = Vec::new();
+        read_rows(bytes, &header, vertex, &mut values).map_err(err)?;
+        Ok(VertexTable { columns, values })
+    }
+
+    /// Number of vertices.
+    pub fn rows(&self) -> usize {
+        self.values.len() / self.columns.len().max(1)
+    }
+
+    /// The column of the first of `names` present as a scalar, with its type.
+    pub fn column(&self, names: &[&str]) -> Option<(usize, Scalar)> {
+        names.iter().find_map(|n| {
+            self.columns.iter().position(|c| c.0 == *n).and_then(|k| self.columns[k].1.map(|t| (k, t)))
+        })
+    }
+
+    /// Row `i`.
+    pub fn row(&self, i: usize) -> &[f32] {
+        let w = self.columns.len();
+        &self.values[i * w..(i + 1) * w]
     }
 }
 
@@ -682,14 +788,15 @@ fn read_body(bytes: &[u8], h: &Header, plan: &Plan) -> std::result::Result<Gauss
 fn read_elements<S: Source>(
     src: &mut S,
     h: &Header,
-    plan: &Plan,
+    vertex: usize,
     unit: usize,
-) -> std::result::Result<Gaussians, String> {
+    sink: &mut dyn RowSink,
+) -> std::result::Result<(), String> {
     let binary = unit == 1;
-    for el in &h.elements[..plan.vertex] {
+    for el in &h.elements[..vertex] {
         skip_element(src, el, binary)?;
     }
-    let el = &h.elements[plan.vertex];
+    let el = &h.elements[vertex];
     let n_props = el.props.len().max(1);
     let min_row = if binary { el.min_size() } else { n_props * unit }.max(1);
     let remaining = src.remaining();
@@ -707,12 +814,7 @@ fn read_elements<S: Source>(
     }
     // Bounded by the file size above.
     let n = el.count as usize;
-    let mut g = Gaussians {
-        sh_degree: plan.sh_degree,
-        extra: crate::Extra { names: plan.extra_names.clone(), values: Vec::new() },
-        ..Default::default()
-    };
-    plan.reserve(&mut g, n);
+    sink.reserve(n);
     let mut row = vec![0.0f32; el.props.len()];
     if let Some(stride) = el.fixed_size().filter(|_| binary) {
         // Fast path: fixed-size binary rows, already checked to fit.
@@ -729,9 +831,9 @@ fn read_elements<S: Source>(
                 for (slot, &(off, t)) in cols.iter().enumerate() {
                     row[slot] = decode(t, &chunk[off..], big);
                 }
-                plan.push_row(&mut g, &row);
+                sink.push(&row);
             }
-            return Ok(g);
+            return Ok(());
         }
     }
     for i in 0..n {
@@ -748,9 +850,9 @@ fn read_elements<S: Source>(
                 ));
             }
         }
-        plan.push_row(&mut g, &row);
+        sink.push(&row);
     }
-    Ok(g)
+    Ok(())
 }
 
 fn skip_element<S: Source>(src: &mut S, el: &Element, binary: bool) -> std::result::Result<(), String> {

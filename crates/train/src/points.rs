@@ -1,17 +1,16 @@
 //! Plain point-cloud PLY files (`x y z` plus optional colour), as named by a
 //! nerfstudio `transforms.json` (`ply_file_path`) or written by COLMAP / Open3D.
 //!
-//! `transsplat_scene::ply` reads 3DGS scenes and requires the Gaussian properties, so
-//! this small reader covers the plain case: `ascii`, `binary_little_endian` and
-//! `binary_big_endian`; any scalar type; colour from `red green blue` (integer
-//! types scaled by their maximum, floats taken as they are) or, for a 3DGS file,
-//! from `f_dc_0..2` (`0.5 + C0 · f_dc`); grey when there is none. Elements before
-//! `vertex` are skipped (binary: only when they have no list properties). Points
-//! with NaN or infinite coordinates are dropped. Allocation is bounded by the file
-//! size whatever the header claims; nothing panics on bad input.
+//! `transsplat_scene::ply` reads 3DGS scenes and requires the Gaussian properties; this
+//! reader takes the same file's vertex table ([`VertexTable`]: one header parser for
+//! every PLY, `ascii` and both binary orders, any scalar type, elements before `vertex`
+//! skipped, allocation bounded by the file size) and keeps the plain case: colour from
+//! `red green blue` (integer types scaled by their maximum, floats taken as they are)
+//! or, for a 3DGS file, from `f_dc_0..2` (`0.5 + C0 · f_dc`); grey when there is none.
+//! Points with NaN or infinite coordinates are dropped; nothing panics on bad input.
 
 use std::path::Path;
-use transsplat_scene::ply::Scalar;
+use transsplat_scene::ply::{Scalar, VertexTable};
 use transsplat_scene::{atomic, Error, Result, SH_C0};
 
 /// Points with colours in [0, 1].
@@ -43,175 +42,55 @@ fn colour_scale(t: Scalar) -> f32 {
     }
 }
 
-#[derive(Clone, Debug)]
-struct Element {
-    name: String,
-    count: usize,
-    props: Vec<(String, Scalar)>,
-    has_list: bool,
-}
-
 /// Reads a point-cloud PLY file.
 pub fn read(path: &Path) -> Result<PointCloud> {
     let bytes = atomic::read(path)?;
     parse(&bytes, path)
 }
 
-/// Parses point-cloud PLY bytes (`path` is used in messages only).
+/// Parses point-cloud PLY bytes (`path` is used in messages only), through the scene
+/// reader's header parser and vertex table ([`VertexTable`]).
 pub fn parse(bytes: &[u8], path: &Path) -> Result<PointCloud> {
-    let err = |m: String| Error::format(path, m);
-    let end = find(bytes, b"end_header").ok_or_else(|| err("not a PLY file: no end_header".into()))?;
-    let mut body = end + b"end_header".len();
-    if bytes.get(body) == Some(&b'\r') {
-        body += 1;
+    let err = |m: &str| Error::format(path, m);
+    let table = VertexTable::parse(bytes, path)?;
+    if table.columns.iter().any(|c| c.1.is_none()) {
+        return Err(err("vertex element has list properties, which a point cloud does not use"));
     }
-    if bytes.get(body) != Some(&b'\n') {
-        return Err(err("not a PLY file: end_header is not followed by a newline".into()));
-    }
-    body += 1;
-    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| err("PLY header is not text".into()))?;
-    let mut lines = header.lines().map(str::trim);
-    if lines.next() != Some("ply") {
-        return Err(err("not a PLY file: missing the \"ply\" magic".into()));
-    }
-    let mut format = None;
-    let mut elements: Vec<Element> = Vec::new();
-    for line in lines {
-        let t: Vec<&str> = line.split_whitespace().collect();
-        match t.as_slice() {
-            [] | ["comment", ..] | ["obj_info", ..] => {}
-            ["format", f, _] => format = Some(f.to_string()),
-            ["element", name, count] => {
-                let count =
-                    count.parse::<usize>().map_err(|_| err(format!("bad element count {count:?}")))?;
-                elements.push(Element { name: name.to_string(), count, props: Vec::new(), has_list: false });
-            }
-            ["property", "list", ..] => {
-                let e = elements.last_mut().ok_or_else(|| err("property before any element".into()))?;
-                e.has_list = true;
-            }
-            ["property", ty, name] => {
-                let e = elements.last_mut().ok_or_else(|| err("property before any element".into()))?;
-                let ty = Scalar::parse(ty).ok_or_else(|| err(format!("unknown property type {ty:?}")))?;
-                e.props.push((name.to_string(), ty));
-            }
-            _ => return Err(err(format!("unrecognised PLY header line {line:?}"))),
-        }
-    }
-    let format = format.ok_or_else(|| err("PLY header has no format line".into()))?;
-    let vi = elements
-        .iter()
-        .position(|e| e.name == "vertex")
-        .ok_or_else(|| err("PLY file has no vertex element".into()))?;
-    let v = &elements[vi];
-    if v.has_list {
-        return Err(err("vertex element has list properties, which a point cloud does not use".into()));
-    }
-    let find_prop = |names: &[&str]| -> Option<(usize, Scalar)> {
-        names.iter().find_map(|n| v.props.iter().position(|p| p.0 == *n).map(|k| (k, v.props[k].1)))
-    };
-    let xyz = [find_prop(&["x"]), find_prop(&["y"]), find_prop(&["z"])];
-    let [Some(x), Some(y), Some(z)] = xyz else {
-        return Err(err("vertex element lacks x, y or z".into()));
+    let [Some(x), Some(y), Some(z)] = [table.column(&["x"]), table.column(&["y"]), table.column(&["z"])]
+    else {
+        return Err(err("vertex element lacks x, y or z"));
     };
     let rgb = [
-        find_prop(&["red", "r", "diffuse_red"]),
-        find_prop(&["green", "g", "diffuse_green"]),
-        find_prop(&["blue", "b", "diffuse_blue"]),
+        table.column(&["red", "r", "diffuse_red"]),
+        table.column(&["green", "g", "diffuse_green"]),
+        table.column(&["blue", "b", "diffuse_blue"]),
     ];
-    let dc = [find_prop(&["f_dc_0"]), find_prop(&["f_dc_1"]), find_prop(&["f_dc_2"])];
-    let colour = |row: &dyn Fn(usize) -> f64| -> [f32; 3] {
+    let dc = [table.column(&["f_dc_0"]), table.column(&["f_dc_1"]), table.column(&["f_dc_2"])];
+    let colour = |row: &[f32]| -> [f32; 3] {
         if let [Some(r), Some(g), Some(b)] = rgb {
-            [r, g, b].map(|(k, t)| (row(k) as f32 * colour_scale(t)).clamp(0.0, 1.0))
+            [r, g, b].map(|(k, t)| (row[k] * colour_scale(t)).clamp(0.0, 1.0))
         } else if let [Some(r), Some(g), Some(b)] = dc {
-            [r, g, b].map(|(k, _)| (0.5 + SH_C0 * row(k) as f32).clamp(0.0, 1.0))
+            [r, g, b].map(|(k, _)| (0.5 + SH_C0 * row[k]).clamp(0.0, 1.0))
         } else {
             [0.5; 3]
         }
     };
     let mut cloud = PointCloud::default();
     let mut dropped = 0usize;
-    let mut push = |row: &dyn Fn(usize) -> f64, cloud: &mut PointCloud| {
-        let p = [row(x.0) as f32, row(y.0) as f32, row(z.0) as f32];
+    for i in 0..table.rows() {
+        let row = table.row(i);
+        let p = [row[x.0], row[y.0], row[z.0]];
         if p.iter().all(|c| c.is_finite()) {
             cloud.positions.push(p);
             cloud.colors.push(colour(row));
         } else {
             dropped += 1;
         }
-    };
-    match format.as_str() {
-        "ascii" => {
-            let text =
-                std::str::from_utf8(&bytes[body..]).map_err(|_| err("ASCII PLY body is not text".into()))?;
-            let mut rows = text.lines().filter(|l| !l.trim().is_empty());
-            for e in &elements[..vi] {
-                for _ in 0..e.count {
-                    rows.next().ok_or_else(|| err(format!("file ends inside element {:?}", e.name)))?;
-                }
-            }
-            for i in 0..v.count {
-                let line =
-                    rows.next().ok_or_else(|| err(format!("file ends at vertex {i} of {}", v.count)))?;
-                let vals: Vec<f64> = line
-                    .split_whitespace()
-                    .map(|s| s.parse::<f64>())
-                    .collect::<std::result::Result<_, _>>()
-                    .map_err(|_| err(format!("vertex {i}: not a number in {line:?}")))?;
-                if vals.len() != v.props.len() {
-                    return Err(err(format!(
-                        "vertex {i} has {} values, expected {}",
-                        vals.len(),
-                        v.props.len()
-                    )));
-                }
-                push(&|k| vals[k], &mut cloud);
-            }
-        }
-        "binary_little_endian" | "binary_big_endian" => {
-            let big = format == "binary_big_endian";
-            let mut off = body;
-            for e in &elements[..vi] {
-                if e.has_list {
-                    return Err(err(format!(
-                        "element {:?} before the vertices has list properties; cannot skip it",
-                        e.name
-                    )));
-                }
-                let row: usize = e.props.iter().map(|p| p.1.size()).sum();
-                off = e.count.checked_mul(row).and_then(|s| off.checked_add(s)).unwrap_or(usize::MAX);
-            }
-            let offsets: Vec<usize> = v
-                .props
-                .iter()
-                .scan(0usize, |acc, p| {
-                    let o = *acc;
-                    *acc += p.1.size();
-                    Some(o)
-                })
-                .collect();
-            let row: usize = v.props.iter().map(|p| p.1.size()).sum();
-            let need = v.count.checked_mul(row).and_then(|s| s.checked_add(off));
-            if need.is_none_or(|n| n > bytes.len()) {
-                return Err(err(format!("file is truncated: the header promises {} vertices", v.count)));
-            }
-            cloud.positions.reserve(v.count);
-            cloud.colors.reserve(v.count);
-            for i in 0..v.count {
-                let r = &bytes[off + i * row..off + (i + 1) * row];
-                push(&|k| v.props[k].1.decode(&r[offsets[k]..], big) as f64, &mut cloud);
-            }
-        }
-        f => return Err(err(format!("unknown PLY format {f:?}"))),
     }
     if dropped > 0 {
         tracing::warn!("{}: dropped {dropped} points with NaN or infinite coordinates", path.display());
     }
     Ok(cloud)
-}
-
-fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
-    hay.windows(needle.len()).take(1 << 16).position(|w| w == needle)
 }
 
 #[cfg(test)]
