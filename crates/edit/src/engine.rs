@@ -51,9 +51,9 @@ pub fn run_with(
     let cfg = &cfg.for_method(cfg.method);
     check_job(job, cfg)?;
     let clock = Instant::now();
-    if let Some(ck) = control.checkpoint.as_mut() {
+    if let Some(checkpoint) = control.checkpoint.as_mut() {
         let j = job;
-        ck.id =
+        checkpoint.id =
             ckpt::run_id(j.gaussians, j.cameras, &j.edit_views, j.background, j.prompt, cfg, editor.name());
     }
     let cams: Vec<&Camera> = job.edit_views.iter().map(|&v| &job.cameras[v]).collect();
@@ -87,38 +87,57 @@ pub fn run_with(
     tracing::debug!("evidence, prototypes and the method's start: {:.2} s", optimise::lap(&mut lap));
 
     // 4. The optimiser, from the source scene with its initial semantic latents.
-    let mut tr = optimise::trainer(job.gaussians, latents, cfg, job.cameras, job.background)?;
+    let mut trainer = optimise::trainer(job.gaussians, latents, cfg, job.cameras, job.background)?;
     tracing::debug!("trainer: {:.2} s", optimise::lap(&mut lap));
-    let mut ls = LoopState::new(cfg.seed, editor_s);
-    if let (true, Some(ck), Some(sum)) = (control.resume, control.checkpoint.as_mut(), editor_sum) {
-        (tr, ls) = ckpt::load_state(ck, tr.config.clone(), method.as_mut(), sum, views.len())?;
+    let mut loop_state = LoopState::new(cfg.seed, editor_s);
+    if let (true, Some(checkpoint), Some(sum)) = (control.resume, control.checkpoint.as_mut(), editor_sum) {
+        (trainer, loop_state) =
+            ckpt::load_state(checkpoint, trainer.config.clone(), method.as_mut(), sum, views.len())?;
     }
 
     // 5. The steps.
-    let (start, before) = (ls.step, ls.elapsed_s);
+    let (start, before) = (loop_state.step, loop_state.elapsed_s);
     for step in start..cfg.schedule.steps {
-        ls.step = step;
-        ls.elapsed_s = before + clock.elapsed().as_secs_f64();
+        loop_state.step = step;
+        loop_state.elapsed_s = before + clock.elapsed().as_secs_f64();
         let io = Instant::now();
-        checkpoint_or_stop(control, start, &edited, &mut editor_sum, &mut tr, &mut ls, method.as_mut())?;
-        ls.stages.checkpoint += io.elapsed().as_secs_f64();
-        if let Some(mut r) = method.before_step(step, &mut tr, &mut ls.losses, &ctx)? {
-            r.round = ls.rounds.len();
+        checkpoint_or_stop(
+            control,
+            start,
+            &edited,
+            &mut editor_sum,
+            &mut trainer,
+            &mut loop_state,
+            method.as_mut(),
+        )?;
+        loop_state.stages.checkpoint += io.elapsed().as_secs_f64();
+        if let Some(mut r) = method.before_step(step, &mut trainer, &mut loop_state.losses, &ctx)? {
+            r.round = loop_state.rounds.len();
             progress(Progress::Round(&r));
-            ls.rounds.push(r);
+            loop_state.rounds.push(r);
         }
         let t = Instant::now();
-        renderer.follow(method.colour_mask(), &tr, job.gaussians, &view_cams);
-        ls.stages.weights += t.elapsed().as_secs_f64();
+        renderer.follow(method.colour_mask(), &trainer, job.gaussians, &view_cams);
+        loop_state.stages.weights += t.elapsed().as_secs_f64();
         if step == 0 && cfg.schedule.colour_lift {
             let t = Instant::now();
-            optimise::colour_lift(&mut tr, &renderer, job.cameras, &views, method.colour_mask());
-            ls.stages.lift += t.elapsed().as_secs_f64();
+            optimise::colour_lift(&mut trainer, &renderer, job.cameras, &views, method.colour_mask());
+            loop_state.stages.lift += t.elapsed().as_secs_f64();
         }
-        let k = ls.order.next(views.len());
-        let stages = &mut ls.stages;
-        optimise_step(step, &mut tr, method.as_mut(), &mut renderer, k, &ctx, cfg, &mut ls.losses, stages)?;
-        let rec = ls.losses.last().expect("the step's record");
+        let k = loop_state.order.next(views.len());
+        let stages = &mut loop_state.stages;
+        optimise_step(
+            step,
+            &mut trainer,
+            method.as_mut(),
+            &mut renderer,
+            k,
+            &ctx,
+            cfg,
+            &mut loop_state.losses,
+            stages,
+        )?;
+        let rec = loop_state.losses.last().expect("the step's record");
         progress(Progress::Step {
             step: step + 1,
             steps: cfg.schedule.steps,
@@ -127,9 +146,9 @@ pub fn run_with(
     }
 
     // 6. The edited scene and the run's records.
-    method.sync(&mut tr, &mut ls.losses)?;
-    ls.elapsed_s = before + clock.elapsed().as_secs_f64();
-    Ok(finish(tr, method, ls, edited, prototypes))
+    method.sync(&mut trainer, &mut loop_state.losses)?;
+    loop_state.elapsed_s = before + clock.elapsed().as_secs_f64();
+    Ok(finish(trainer, method, loop_state, edited, prototypes))
 }
 
 /// Refuses settings out of range, an empty instruction and a job without edit views.
@@ -156,11 +175,11 @@ fn edited_views(
         let edited = edits::edit_views(editor, job.cameras, &job.edit_views, sources, job.prompt)?;
         return Ok((edited, None));
     }
-    let ck = control
+    let checkpoint = control
         .checkpoint
         .as_ref()
         .ok_or_else(|| EditError::Input("resume without a checkpoint folder".into()))?;
-    let (edited, sum) = ckpt::load_edited(ck)?;
+    let (edited, sum) = ckpt::load_edited(checkpoint)?;
     edits::check_outputs(editor.name(), &edited, job.cameras, &job.edit_views)?;
     Ok((edited, Some(sum)))
 }
@@ -172,20 +191,20 @@ fn checkpoint_or_stop(
     start: usize,
     edited: &[Option<EditedView>],
     editor_sum: &mut Option<u64>,
-    tr: &mut Trainer,
-    ls: &mut LoopState,
+    trainer: &mut Trainer,
+    loop_state: &mut LoopState,
     method: &mut dyn EditMethod,
 ) -> Result<(), EditError> {
-    let step = ls.step;
+    let step = loop_state.step;
     let stop = control.should_stop(step as u64);
-    if let Some(ck) = control.checkpoint.as_mut() {
-        if ck.due(step as u64, start as u64) || (stop && ck.last != Some(step as u64)) {
-            method.sync(tr, &mut ls.losses)?;
+    if let Some(checkpoint) = control.checkpoint.as_mut() {
+        if checkpoint.due(step as u64, start as u64) || (stop && checkpoint.last != Some(step as u64)) {
+            method.sync(trainer, &mut loop_state.losses)?;
             let sum = match *editor_sum {
                 Some(s) => s,
-                None => *editor_sum.insert(ckpt::save_edited(ck, edited, step)?),
+                None => *editor_sum.insert(ckpt::save_edited(checkpoint, edited, step)?),
             };
-            ckpt::save_state(ck, tr, ls, method, sum)?;
+            ckpt::save_state(checkpoint, trainer, loop_state, method, sum)?;
         }
     }
     if stop {
@@ -201,7 +220,7 @@ fn checkpoint_or_stop(
 #[allow(clippy::too_many_arguments)]
 fn optimise_step(
     step: usize,
-    tr: &mut Trainer,
+    trainer: &mut Trainer,
     method: &mut dyn EditMethod,
     renderer: &mut Renderer,
     k: usize,
@@ -210,25 +229,25 @@ fn optimise_step(
     losses: &mut Vec<StepLosses>,
     times: &mut StageTimes,
 ) -> Result<(), EditError> {
-    tr.begin_step();
-    let vd = &ctx.views[k];
-    let cam = &ctx.cameras[vd.cam];
+    trainer.begin_step();
+    let view = &ctx.views[k];
+    let cam = &ctx.cameras[view.cam];
     let (frame, mut grads, img) =
-        renderer.image_gradients(tr, k, cam, &vd.target, method.colour_mask(), cfg, times);
+        renderer.image_gradients(trainer, k, cam, &view.target, method.colour_mask(), cfg, times);
     let mut rec = StepLosses { step, img, ..Default::default() };
     let mut clock = Instant::now();
-    method.add_gradients(tr, vd, &mut grads, &mut rec);
-    optimise::check_losses(&rec, tr.step)?;
+    method.add_gradients(trainer, view, &mut grads, &mut rec);
+    optimise::check_losses(&rec, trainer.step)?;
     losses.push(rec);
     // The mask is read only at densification steps: built only then, after the
     // method's deferred updates are in (the model is about to be rearranged).
-    let densifies = tr.config.densify.densifies(tr.step);
+    let densifies = trainer.config.densify.densifies(trainer.step);
     if densifies {
-        method.sync(tr, losses)?;
+        method.sync(trainer, losses)?;
     }
     times.method_terms += optimise::lap(&mut clock);
     let mask = if densifies { method.densify_mask() } else { None };
-    let report = tr
+    let report = trainer
         .finish_step(&grads, renderer.grad_rows(), frame.as_ref(), mask.as_deref())
         .map_err(|e| EditError::Train(e.to_string()))?;
     renderer.recycle(grads);
@@ -242,29 +261,29 @@ fn optimise_step(
 /// The result: the edited scene with its semantic latents, the method's gate, the
 /// records and the time split.
 fn finish(
-    tr: Trainer,
+    trainer: Trainer,
     method: Box<dyn EditMethod>,
-    ls: LoopState,
+    loop_state: LoopState,
     edited: Vec<Option<EditedView>>,
     prototypes: Vec<usize>,
 ) -> EditResult {
-    let mut gaussians = tr.model.gaussians;
-    set_semantic_extras(&mut gaussians, &tr.model.features, tr.model.num_features);
-    let transport = ls.rounds.iter().fold(0.0, |t, r| t + r.seconds);
+    let mut gaussians = trainer.model.gaussians;
+    set_semantic_extras(&mut gaussians, &trainer.model.features, trainer.model.num_features);
+    let transport = loop_state.rounds.iter().fold(0.0, |t, r| t + r.seconds);
     let timing = Timing {
-        total: ls.elapsed_s,
-        editor: ls.editor_s,
+        total: loop_state.elapsed_s,
+        editor: loop_state.editor_s,
         transport,
-        optimise: ls.elapsed_s - ls.editor_s - transport,
-        stages: ls.stages,
+        optimise: loop_state.elapsed_s - loop_state.editor_s - transport,
+        stages: loop_state.stages,
     };
     let support = method.support();
     EditResult {
         gaussians,
         support,
         gate: method.gate(),
-        rounds: ls.rounds,
-        losses: ls.losses,
+        rounds: loop_state.rounds,
+        losses: loop_state.losses,
         timing,
         edited,
         prototypes,
