@@ -88,8 +88,30 @@ fn exit(code: i32) -> ! {
     std::process::exit(code)
 }
 
+/// Parses the command line. A bad flag is one line, `error: ...` naming the flag, and
+/// exit status 2, like every other bad input (clap's usage block and hint are left out);
+/// `--help` and `--version` print as usual.
+fn parse_args() -> Cli {
+    use clap::error::ErrorKind;
+    match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion) => e.exit(),
+        Err(e) if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand => e.exit(),
+        Err(e) => {
+            let text = e.render().to_string();
+            let message: Vec<&str> = text
+                .lines()
+                .map(str::trim)
+                .take_while(|l| !l.is_empty() && !l.starts_with("Usage:"))
+                .collect();
+            eprintln!("{}", message.join(" "));
+            std::process::exit(2)
+        }
+    }
+}
+
 fn main() {
-    let cli = Cli::parse();
+    let cli = parse_args();
     // Commands that poll CANCEL stop cleanly at their next step; the others (short, and
     // writing each output atomically) keep the default: Ctrl-C ends them at once.
     let polls_cancel = matches!(

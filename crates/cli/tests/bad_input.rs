@@ -408,6 +408,10 @@ fn cases() -> Vec<Case> {
             .file("ds/sparse/0/images.txt", "1 1 0 0 0 0 0 3 1 view_0.png\n\n")
             .file("ds/images/view_0.png", png(40, 30))
             .expect(&["images.txt", "focal length fx = 0"]),
+        // Flag ranges checked by the parser: one line too, naming the flag.
+        Case::train_flag("train: --resolution 0", "--resolution 0", "--resolution"),
+        Case::train_flag("train: --sh-degree 4", "--sh-degree 4", "--sh-degree"),
+        Case::train_flag("train: --seed not a number", "--seed many", "--seed"),
         Case::train_flag(
             "train: --random-points beyond the bound",
             "--random-points 1000000000000",
@@ -855,8 +859,11 @@ fn the_runner_catches_contract_breaches() {
         .file("scene.ply", Vec::new())
         .expect(&["no such words"]);
     assert!(run(&wrong).unwrap_err().contains("does not contain \"no such words\""));
-    let clap = Case::new("usage error (several lines, status 2)", "info --no-such-flag");
-    assert!(run(&clap).unwrap_err().contains("not exactly one line"));
+    let help = Case::new("help for a missing subcommand (several lines, status 2)", "");
+    assert!(run(&help).unwrap_err().contains("not exactly one line"));
+    // A usage error is one line, naming the flag.
+    let usage = Case::new("usage error", "info --no-such-flag").expect(&["--no-such-flag"]);
+    assert!(run(&usage).is_ok());
     let leaves = Case::new("writes an output", UOT)
         .args("--cost {d}/cost.npy --source {d}/a.npy --target {d}/b.npy --out {d}/plan.npy")
         .file("cost.npy", npy_bytes(&[2, 3], &[1.0; 6]))

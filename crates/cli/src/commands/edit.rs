@@ -113,7 +113,7 @@ fn builtin_scene(scene_arg: &Path) -> Result<transsplat_scenes::Scene> {
     Ok(transsplat_scenes::build(name, &cfg)?)
 }
 
-/// Runs `transsplat edit`: the arguments as a [`EditRequest`] for the session layer.
+/// Runs `transsplat edit`: the arguments as an [`EditRequest`] for the session layer.
 pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
     if args.prompt.trim().is_empty() {
         bail!("--prompt is empty: give an instruction such as \"make the ball blue\"");
@@ -129,53 +129,80 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         c.validate().map_err(|e| anyhow::anyhow!("{}: {e}", cam_path.display()))?;
     }
     let mut inputs = vec![args.scene.scene.clone(), scene_path.clone(), cam_path];
-    for extra in [&args.edits, &args.config, &args.ip2p_weights, &args.dino_weights] {
-        inputs.extend(extra.clone());
-    }
-    // Ground truth for the viewer's target colour mode (built-in scenes only).
-    let mut target = None;
-    let editor = match args.editor {
-        EditorKind::Folder => {
-            EditorSpec::Folder(args.edits.clone().context("--editor folder needs --edits DIR")?)
-        }
-        EditorKind::Command => EditorSpec::Command {
-            command: args.command.clone().context("--editor command needs --command CMD")?,
-            timeout: (args.editor_timeout > 0).then(|| Duration::from_secs(args.editor_timeout)),
-        },
-        EditorKind::Simulated => {
-            let (sim, is_target) = simulated_editor(&args.scene.scene, &scene_path, &g, args, &config)?;
-            target = Some(is_target);
-            EditorSpec::Custom(Box::new(sim))
-        }
-        EditorKind::Ip2p => EditorSpec::Ip2p {
-            weights: args.ip2p_weights.clone().with_context(|| {
-                format!(
-                    "--editor ip2p needs --ip2p-weights DIR; get it with `{}`",
-                    transsplat_models::ip2p::download_hint(Path::new("DIR"))
-                )
-            })?,
-        },
+    inputs.extend(
+        [&args.edits, &args.config, &args.ip2p_weights, &args.dino_weights].into_iter().flatten().cloned(),
+    );
+    let (editor, target) = editor_spec(args, &scene_path, &g, &config)?;
+    let output = OutputRequest {
+        path: args.out.clone(),
+        inputs,
+        formats: args.format.clone(),
+        checkpoints: Some(args.checkpoints.spec()),
     };
+    let features = args.dino_weights.clone().map_or(Features::Builtin, Features::Dinov2);
+    let bar = progress(config.schedule.steps as u64, "edit");
+    let editor_name = editor.name();
     let request = EditRequest {
         gaussians: &g,
         cameras: &cams,
         prompt: &args.prompt,
         editor,
-        features: args.dino_weights.clone().map_or(Features::Builtin, Features::Dinov2),
+        features,
         background: args.background,
-        output: Some(OutputRequest {
-            path: args.out.clone(),
-            inputs,
-            formats: args.format.clone(),
-            checkpoints: Some(args.checkpoints.spec()),
-        }),
+        output: Some(output),
         target,
         config,
     };
-    let steps = request.config.schedule.steps as u64;
-    let editor_name = request.editor.name();
-    let bar = progress(steps, "edit");
-    let outcome = session::edit::run(request, Some(cancel), &mut |p| match p {
+    let outcome = session::edit::run(request, Some(cancel), &mut |p| show_progress(&bar, &editor_name, p));
+    bar.finish_and_clear();
+    let outcome = outcome?;
+    let timing = &outcome.result.timing;
+    println!(
+        "edited {} Gaussians in {:.1} s (transport {:.1} s); wrote {}",
+        outcome.result.gaussians.len(),
+        timing.total,
+        timing.transport,
+        outcome.out.unwrap_or_default().display()
+    );
+    Ok(())
+}
+
+/// The editor `--editor` names, and the ground-truth target per Gaussian where it is
+/// known (the simulated editor of a built-in scene).
+fn editor_spec(
+    args: &EditArgs,
+    scene_path: &Path,
+    g: &transsplat_scene::Gaussians,
+    config: &EditConfig,
+) -> Result<(EditorSpec<'static>, Option<Vec<bool>>)> {
+    Ok(match args.editor {
+        EditorKind::Folder => {
+            (EditorSpec::Folder(args.edits.clone().context("--editor folder needs --edits DIR")?), None)
+        }
+        EditorKind::Command => {
+            let command = args.command.clone().context("--editor command needs --command CMD")?;
+            let timeout = (args.editor_timeout > 0).then(|| Duration::from_secs(args.editor_timeout));
+            (EditorSpec::Command { command, timeout }, None)
+        }
+        EditorKind::Simulated => {
+            let (sim, target) = simulated_editor(&args.scene.scene, scene_path, g, args, config)?;
+            (EditorSpec::Custom(Box::new(sim)), Some(target))
+        }
+        EditorKind::Ip2p => {
+            let weights = args.ip2p_weights.clone().with_context(|| {
+                format!(
+                    "--editor ip2p needs --ip2p-weights DIR; get it with `{}`",
+                    transsplat_models::ip2p::download_hint(Path::new("DIR"))
+                )
+            })?;
+            (EditorSpec::Ip2p { weights }, None)
+        }
+    })
+}
+
+/// The progress bar and log lines of an edit.
+fn show_progress(bar: &indicatif::ProgressBar, editor: &str, p: Progress) {
+    match p {
         Progress::Step { step, loss, .. } => {
             bar.set_position(step as u64);
             if step % 10 == 0 {
@@ -189,20 +216,9 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
             r.mean_gate
         ),
         Progress::Edited { views, seconds } => {
-            tracing::info!("editor {editor_name} edited {views} views in {seconds:.1} s")
+            tracing::info!("editor {editor} edited {views} views in {seconds:.1} s")
         }
-    });
-    bar.finish_and_clear();
-    let outcome = outcome?;
-    let result = &outcome.result;
-    println!(
-        "edited {} Gaussians in {:.1} s (transport {:.1} s); wrote {}",
-        result.gaussians.len(),
-        result.timing.total,
-        result.timing.transport,
-        outcome.out.unwrap_or_default().display()
-    );
-    Ok(())
+    }
 }
 
 /// The simulated editor of the built-in scene `scene_arg` came from, told the

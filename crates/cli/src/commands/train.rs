@@ -27,8 +27,8 @@ pub struct TrainArgs {
     /// Training steps (INRIA: 30000).
     #[arg(long, default_value_t = 30_000)]
     pub iters: u64,
-    /// Divide image sizes by this (1, 2, 4, 8; as INRIA -r).
-    #[arg(long, default_value_t = 1)]
+    /// Divide image sizes by this (1, 2, 4, 8; as INRIA -r; at most 64).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub resolution: u32,
     /// Random seed.
     #[arg(long, default_value_t = 0)]
@@ -40,7 +40,7 @@ pub struct TrainArgs {
     #[arg(long, value_parser = parse_rgb, default_value = "0,0,0")]
     pub background: [f32; 3],
     /// Highest SH degree (0-3).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(0..=3))]
     pub sh_degree: u32,
     /// Random points when the dataset has no point cloud (at most 10 million).
     #[arg(long, default_value_t = 100_000)]
@@ -136,12 +136,6 @@ fn parse_adam(s: &str) -> Result<AdamRule, String> {
 
 /// Runs `transsplat train`.
 pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
-    if !matches!(args.resolution, 1..=64) {
-        bail!("--resolution must be between 1 and 64, got {}", args.resolution);
-    }
-    if args.sh_degree > 3 {
-        bail!("--sh-degree must be 0 to 3, got {}", args.sh_degree);
-    }
     if args.camera_reach < 0.0 {
         bail!("--camera-reach must be at least 0, got {}", args.camera_reach);
     }
