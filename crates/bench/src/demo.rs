@@ -9,11 +9,12 @@ use std::sync::atomic::AtomicBool;
 use transsplat_edit::{semantic, EditConfig, EditError, EditJob, EditResult, Method, Progress};
 use transsplat_eval::ground_truth::{GtMetrics, Reference};
 use transsplat_eval::metrics::auroc;
-use transsplat_scene::{atomic::StagedDir, image, Gaussians};
+use transsplat_scene::{image, Gaussians};
 use transsplat_scenes::SimulatedEditor;
 use transsplat_scenes::{build, labels_from_extra, Scene, SceneConfig};
 use transsplat_session::edit_folder::{self, EditOutput};
 use transsplat_session::report::Page;
+use transsplat_session::Output;
 
 /// Settings of a demo run.
 #[derive(Clone, Debug)]
@@ -164,8 +165,25 @@ pub fn run(
     cancel: Option<&AtomicBool>,
     on_progress: &mut dyn FnMut(&str, Progress),
 ) -> Result<DemoOutcome, DemoError> {
-    let staged = StagedDir::begin(&opts.out, MARKER)?;
-    let dir = staged.path().to_path_buf();
+    let staged = Output::begin(&opts.out, &[], MARKER)?;
+    let (scores, trained) = match run_into(staged.dir(), opts, cancel, on_progress) {
+        Ok(done) => done,
+        // A failed write names the output the user gave, not the staging folder.
+        Err(DemoError::Io(e)) => return Err(DemoError::Io(staged.user_error(e))),
+        Err(e) => return Err(e),
+    };
+    let out = staged.commit()?;
+    Ok(DemoOutcome { out, scores, trained })
+}
+
+/// The demo written into `dir` (the staged output folder).
+fn run_into(
+    dir: &Path,
+    opts: &DemoOptions,
+    cancel: Option<&AtomicBool>,
+    on_progress: &mut dyn FnMut(&str, Progress),
+) -> Result<(Vec<MethodScore>, Option<Fidelity>), DemoError> {
+    let dir = dir.to_path_buf();
     let scfg = if opts.quick { SceneConfig::quick() } else { SceneConfig::default() };
     let scene = build(&opts.scene, &SceneConfig { seed: opts.seed, ..scfg })?;
     let mut sim = SimulatedEditor::new(&scene, opts.severity, opts.seed);
@@ -323,8 +341,7 @@ pub fn run(
         &dir.join(MARKER),
         serde_json::to_string_pretty(&metrics).expect("json").as_bytes(),
     )?;
-    let out = staged.commit()?;
-    Ok(DemoOutcome { out, scores, trained })
+    Ok((scores, trained))
 }
 
 #[allow(clippy::too_many_arguments)]

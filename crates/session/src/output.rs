@@ -40,6 +40,12 @@ impl Output {
         write(self.staged.path()).map_err(|e| self.staged.user_error(e))
     }
 
+    /// `error` with a path inside the staging folder renamed to the same path inside
+    /// the output.
+    pub fn user_error(&self, error: transsplat_scene::Error) -> transsplat_scene::Error {
+        self.staged.user_error(error)
+    }
+
     /// Replaces the output with the staged folder; returns the output's path.
     pub fn commit(self) -> Result<PathBuf, transsplat_scene::Error> {
         self.staged.commit()
