@@ -153,10 +153,8 @@ pub fn support(ev: &ViewEvidence, threshold: f32, min_area: usize, close: usize)
 ///
 /// *Why (docs/method.md#m2-prototypes):* a 2D editor's attention is noisy, and Ā is
 /// normalised by its maximum, which one noisy peak sets: multiplicative noise then
-/// drops a large share of the edited object below δ_a and leaves Ω full of holes
-/// (measured with the simulated editor at severity 3 on the quick tabletop ball and
-/// garden apple: 44 % and 36 % of the target's pixels outside Ω, counting the views
-/// where the editor missed the target; closed, 32 % and 21 %). Closing fills dips narrower than the square and keeps edges and peaks: a convex
+/// drops a large share of the edited object below δ_a and leaves Ω full of holes (the
+/// measurement is in docs/method.md M2). Closing fills dips narrower than the square and keeps edges and peaks: a convex
 /// object's outline is unchanged, so it does not grow Ω into the background the way a
 /// blur or a dilation would. The radius is a fraction of the diagonal, about one
 /// latent cell of a Stable-Diffusion editor (1/64 of the side, 1.1 % of the diagonal),

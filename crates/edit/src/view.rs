@@ -49,9 +49,9 @@ impl Default for TransportConfig {
             tau_s: 0.5,
             tau_t: 10.0,
             iters: 30,
-            // Dense by default: measured on the demo, top-k 128 starves the target
-            // (each prototype reaches only its 128 cheapest Gaussians, so most target
-            // Gaussians get no support and the gate closes on them). See docs/cli.md, "Transport support".
+            // Dense by default: top-k starves the target (each prototype reaches only its
+            // k cheapest Gaussians, so most target Gaussians get no support and the gate
+            // closes on them). See docs/cli.md, "Transport support".
             top_k: 0,
             delta: 1e-8,
             evidence_mass: true,

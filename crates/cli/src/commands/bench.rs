@@ -229,10 +229,9 @@ pub struct QualityArgs {
     /// Output folder (replaced if it holds an earlier suite's output).
     #[arg(long, default_value = "quality")]
     pub out: PathBuf,
-    /// Full-size scenes and the default 600-step schedule (an hour or more on 2 cores,
-    /// by the times of single cases).
+    /// Full-size scenes and the default 600-step schedule (an hour or more on 2 cores).
     /// Without it the suite runs the small scenes and the quick schedule of `demo --quick`
-    /// (13 min 58 s on 2 cores, measured).
+    /// (about a quarter of an hour on 2 cores; docs/results.md has the current time).
     #[arg(long, conflicts_with = "quick")]
     pub full: bool,
     /// The default small suite, spelled out (what `--full` is not; kept so that earlier
