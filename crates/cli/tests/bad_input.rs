@@ -243,6 +243,24 @@ fn cases() -> Vec<Case> {
         .expect(&["the output contains the input", "scene.ply"]),
         // ---- edit settings
         Case::new("edit: empty prompt", EDIT).arg("  ").with_scene().expect(&["--prompt is empty"]),
+        Case::new("edit: --views 0", EDIT)
+            .arg("make it blue")
+            .args("--views 0")
+            .with_scene()
+            .dir("edits")
+            .expect(&["--views"]),
+        Case::new("edit: --views not a number", EDIT)
+            .arg("make it blue")
+            .args("--views half")
+            .with_scene()
+            .dir("edits")
+            .expect(&["--views", "half"]),
+        Case::new("edit: --views beyond the edit views", EDIT)
+            .arg("make it blue")
+            .args("--views 3")
+            .with_scene()
+            .dir("edits")
+            .expect(&["--views 3 is more than the 2 edit views"]),
         Case::new("edit: unknown config key", EDIT)
             .arg("make it blue")
             .args("--config {d}/config.toml")

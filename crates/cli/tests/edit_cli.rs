@@ -152,3 +152,23 @@ fn quick_demo_honours_an_explicit_step_count() {
         "the --set wins over --quick"
     );
 }
+
+/// `--views K`: the editor edits K of the edit views, and the edit still lands.
+#[test]
+fn views_k_edits_only_k_views() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = quick_scene(dir.path());
+    let out = dir.path().join("edit");
+    let o = bin()
+        .args(["edit", "--scene"])
+        .arg(&ds)
+        .args(["--prompt", "make the ball blue", "--editor", "simulated", "--steps", "30", "--views", "3"])
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    ok(&o);
+    let log = String::from_utf8_lossy(&o.stderr);
+    assert!(log.contains("editor simulated edited 3 views"), "{log}");
+    assert!(out.join("transport.json").is_file());
+}

@@ -214,6 +214,7 @@ pub fn edit<'py>(
         prompt: &prompt,
         editor: EditorSpec::Custom(Box::new(PyEditor { adapter, raised: raised.clone() })),
         features: Features::Builtin,
+        views: Default::default(),
         config: cfg,
         background,
         output,

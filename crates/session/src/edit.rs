@@ -10,6 +10,7 @@
 use crate::checkpoints::{self, Checkpoints};
 use crate::edit_folder::{self, EditOutput, MARKER};
 use crate::output::Output;
+use crate::views::ViewChoice;
 use crate::SessionError;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -85,6 +86,8 @@ pub struct EditRequest<'a> {
     pub prompt: &'a str,
     pub editor: EditorSpec<'a>,
     pub features: Features,
+    /// Which edit views the editor edits ([`crate::views`]).
+    pub views: ViewChoice,
     pub config: EditConfig,
     pub background: [f32; 3],
     /// The output folder; `None` returns the result only (the Python API's default).
@@ -110,13 +113,28 @@ pub fn run(
     cancel: Option<&AtomicBool>,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<EditOutcome, SessionError> {
-    let EditRequest { gaussians, cameras, prompt, editor, features, config, background, output, target } =
-        request;
+    let EditRequest {
+        gaussians,
+        cameras,
+        prompt,
+        editor,
+        features,
+        views,
+        config,
+        background,
+        output,
+        target,
+    } = request;
     if gaussians.is_empty() {
         return Err(SessionError::Input("scene: the scene has no Gaussians".into()));
     }
     if background.iter().any(|v| !v.is_finite()) {
         return Err(SessionError::Input(format!("background: non-finite value in {background:?}")));
+    }
+    let (test_views, edit_views) = split_views(cameras.len());
+    let edit_views = crate::views::choose(cameras, &edit_views, views)?;
+    if views != ViewChoice::All {
+        tracing::info!("the editor edits {} views: {:?}", edit_views.len(), edit_views);
     }
     let staged = match &output {
         Some(o) => {
@@ -129,7 +147,6 @@ pub fn run(
         Some((o, checkpoints)) => checkpoints.control(&o.path, CHECKPOINT_EVERY, STATE_FILE, cancel)?,
         None => transsplat_train::Control { cancel, ..Default::default() },
     };
-    let (test_views, edit_views) = split_views(cameras.len());
     let dino = match &features {
         Features::Dinov2(dir) => {
             use transsplat_models::{dinov2::Dinov2, ModelDir};

@@ -15,6 +15,7 @@
 //!   `report.html`), also written per method by the demo.
 //! - [`checkpoints`]: the checkpoint folder beside an output, resume and the message
 //!   after a stop.
+//! - [`views`]: which views the 2D editor edits (`--views`).
 //! - [`output`]: the output rule and staging of a job's folder.
 //! - [`report`], [`heatmap`]: the HTML report page and per-Gaussian heat maps.
 
@@ -25,6 +26,7 @@ pub mod heatmap;
 pub mod output;
 pub mod report;
 pub mod train;
+pub mod views;
 
 pub use checkpoints::Checkpoints;
 pub use output::Output;

@@ -10,6 +10,7 @@ use transsplat_scene::formats::SceneFormat;
 use transsplat_scenes::SimulatedEditor;
 use transsplat_session as session;
 use transsplat_session::edit::{EditRequest, EditorSpec, Features, OutputRequest};
+use transsplat_session::views::ViewChoice;
 
 /// Which 2D editor produces the edits.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -60,6 +61,11 @@ pub struct EditArgs {
     /// view (the built-in fallback features otherwise).
     #[arg(long, value_name = "DIR")]
     pub dino_weights: Option<PathBuf>,
+    /// Which views the 2D editor edits: all (every camera but each 8th) or K of them,
+    /// spread over the capture (the editor then runs K times; the transport, fusion and
+    /// image loss work from those K views).
+    #[arg(long, value_parser = ViewChoice::parse, default_value = "all")]
+    pub views: ViewChoice,
     /// Simulated editor severity (0 = perfect edits).
     #[arg(long, value_parser = super::common::finite_f32, default_value_t = 1.0)]
     pub severity: f32,
@@ -148,6 +154,7 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         prompt: &args.prompt,
         editor,
         features,
+        views: args.views,
         background: args.background,
         output: Some(output),
         target,
