@@ -14,6 +14,7 @@ use transsplat_scenes::SimulatedEditor;
 use transsplat_scenes::{build, labels_from_extra, Scene, SceneConfig};
 use transsplat_session::edit_folder::{self, EditOutput};
 use transsplat_session::report::Page;
+use transsplat_session::views::ViewChoice;
 use transsplat_session::Output;
 
 /// Settings of a demo run.
@@ -35,6 +36,8 @@ pub struct DemoOptions {
     /// edit and score it against the truth inside the target ([`Fidelity::retrained`]):
     /// what the trainer reaches when the images themselves show the edit.
     pub retrain_truth: bool,
+    /// Which training views the simulated editor edits (`--views`).
+    pub views: ViewChoice,
 }
 
 impl Default for DemoOptions {
@@ -50,6 +53,7 @@ impl Default for DemoOptions {
             seed: 0,
             trained: 0,
             retrain_truth: false,
+            views: ViewChoice::All,
         }
     }
 }
@@ -105,6 +109,9 @@ pub enum DemoError {
     Io(#[from] transsplat_scene::Error),
     #[error(transparent)]
     Trained(#[from] crate::trained::TrainedError),
+    /// A `--views` choice the scene cannot give.
+    #[error("{0}")]
+    Views(String),
 }
 
 /// `metrics.json`, the marker of a finished demo folder: the case and each method's
@@ -244,13 +251,16 @@ fn run_into(
     }
 
     let config = opts.config.clone();
+    let edit_views = transsplat_session::views::choose(&scene.cameras, &scene.train_views(), opts.views)
+        .map_err(|e| DemoError::Views(e.to_string()))?;
     let mut scores = Vec::new();
     let mut results: Vec<(Method, EditResult)> = Vec::new();
     // The top report's 3D viewer: the first method's edit.
     let mut viewer: Option<(String, String)> = None;
     for &m in &opts.methods {
         let cfg = config.for_method(m);
-        let job = scene_job(&scene, &source, &opts.prompt);
+        let mut job = scene_job(&scene, &source, &opts.prompt);
+        job.edit_views = edit_views.clone();
         let mut editor = sim.clone();
         let res = transsplat_edit::run(&job, &mut editor, &cfg, cancel, &mut |p| on_progress(m.name(), p))?;
         let metrics = reference.score(&scene, &res.gaussians);

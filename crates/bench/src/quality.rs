@@ -36,6 +36,7 @@ use std::sync::atomic::AtomicBool;
 use transsplat_edit::{EditConfig, Method, Progress};
 use transsplat_scene::atomic::StagedDir;
 use transsplat_session::report::{esc, Page};
+use transsplat_session::views::ViewChoice;
 
 /// Marker file of a finished suite folder.
 pub const MARKER: &str = "quality.json";
@@ -121,6 +122,8 @@ pub struct SuiteOptions {
     pub methods: Vec<Method>,
     pub config: EditConfig,
     pub seed: u64,
+    /// Which training views the simulated editor edits in every case (`--views`).
+    pub views: ViewChoice,
 }
 
 /// One case's outcome.
@@ -172,6 +175,7 @@ pub fn run(
             trained: c.trained,
             // Perfect edits: how close can an edit of this trained scene come?
             retrain_truth: c.trained > 0 && c.severity == 0.0,
+            views: opts.views,
         };
         let outcome = demo::run(&demo_opts, cancel, &mut |m, p| on_progress(&c.name, m, p));
         let r = match outcome {

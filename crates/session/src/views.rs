@@ -26,17 +26,23 @@ pub enum ViewChoice {
     All,
     /// This many edit views, spread over the capture.
     Count(usize),
+    /// One in this many edit views (rounded up), spread over the capture: `1/N`.
+    Fraction(usize),
 }
 
 impl ViewChoice {
-    /// Parses `all` or a positive count; `flag` names the option in errors.
+    /// Parses `all`, a positive count `K` or a fraction `1/N`.
     pub fn parse(text: &str) -> Result<ViewChoice, String> {
         match text.trim() {
             "all" => Ok(ViewChoice::All),
+            t if t.starts_with("1/") => match t[2..].parse::<usize>() {
+                Ok(n) if n >= 1 => Ok(ViewChoice::Fraction(n)),
+                _ => Err(format!("expected 1/N with N at least 1, got {t:?}")),
+            },
             t => match t.parse::<usize>() {
                 Ok(0) => Err("must be at least 1 (or all)".into()),
                 Ok(k) => Ok(ViewChoice::Count(k)),
-                Err(_) => Err(format!("expected all or a number of views, got {t:?}")),
+                Err(_) => Err(format!("expected all, a number of views or 1/N, got {t:?}")),
             },
         }
     }
@@ -58,6 +64,7 @@ pub fn choose(
             )))
         }
         ViewChoice::Count(k) => k,
+        ViewChoice::Fraction(n) => edit_views.len().div_ceil(n.max(1)),
     };
     let centres: Vec<[f32; 3]> = edit_views.iter().map(|&v| cameras[v].centre()).collect();
     let forward: Vec<[f32; 3]> = edit_views.iter().map(|&v| cameras[v].rotation[2]).collect();
@@ -125,10 +132,14 @@ mod tests {
     fn counts_are_checked() {
         assert_eq!(ViewChoice::parse("all"), Ok(ViewChoice::All));
         assert_eq!(ViewChoice::parse(" 3 "), Ok(ViewChoice::Count(3)));
+        assert_eq!(ViewChoice::parse("1/3"), Ok(ViewChoice::Fraction(3)));
+        assert!(ViewChoice::parse("1/0").is_err() && ViewChoice::parse("2/3").is_err());
         assert!(ViewChoice::parse("0").is_err() && ViewChoice::parse("half").is_err());
         let cams = vec![camera([0.0, 0.0, 0.0], [0.0, 1.0, 0.0]); 3];
         assert!(choose(&cams, &[1, 2], ViewChoice::Count(3)).is_err());
         assert_eq!(choose(&cams, &[1, 2], ViewChoice::All).unwrap(), vec![1, 2]);
+        assert_eq!(choose(&cams, &[1, 2], ViewChoice::Fraction(2)).unwrap().len(), 1);
+        assert_eq!(choose(&cams, &[0, 1, 2], ViewChoice::Fraction(2)).unwrap().len(), 2, "rounded up");
     }
 
     /// Eight cameras on a ring looking at its centre: after the first, the opposite

@@ -250,6 +250,10 @@ pub struct QualityArgs {
     /// Override any edit setting, as in `edit --set`.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
+    /// Which training views the simulated editor edits in every case: all, K or 1/N
+    /// (as `edit --views`).
+    #[arg(long, value_parser = transsplat_session::views::ViewChoice::parse, default_value = "all")]
+    pub views: transsplat_session::views::ViewChoice,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
 }
@@ -271,6 +275,7 @@ pub fn quality(args: &QualityArgs, cancel: &AtomicBool) -> anyhow::Result<()> {
         methods: super::demo::parse_methods(args.methods.as_deref())?,
         config,
         seed: args.seed,
+        views: args.views,
     };
     let total = opts.cases.len();
     let mut current = String::new();

@@ -46,6 +46,9 @@ pub struct DemoArgs {
     /// report its target PSNR (what an edit of the trained scene could reach at best).
     #[arg(long, requires = "trained")]
     pub retrain_truth: bool,
+    /// Which training views the simulated editor edits: all, K or 1/N (as `edit --views`).
+    #[arg(long, value_parser = transsplat_session::views::ViewChoice::parse, default_value = "all")]
+    pub views: transsplat_session::views::ViewChoice,
 }
 
 /// The methods named on the command line (all of them when none are).
@@ -86,6 +89,7 @@ pub fn run(args: &DemoArgs, cancel: &AtomicBool) -> Result<()> {
         seed: args.seed,
         trained: args.trained,
         retrain_truth: args.retrain_truth,
+        views: args.views,
     };
     let mut bar: Option<(String, indicatif::ProgressBar)> = None;
     let demo::DemoOutcome { out, scores, .. } = demo::run(&opts, Some(cancel), &mut |name, p| {
