@@ -18,6 +18,7 @@ use transsplat_editors::{change_attention, EditedView, Editor, SourceView};
 use transsplat_scene::Camera;
 use transsplat_session as session;
 use transsplat_session::edit::{EditRequest, EditorSpec, Features, OutputRequest};
+use transsplat_session::views::ViewChoice;
 use transsplat_session::SessionError;
 
 /// Name of the Python editor in logs and outputs.
@@ -157,7 +158,7 @@ fn config(
 #[pyo3(signature = (
     means, quats, log_scales, opacity_logits, sh, extra_names, extra,
     viewmats, ks, widths, heights, names,
-    prompt, adapter, config_toml, overrides, method, steps, background, out, inputs, progress
+    prompt, adapter, config_toml, overrides, method, steps, background, out, inputs, progress, views
 ))]
 #[allow(clippy::too_many_arguments)]
 pub fn edit<'py>(
@@ -184,7 +185,9 @@ pub fn edit<'py>(
     out: Option<PathBuf>,
     inputs: Vec<PathBuf>,
     progress: Option<Py<PyAny>>,
+    views: String,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let views = ViewChoice::parse(&views).map_err(|e| value_error(format!("views: {e}")))?;
     let g = gaussians_from_arrays(
         &means,
         &quats,
@@ -214,7 +217,7 @@ pub fn edit<'py>(
         prompt: &prompt,
         editor: EditorSpec::Custom(Box::new(PyEditor { adapter, raised: raised.clone() })),
         features: Features::Builtin,
-        views: Default::default(),
+        views,
         config: cfg,
         background,
         output,

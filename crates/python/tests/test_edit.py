@@ -185,3 +185,23 @@ def test_cameras_match_a_render_of_the_cli(tabletop, tmp_path):
         sh_degree=deg,
     )
     np.testing.assert_allclose(out[0], want, atol=2e-4)
+
+
+def test_views_edits_the_views_the_cli_chooses(tabletop, tmp_path):
+    """`views=3` hands the editor 3 views, the ones `transsplat edit --views 3` edits
+    (the same choice: the returned edit_views), and a bad choice is a ValueError."""
+    seen = []
+
+    def editor(vs, prompt):
+        seen.extend(v.index for v in vs)
+        return [recolour(v.image) for v in vs]
+
+    r = transsplat.edit(tabletop, None, PROMPT, editor, steps=5, views=3, progress=False)
+    assert len(seen) == 3 and sorted(seen) == sorted(r["edit_views"])
+    half = transsplat.edit(tabletop, None, PROMPT, editor, steps=2, views="1/2", progress=False)
+    edit_views = [i for i in range(len(transsplat.load_cameras(tabletop)["names"]))
+                  if not transsplat._core.is_test_view(i)]
+    assert len(half["edit_views"]) == -(-len(edit_views) // 2)
+    for bad in ("0", "half", 10_000):
+        with pytest.raises(ValueError, match="views"):
+            transsplat.edit(tabletop, None, PROMPT, editor, steps=2, views=bad, progress=False)

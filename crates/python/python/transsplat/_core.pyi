@@ -87,6 +87,7 @@ def edit(
     out: Optional[str],
     inputs: List[str],
     progress: Optional[Callable[[str, int, int, float], None]],
+    views: str,
 ) -> Dict[str, Any]: ...
 def check_config(
     config_toml: Optional[str], overrides: List[str], method: Optional[str], steps: Optional[int]

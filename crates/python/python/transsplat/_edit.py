@@ -163,6 +163,7 @@ def edit(
     steps: Optional[int] = None,
     background: Sequence[float] = (0.0, 0.0, 0.0),
     progress: Union[bool, Callable[[str, int, int, float], None]] = True,
+    views: Union[str, int] = "all",
 ) -> Dict[str, Any]:
     """Edits a scene with a 2D editor and lifts the edits onto the Gaussians by
     unbalanced semantic transport (the TransSplat method; the baselines and ablations
@@ -193,6 +194,8 @@ def edit(
         background: colour behind the Gaussians.
         progress: True shows progress (tqdm if installed), False none, or a callable
             ``progress(kind, a, b, x)`` (kind "edited", "step" or "round").
+        views: which edit views the editor edits: ``"all"``, a count ``K`` or ``"1/N"``,
+            spread over the capture as ``transsplat edit --views`` chooses them.
 
     Returns:
         A dict: ``gaussians`` (the edited scene, as :func:`load_ply` returns it, with
@@ -275,6 +278,7 @@ def edit(
             None if out is None else os.fspath(out),
             inputs,
             bar,
+            str(views),
         )
     finally:
         if isinstance(bar, _Progress):
