@@ -298,6 +298,7 @@ fn run_into(
             config: &cfg,
             target: Some(&is_target),
             formats: &[],
+            write_options: Default::default(),
         };
         edit_folder::write(&dir.join(name), &output)?;
         if viewer.is_none() {

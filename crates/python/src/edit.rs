@@ -209,7 +209,13 @@ pub fn edit<'py>(
         return Err(value_error(format!("background: non-finite value in {background:?}")));
     }
     let cfg = config(config_toml.as_deref(), &overrides, method.as_deref(), steps)?;
-    let output = out.map(|path| OutputRequest { path, inputs, formats: Vec::new(), checkpoints: None });
+    let output = out.map(|path| OutputRequest {
+        path,
+        inputs,
+        formats: Vec::new(),
+        write_options: Default::default(),
+        checkpoints: None,
+    });
     let raised = Arc::new(Mutex::new(None));
     let request = EditRequest {
         gaussians: &g,

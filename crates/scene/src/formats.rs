@@ -56,28 +56,49 @@ impl SceneFormat {
     }
 }
 
+/// How scene files are read.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ReadOptions {
+    /// Drop Gaussians with NaN or infinite parameters instead of refusing the file (PLY).
+    pub drop_invalid: bool,
+    /// The axes of SPZ files ([`spz::Axes`]).
+    pub spz_axes: spz::Axes,
+}
+
+/// How scene files are written.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct WriteOptions {
+    /// SPZ's version and axes.
+    pub spz: spz::Options,
+}
+
 /// Reads a scene in any format (recognised by content); returns it with the number of
 /// Gaussians dropped for NaN or infinite values (only with `drop_invalid`).
-pub fn read_with(path: &Path, options: &ply::ReadOptions) -> Result<(Gaussians, usize)> {
+pub fn read_with(path: &Path, options: &ReadOptions) -> Result<(Gaussians, usize)> {
     let bytes = atomic::read(path)?;
     if spz::looks_like(&bytes) {
         // Every SPZ value is decoded from bytes into a finite number: nothing to drop.
-        return Ok((spz::parse(&bytes, path)?, 0));
+        return Ok((spz::parse_with(&bytes, path, options.spz_axes)?, 0));
     }
-    ply::parse_with(&bytes, path, options)
+    ply::parse_with(&bytes, path, &ply::ReadOptions { drop_invalid: options.drop_invalid })
 }
 
 /// Reads a scene in any format.
 pub fn read(path: &Path) -> Result<Gaussians> {
-    read_with(path, &ply::ReadOptions::default()).map(|(g, _)| g)
+    read_with(path, &ReadOptions::default()).map(|(g, _)| g)
 }
 
 /// Writes a scene atomically in `format` (refusing NaN or infinite parameters). The
 /// compressed formats reorder the Gaussians (Morton order) and drop extra properties.
 pub fn write(path: &Path, g: &Gaussians, format: SceneFormat) -> Result<()> {
+    write_with(path, g, format, &WriteOptions::default())
+}
+
+/// [`write`] with the formats' options.
+pub fn write_with(path: &Path, g: &Gaussians, format: SceneFormat, options: &WriteOptions) -> Result<()> {
     match format {
         SceneFormat::Ply => ply::write(path, g),
-        SceneFormat::Spz => spz::write(path, g),
+        SceneFormat::Spz => spz::write_with(path, g, &options.spz),
         SceneFormat::CompressedPly => ply::compressed::write(path, g),
     }
 }

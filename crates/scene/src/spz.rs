@@ -7,15 +7,19 @@
 //! (`(log σ + 10) · 16`), rotations (v2: x, y, z bytes with w ≥ 0; v3: "smallest three"
 //! in 32 bits, 9-bit magnitudes of `|q_i|/√½` with a sign bit each) and the higher SH
 //! coefficients (coefficient-major, `round(v · 128) + 128` rounded to 5-bit buckets for
-//! degree 1 and 4-bit buckets above). Version 4 (the reference's current default) is
-//! an uncompressed 32-byte header, a table of stream sizes and one zstd frame per
-//! block; it is read, not written. docs/formats.md#spz has the details.
+//! degree 1 and 4-bit buckets above). Version 4 (the reference's current default, and
+//! ours) is an uncompressed 32-byte header (the same 16 bytes, then the number of
+//! streams in byte 15, the table's offset at 16 and zeros), a table of (compressed,
+//! uncompressed) sizes as two u64 per non-empty block, and one zstd frame per block.
+//! Both are read and written ([`Options::version`]). docs/formats.md#spz has the details.
 //!
-//! Axes: SPZ stores the RUB convention (x right, y up, z back) and the INRIA PLY RDF
-//! (x right, y down, z forward), as Niantic's reference documents; the two differ by a
-//! half turn about x, so positions, rotations and the odd SH coefficients change sign
-//! on the way in and out ([`flip_rdf_rub`]). Files read back exactly as written, and
-//! PlayCanvas splat-transform 2.x reads and writes the same convention.
+//! Axes ([`Axes`]): Niantic's reference documents SPZ as RUB (x right, y up, z back)
+//! and the INRIA PLY as RDF (x right, y down, z forward); the two differ by a half turn
+//! about x, so positions, rotations and the odd SH coefficients change sign on the way
+//! in and out ([`flip_rdf_rub`]). PlayCanvas splat-transform 2.x does the same
+//! ([`Axes::Rub`], the default). splat-transform 3.x and Niantic's `ply_to_spz` store the
+//! PLY's axes unconverted ([`Axes::Rdf`]). Files read back exactly as written under
+//! the same axes.
 
 use crate::{atomic, opacity_logit_of_byte, sigmoid, Error, Gaussians, Result};
 use std::io::{Read, Write};
@@ -24,8 +28,67 @@ use std::path::Path;
 const MAGIC: u32 = 0x5053_474e;
 /// The 0.15 colour scale of the reference (DC colour `f_dc · 0.15 + ½`).
 const COLOUR_SCALE: f32 = 0.15;
-/// The version written.
-pub const WRITE_VERSION: u32 = 3;
+/// The version written unless asked otherwise.
+pub const WRITE_VERSION: u32 = 4;
+
+/// Which axes an SPZ file's coordinates are in.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Axes {
+    /// Niantic's documented RUB (x right, y up, z back), a half turn about x from the
+    /// PLY: what splat-transform 2.x writes and reads.
+    #[default]
+    Rub,
+    /// The PLY's own RDF axes, unconverted: what splat-transform 3.x and Niantic's
+    /// `ply_to_spz` write.
+    Rdf,
+}
+
+impl Axes {
+    /// `rub` or `rdf`.
+    pub fn parse(s: &str) -> std::result::Result<Self, String> {
+        match s.trim() {
+            "rub" => Ok(Axes::Rub),
+            "rdf" => Ok(Axes::Rdf),
+            t => Err(format!("expected rub or rdf, got {t:?}")),
+        }
+    }
+
+    /// Moves `g` between the PLY's axes and these (its own inverse).
+    fn convert(self, g: &mut Gaussians) {
+        if self == Axes::Rub {
+            flip_rdf_rub(g);
+        }
+    }
+}
+
+/// How an SPZ file is written.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Options {
+    /// 3 (gzip) or 4 (zstd streams; the default).
+    pub version: u32,
+    pub axes: Axes,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options { version: WRITE_VERSION, axes: Axes::Rub }
+    }
+}
+
+impl Options {
+    /// Parses a version flag value: 3 or 4.
+    pub fn parse_version(s: &str) -> std::result::Result<u32, String> {
+        match s.trim() {
+            "3" => Ok(3),
+            "4" => Ok(4),
+            t => Err(format!("expected 3 or 4, got {t:?}")),
+        }
+    }
+}
+/// The zstd level of version 4's streams: 19, high, as the blocks are small and
+/// written once (the reference and splat-transform use zstd's default level 3;
+/// decoding speed does not depend on the level).
+const ZSTD_LEVEL: i32 = 19;
 /// Most Gaussians a file may declare (bounded before allocating).
 const MAX_POINTS: u64 = 1 << 28;
 
@@ -111,66 +174,104 @@ fn unpack_rotation(mut code: u32) -> [f32; 4] {
     [xyzw[3], xyzw[0], xyzw[1], xyzw[2]]
 }
 
-/// The uncompressed version-3 payload of a scene (header and blocks, before gzip).
-fn payload(g: &Gaussians) -> Vec<u8> {
-    let mut g = g.clone();
-    flip_rdf_rub(&mut g);
+/// The first 16 header bytes (magic, version, count, SH degree, fractional bits, flags
+/// 0, one byte that version 4 fills with the number of streams) and the six blocks of
+/// a scene already in the file's axes: positions, opacities, colours, scales,
+/// rotations, higher SH.
+fn blocks(g: &Gaussians, version: u32) -> ([u8; 16], [Vec<u8>; 6]) {
     let n = g.len();
     let k = g.sh_coeffs();
-    let fb = fractional_bits(&g);
-    let mut out = Vec::with_capacity(16 + n * (20 + (k - 1) * 3));
-    out.extend_from_slice(&MAGIC.to_le_bytes());
-    out.extend_from_slice(&WRITE_VERSION.to_le_bytes());
-    out.extend_from_slice(&(n as u32).to_le_bytes());
-    out.extend_from_slice(&[g.sh_degree as u8, fb, 0, 0]);
+    let fb = fractional_bits(g);
+    let mut header = [0u8; 16];
+    header[..4].copy_from_slice(&MAGIC.to_le_bytes());
+    header[4..8].copy_from_slice(&version.to_le_bytes());
+    header[8..12].copy_from_slice(&(n as u32).to_le_bytes());
+    header[12] = g.sh_degree as u8;
+    header[13] = fb;
     let scale = (1u64 << fb) as f32;
+    let mut positions = Vec::with_capacity(9 * n);
     for m in &g.means {
         for v in m {
             let q = (v * scale).round() as i32;
-            out.extend_from_slice(&q.to_le_bytes()[..3]);
+            positions.extend_from_slice(&q.to_le_bytes()[..3]);
         }
     }
-    out.extend(g.opacity_logits.iter().map(|&o| u8_of(sigmoid(o) * 255.0)));
+    let opacities = g.opacity_logits.iter().map(|&o| u8_of(sigmoid(o) * 255.0)).collect();
+    let mut colours = Vec::with_capacity(3 * n);
     for i in 0..n {
         for c in 0..3 {
-            out.push(u8_of(g.sh[i * k * 3 + c] * (COLOUR_SCALE * 255.0) + 0.5 * 255.0));
+            colours.push(u8_of(g.sh[i * k * 3 + c] * (COLOUR_SCALE * 255.0) + 0.5 * 255.0));
         }
     }
-    for s in &g.log_scales {
-        out.extend(s.iter().map(|&v| u8_of((v + 10.0) * 16.0)));
-    }
-    for q in &g.rotations {
-        out.extend_from_slice(&pack_rotation(*q).to_le_bytes());
-    }
+    let scales = g.log_scales.iter().flat_map(|s| s.map(|v| u8_of((v + 10.0) * 16.0))).collect();
+    let rotations = g.rotations.iter().flat_map(|q| pack_rotation(*q).to_le_bytes()).collect();
+    let mut rest = Vec::with_capacity(n * (k - 1) * 3);
     for i in 0..n {
         let sh = g.sh_of(i);
         for j in 1..k {
             let bits = if j < 4 { 5 } else { 4 };
             for c in 0..3 {
-                out.push(sh_byte(sh[j * 3 + c], bits));
+                rest.push(sh_byte(sh[j * 3 + c], bits));
             }
         }
     }
+    (header, [positions, opacities, colours, scales, rotations, rest])
+}
+
+/// The `.spz` bytes of a scene in the default layout (version 4, RUB axes). Extra
+/// properties are not stored. Assumes `g.validate()` passes.
+pub fn to_bytes(g: &Gaussians) -> Vec<u8> {
+    to_bytes_with(g, &Options::default())
+}
+
+/// The `.spz` bytes of a scene written as `options` say.
+pub fn to_bytes_with(g: &Gaussians, options: &Options) -> Vec<u8> {
+    let mut g = g.clone();
+    options.axes.convert(&mut g);
+    let (mut header, blocks) = blocks(&g, options.version);
+    if options.version == 3 {
+        let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+        enc.write_all(&header).expect("writing to memory");
+        blocks.iter().for_each(|b| enc.write_all(b).expect("writing to memory"));
+        return enc.finish().expect("writing to memory");
+    }
+    // Version 4: header, table of contents, one zstd frame per non-empty block.
+    let frames: Vec<(Vec<u8>, usize)> = blocks
+        .iter()
+        .filter(|b| !b.is_empty())
+        .map(|b| (zstd::bulk::compress(b, ZSTD_LEVEL).expect("compressing in memory"), b.len()))
+        .collect();
+    header[15] = frames.len() as u8;
+    let mut out = header.to_vec();
+    out.extend_from_slice(&32u32.to_le_bytes());
+    out.resize(32, 0);
+    for (frame, size) in &frames {
+        out.extend_from_slice(&(frame.len() as u64).to_le_bytes());
+        out.extend_from_slice(&(*size as u64).to_le_bytes());
+    }
+    frames.iter().for_each(|(f, _)| out.extend_from_slice(f));
     out
 }
 
-/// The `.spz` bytes (version 3, gzip) of a scene. Extra properties are not stored.
-/// Assumes `g.validate()` passes.
-pub fn to_bytes(g: &Gaussians) -> Vec<u8> {
-    let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
-    enc.write_all(&payload(g)).expect("writing to memory");
-    enc.finish().expect("writing to memory")
+/// Writes a scene atomically as `.spz` in the default layout.
+pub fn write(path: &Path, g: &Gaussians) -> Result<()> {
+    write_with(path, g, &Options::default())
 }
 
-/// Writes a scene atomically as `.spz` (refusing NaN or infinite parameters and
-/// scenes SPZ cannot hold: no Gaussians, or more than 2³² − 1).
-pub fn write(path: &Path, g: &Gaussians) -> Result<()> {
+/// Writes a scene atomically as `.spz` as `options` say (refusing NaN or infinite
+/// parameters and scenes SPZ cannot hold: no Gaussians, or more than 2³² − 1).
+pub fn write_with(path: &Path, g: &Gaussians, options: &Options) -> Result<()> {
     g.check_writable(path)?;
     if g.is_empty() || g.len() > u32::MAX as usize {
         return Err(Error::format(path, format!("cannot write {} Gaussians as SPZ", g.len())));
     }
-    let bytes = to_bytes(g);
-    atomic::write_bytes(path, &bytes)
+    if !(3..=4).contains(&options.version) {
+        return Err(Error::format(
+            path,
+            format!("SPZ version {} cannot be written (3 or 4)", options.version),
+        ));
+    }
+    atomic::write_bytes(path, &to_bytes_with(g, options))
 }
 
 /// True when `bytes` start like an SPZ file (gzip, or the version-4 `NGSP` magic).
@@ -178,9 +279,17 @@ pub fn looks_like(bytes: &[u8]) -> bool {
     bytes.starts_with(&[0x1f, 0x8b]) || bytes.starts_with(b"NGSP")
 }
 
-/// Parses `.spz` bytes (versions 2, 3 and 4); `path` names the file in errors.
+/// Parses `.spz` bytes (versions 2, 3 and 4) in the default RUB axes; `path` names
+/// the file in errors.
 pub fn parse(bytes: &[u8], path: &Path) -> Result<Gaussians> {
-    decode(bytes).map_err(|m| Error::format(path, format!("SPZ: {m}")))
+    parse_with(bytes, path, Axes::Rub)
+}
+
+/// Parses `.spz` bytes whose coordinates are in `axes`.
+pub fn parse_with(bytes: &[u8], path: &Path, axes: Axes) -> Result<Gaussians> {
+    let mut g = decode(bytes).map_err(|m| Error::format(path, format!("SPZ: {m}")))?;
+    axes.convert(&mut g);
+    Ok(g)
 }
 
 fn decode(bytes: &[u8]) -> std::result::Result<Gaussians, String> {
@@ -352,7 +461,6 @@ impl Header {
                 g.sh.push((b[5][i * (k - 1) * 3 + j] as f32 - 128.0) / 128.0);
             }
         }
-        flip_rdf_rub(&mut g);
         g
     }
 }
@@ -360,6 +468,16 @@ impl Header {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The uncompressed version-3 payload of a scene (header and blocks, before gzip).
+    fn payload(g: &Gaussians) -> Vec<u8> {
+        let mut g = g.clone();
+        Axes::Rub.convert(&mut g);
+        let (header, blocks) = blocks(&g, 3);
+        let mut out = header.to_vec();
+        blocks.iter().for_each(|b| out.extend_from_slice(b));
+        out
+    }
 
     /// The shared random scene, spread to ±10 so positions use the fixed-point range.
     fn scene(n: usize, degree: u32) -> Gaussians {
@@ -383,38 +501,92 @@ mod tests {
         assert_eq!(sh_byte(0.3, 4), 160);
     }
 
+    /// `d` is `g` decoded: every value within SPZ's quantisation of it.
+    fn assert_within_quantisation(g: &Gaussians, d: &Gaussians) {
+        assert_eq!((d.len(), d.sh_degree), (g.len(), g.sh_degree));
+        let k = g.sh_coeffs() * 3;
+        for i in 0..g.len() {
+            for a in 0..3 {
+                assert!((d.means[i][a] - g.means[i][a]).abs() <= 0.5 / 4096.0 + 1e-6);
+                assert!((d.log_scales[i][a] - g.log_scales[i][a]).abs() <= 1.0 / 32.0 + 1e-5);
+            }
+            let qn = {
+                let q = g.rotations[i];
+                let n = q.iter().map(|v| v * v).sum::<f32>().sqrt();
+                q.map(|v| v / n)
+            };
+            let dot: f32 = qn.iter().zip(&d.rotations[i]).map(|(a, b)| a * b).sum();
+            assert!(dot.abs() > 0.999, "rotation {i}: {dot}");
+            assert!(
+                (sigmoid(d.opacity_logits[i]) - sigmoid(g.opacity_logits[i])).abs() <= 0.5 / 255.0 + 1e-6
+            );
+            for c in 0..3 {
+                assert!((d.sh[i * k + c] - g.sh[i * k + c]).abs() <= 0.5 / 255.0 / COLOUR_SCALE + 1e-5);
+            }
+            for j in 3..k {
+                let bucket = if j < 12 { 8.0 } else { 16.0 };
+                let err = (d.sh[i * k + j] - g.sh[i * k + j]).abs();
+                assert!(err <= (bucket / 2.0 + 0.5) / 128.0 + 1e-5, "sh {i} {j}: {err}");
+            }
+        }
+    }
+
     #[test]
     fn round_trip_is_within_the_quantisation() {
         for degree in 0..=3 {
-            let g = scene(500, degree);
-            let d = parse(&to_bytes(&g), Path::new("t.spz")).unwrap();
-            assert_eq!((d.len(), d.sh_degree), (g.len(), degree));
-            let k = g.sh_coeffs() * 3;
-            for i in 0..g.len() {
-                for a in 0..3 {
-                    assert!((d.means[i][a] - g.means[i][a]).abs() <= 0.5 / 4096.0 + 1e-6);
-                    assert!((d.log_scales[i][a] - g.log_scales[i][a]).abs() <= 1.0 / 32.0 + 1e-5);
-                }
-                let qn = {
-                    let q = g.rotations[i];
-                    let n = q.iter().map(|v| v * v).sum::<f32>().sqrt();
-                    q.map(|v| v / n)
-                };
-                let dot: f32 = qn.iter().zip(&d.rotations[i]).map(|(a, b)| a * b).sum();
-                assert!(dot.abs() > 0.999, "rotation {i}: {dot}");
-                assert!(
-                    (sigmoid(d.opacity_logits[i]) - sigmoid(g.opacity_logits[i])).abs() <= 0.5 / 255.0 + 1e-6
-                );
-                for c in 0..3 {
-                    assert!((d.sh[i * k + c] - g.sh[i * k + c]).abs() <= 0.5 / 255.0 / COLOUR_SCALE + 1e-5);
-                }
-                for j in 3..k {
-                    let bucket = if j < 12 { 8.0 } else { 16.0 };
-                    let err = (d.sh[i * k + j] - g.sh[i * k + j]).abs();
-                    assert!(err <= (bucket / 2.0 + 0.5) / 128.0 + 1e-5, "sh {i} {j}: {err}");
-                }
+            for version in [3, 4] {
+                let g = scene(500, degree);
+                let bytes = to_bytes_with(&g, &Options { version, ..Default::default() });
+                assert_within_quantisation(&g, &parse(&bytes, Path::new("t.spz")).unwrap());
             }
         }
+    }
+
+    #[test]
+    fn version_4_holds_what_version_3_holds_in_zstd_streams() {
+        for degree in [0, 1, 3] {
+            let g = scene(300, degree);
+            let v3 = to_bytes_with(&g, &Options { version: 3, ..Default::default() });
+            let v4 = to_bytes_with(&g, &Options { version: 4, ..Default::default() });
+            assert_eq!(to_bytes(&g), v4, "version 4 is the default");
+            let (a, b) = (parse(&v3, Path::new("a")).unwrap(), parse(&v4, Path::new("b")).unwrap());
+            assert!(a == b, "degree {degree}: versions 3 and 4 decode differently");
+            // The header by hand: magic, version 4, count, degree, 12 fractional bits
+            // (±10 fits), flags 0, the streams (no SH block at degree 0), the table at 32.
+            let streams = if degree == 0 { 5 } else { 6 };
+            assert_eq!(
+                &v4[..16],
+                &[0x4e, 0x47, 0x53, 0x50, 4, 0, 0, 0, 44, 1, 0, 0, degree as u8, 12, 0, streams]
+            );
+            assert_eq!(&v4[16..32], &[32, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]);
+            // The table's uncompressed sizes are the blocks' sizes.
+            let size =
+                |s: usize| u64::from_le_bytes(v4[32 + 16 * s + 8..32 + 16 * s + 16].try_into().unwrap());
+            assert_eq!((size(0), size(1), size(4)), (9 * 300, 300, 4 * 300));
+        }
+    }
+
+    #[test]
+    fn rdf_files_hold_the_plys_axes_and_read_back_under_them() {
+        let g = scene(100, 2);
+        let options = Options { axes: Axes::Rdf, ..Default::default() };
+        let rdf = to_bytes_with(&g, &options);
+        let back = parse_with(&rdf, Path::new("t.spz"), Axes::Rdf).unwrap();
+        assert_within_quantisation(&g, &back);
+        // The positions are stored as they are in the PLY: x = 1 stays 4096 at 12 bits,
+        // y = 0.5 stays +2048 (RUB would store −2048).
+        let mut one = scene(1, 0);
+        one.means[0] = [1.0, 0.5, -2.0];
+        let raw = to_bytes_with(&one, &Options { version: 3, axes: Axes::Rdf });
+        let mut payload = Vec::new();
+        flate2::read::GzDecoder::new(raw.as_slice()).read_to_end(&mut payload).unwrap();
+        assert_eq!(&payload[16..25], &[0x00, 0x10, 0x00, 0x00, 0x08, 0x00, 0x00, 0xe0, 0xff]);
+        // Read as RUB, an RDF file comes out turned a half turn about x.
+        let mut turned = parse(&rdf, Path::new("t.spz")).unwrap();
+        flip_rdf_rub(&mut turned);
+        assert!(turned == back, "the two readings differ by more than the half turn");
+        assert_eq!(Axes::parse("rdf"), Ok(Axes::Rdf));
+        assert!(Axes::parse("lub").is_err() && Options::parse_version("5").is_err());
     }
 
     #[test]

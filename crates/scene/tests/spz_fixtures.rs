@@ -4,6 +4,9 @@
 //! axes, within SPZ's quantisation; and our own writer must agree with theirs.
 //! Regenerate: `splat-transform spz_source.ply splat_transform_v4.spz` and with
 //! `--spz-version 3` (see tools/web/package.json for the pinned version).
+//! `splat_transform3_v4.spz` is the same source written by splat-transform 3.7.0
+//! (`npm install @playcanvas/splat-transform@3`), which stores the PLY's axes
+//! unconverted: it reads as the source under `spz::Axes::Rdf`.
 
 use std::path::Path;
 use transsplat_scene::{formats, sigmoid, spz, Gaussians};
@@ -58,10 +61,49 @@ fn our_version_3_payload_matches_splat_transforms_file() {
     // and ours differ only in the gzip stream).
     let src = formats::read(&fixture("spz_source.ply")).unwrap();
     let theirs = formats::read(&fixture("splat_transform_v3.spz")).unwrap();
-    let ours = spz::parse(&spz::to_bytes(&src), Path::new("ours.spz")).unwrap();
+    let v3 = spz::Options { version: 3, ..Default::default() };
+    let ours = spz::parse(&spz::to_bytes_with(&src, &v3), Path::new("ours.spz")).unwrap();
     assert_eq!(ours.means, theirs.means);
     assert_eq!(ours.log_scales, theirs.log_scales);
     assert_eq!(ours.opacity_logits, theirs.opacity_logits);
     assert_eq!(ours.sh, theirs.sh);
     assert_eq!(ours.rotations, theirs.rotations);
+}
+
+#[test]
+fn our_version_4_file_decodes_as_splat_transforms_version_4_file() {
+    let src = formats::read(&fixture("spz_source.ply")).unwrap();
+    let theirs = formats::read(&fixture("splat_transform_v4.spz")).unwrap();
+    let bytes = spz::to_bytes(&src);
+    assert_eq!(&bytes[..4], b"NGSP", "version 4 is not gzipped");
+    let ours = spz::parse(&bytes, Path::new("ours.spz")).unwrap();
+    assert!(ours == theirs, "our version 4 file decodes unlike theirs");
+    // Their file read under the other convention is the same scene turned about x.
+    let rdf = spz::parse_with(
+        &std::fs::read(fixture("splat_transform_v4.spz")).unwrap(),
+        Path::new("t"),
+        spz::Axes::Rdf,
+    )
+    .unwrap();
+    let mut turned = rdf.clone();
+    spz::flip_rdf_rub(&mut turned);
+    assert!(turned == theirs, "the two readings differ by more than the half turn");
+}
+
+#[test]
+fn splat_transform_3_files_read_as_the_source_under_rdf_axes() {
+    let src = formats::read(&fixture("spz_source.ply")).unwrap();
+    let bytes = std::fs::read(fixture("splat_transform3_v4.spz")).unwrap();
+    let rdf = spz::parse_with(&bytes, Path::new("st3.spz"), spz::Axes::Rdf).unwrap();
+    assert_close(&src, &rdf, "splat-transform 3 under rdf");
+    // Under the default axes it is the source turned a half turn about x.
+    let rub = spz::parse(&bytes, Path::new("st3.spz")).unwrap();
+    let mut back = rub.clone();
+    spz::flip_rdf_rub(&mut back);
+    assert!(back == rdf);
+    assert!((rub.means[0][1] + src.means[0][1]).abs() < 1e-3 || src.means[0][1].abs() < 1e-3);
+    // And what we write with rdf axes decodes as their file does.
+    let ours = spz::to_bytes_with(&src, &spz::Options { axes: spz::Axes::Rdf, ..Default::default() });
+    let ours = spz::parse_with(&ours, Path::new("ours.spz"), spz::Axes::Rdf).unwrap();
+    assert!(ours == rdf, "our rdf file decodes unlike splat-transform 3's");
 }

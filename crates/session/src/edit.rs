@@ -19,7 +19,7 @@ use transsplat_edit::checkpoint::STATE_FILE;
 use transsplat_edit::{semantic, EditConfig, EditError, EditJob, EditResult, Progress};
 use transsplat_editors::{CommandEditor, Editor, FolderEditor};
 use transsplat_scene::cameras::split_views;
-use transsplat_scene::formats::SceneFormat;
+use transsplat_scene::formats::{self, SceneFormat};
 use transsplat_scene::{Camera, Gaussians};
 
 /// DINOv2 features are reduced to this many channels (a fixed random projection) before
@@ -75,6 +75,8 @@ pub struct OutputRequest {
     pub inputs: Vec<PathBuf>,
     /// Formats written beside `point_cloud.ply`.
     pub formats: Vec<SceneFormat>,
+    /// How they are written (SPZ's version and axes).
+    pub write_options: formats::WriteOptions,
     /// Checkpoints beside the output (`None`: none).
     pub checkpoints: Option<Checkpoints>,
 }
@@ -196,6 +198,7 @@ pub fn run(
                 config: &config,
                 target: target.as_deref(),
                 formats: &o.formats,
+                write_options: o.write_options,
             };
             staged.write(|dir| edit_folder::write(dir, &folder))?;
             let out = staged.commit()?;

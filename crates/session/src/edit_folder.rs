@@ -48,6 +48,8 @@ pub struct EditOutput<'a> {
     pub target: Option<&'a [bool]>,
     /// Formats written beside the PLY (`point_cloud.compressed.ply`, `.spz`).
     pub formats: &'a [SceneFormat],
+    /// How they are written (SPZ's version and axes).
+    pub write_options: formats::WriteOptions,
 }
 
 /// Writes the edit's outputs into `dir` (a staged folder).
@@ -58,7 +60,12 @@ pub fn write(dir: &Path, o: &EditOutput) -> Result<(), transsplat_scene::Error> 
     std::fs::create_dir_all(&pc).map_err(|e| transsplat_scene::Error::io(&pc, e))?;
     ply::write(&pc.join("point_cloud.ply"), &r.gaussians)?;
     for &f in o.formats.iter().filter(|&&f| f != SceneFormat::Ply) {
-        formats::write(&pc.join(format!("point_cloud{}", f.extension())), &r.gaussians, f)?;
+        formats::write_with(
+            &pc.join(format!("point_cloud{}", f.extension())),
+            &r.gaussians,
+            f,
+            &o.write_options,
+        )?;
     }
     cameras::inria::write(&dir.join("cameras.json"), o.cameras)?;
     let rd = dir.join("renders");

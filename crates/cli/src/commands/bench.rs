@@ -37,7 +37,7 @@ pub struct RasterArgs {
 
 /// The scene and camera of `bench raster --scene`.
 fn given_scene(args: &RasterArgs, path: &Path) -> anyhow::Result<(Gaussians, Camera)> {
-    let scene = SceneArgs { scene: path.to_path_buf(), drop_invalid: false };
+    let scene = SceneArgs { scene: path.to_path_buf(), drop_invalid: false, spz_axes: Default::default() };
     let (g, _) = load_scene(&scene)?;
     let (cams, cam_path) = load_cameras(args.cameras.as_deref(), path)?;
     let cam = match &args.camera {

@@ -3,7 +3,7 @@
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use transsplat_scene::atomic::StagedDir;
-use transsplat_scene::{cameras, formats, ply, scene_paths, Camera, Gaussians};
+use transsplat_scene::{cameras, formats, scene_paths, spz, Camera, Gaussians};
 use transsplat_session::Checkpoints;
 
 /// Options shared by every command that reads a scene.
@@ -16,12 +16,26 @@ pub struct SceneArgs {
     /// Drop Gaussians with NaN or infinite parameters instead of refusing the file.
     #[arg(long)]
     pub drop_invalid: bool,
+    /// Axes of an .spz scene: rub (Niantic's documented convention, splat-transform
+    /// 2.x) or rdf (the PLY's axes unconverted: splat-transform 3.x, Niantic's
+    /// ply_to_spz). Also the axes of any .spz this command writes.
+    #[arg(long, value_parser = spz::Axes::parse, default_value = "rub")]
+    pub spz_axes: spz::Axes,
+}
+
+/// Writing options of the commands that write scenes (`convert`, `edit --format`).
+#[derive(clap::Args, Debug, Clone)]
+pub struct SpzWriteArgs {
+    /// SPZ version written: 4 (zstd streams, the reference's current default) or 3 (gzip).
+    #[arg(long, value_parser = spz::Options::parse_version, default_value = "4")]
+    pub spz_version: u32,
 }
 
 /// Reads and checks the scene; returns it with the PLY path it came from.
 pub fn load_scene(args: &SceneArgs) -> Result<(Gaussians, PathBuf)> {
     let path = scene_paths::resolve_scene(&args.scene)?;
-    let (g, dropped) = formats::read_with(&path, &ply::ReadOptions { drop_invalid: args.drop_invalid })?;
+    let options = formats::ReadOptions { drop_invalid: args.drop_invalid, spz_axes: args.spz_axes };
+    let (g, dropped) = formats::read_with(&path, &options)?;
     if dropped > 0 {
         tracing::warn!("{}: dropped {dropped} Gaussians with NaN or infinite parameters", path.display());
     }

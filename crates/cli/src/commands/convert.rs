@@ -1,10 +1,11 @@
 //! `transsplat convert`: a scene from one file format to another (INRIA PLY,
 //! PlayCanvas compressed PLY, SPZ), and optionally its cameras to INRIA cameras.json.
 
-use super::common::{check_output, load_cameras, load_scene, SceneArgs};
+use super::common::{check_output, load_cameras, load_scene, SceneArgs, SpzWriteArgs};
 use anyhow::{bail, Result};
 use std::path::PathBuf;
 use transsplat_scene::formats::{self, SceneFormat};
+use transsplat_scene::spz;
 
 /// Arguments of `transsplat convert`.
 #[derive(clap::Args, Debug)]
@@ -20,6 +21,13 @@ pub struct ConvertArgs {
     /// Drop Gaussians with NaN or infinite parameters instead of refusing the file.
     #[arg(long)]
     pub drop_invalid: bool,
+    /// Axes of an .spz read or written: rub (Niantic's documented convention,
+    /// splat-transform 2.x; the default) or rdf (the PLY's axes unconverted:
+    /// splat-transform 3.x, Niantic's ply_to_spz).
+    #[arg(long, value_parser = spz::Axes::parse, default_value = "rub")]
+    pub spz_axes: spz::Axes,
+    #[command(flatten)]
+    pub spz: SpzWriteArgs,
     /// Also convert these cameras (any format `render` reads) ...
     #[arg(long, requires = "cameras_out")]
     pub cameras: Option<PathBuf>,
@@ -37,7 +45,11 @@ pub fn run(a: &ConvertArgs) -> Result<()> {
             a.output.display()
         ),
     };
-    let (g, scene_path) = load_scene(&SceneArgs { scene: a.input.clone(), drop_invalid: a.drop_invalid })?;
+    let (g, scene_path) = load_scene(&SceneArgs {
+        scene: a.input.clone(),
+        drop_invalid: a.drop_invalid,
+        spz_axes: a.spz_axes,
+    })?;
     let mut inputs = vec![a.input.as_path(), scene_path.as_path()];
     if let Some(c) = &a.cameras {
         inputs.push(c);
@@ -52,7 +64,9 @@ pub fn run(a: &ConvertArgs) -> Result<()> {
         transsplat_scene::cameras::inria::write(out, &cams)?;
         tracing::info!("wrote {} cameras to {}", cams.len(), out.display());
     }
-    formats::write(&a.output, &g, format)?;
+    let options =
+        formats::WriteOptions { spz: spz::Options { version: a.spz.spz_version, axes: a.spz_axes } };
+    formats::write_with(&a.output, &g, format, &options)?;
     let size = std::fs::metadata(&a.output).map(|m| m.len()).unwrap_or(0);
     tracing::info!(
         "wrote {} Gaussians as {} to {} ({:.1} MB, {:.1} bytes a Gaussian)",

@@ -1,12 +1,13 @@
 //! `transsplat edit`: language-driven editing of a scene with any 2D editor.
 
-use super::common::{load_cameras, load_scene, parse_rgb, progress, CheckpointArgs, SceneArgs};
+use super::common::{load_cameras, load_scene, parse_rgb, progress, CheckpointArgs, SceneArgs, SpzWriteArgs};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 use transsplat_edit::{EditConfig, Progress};
-use transsplat_scene::formats::SceneFormat;
+use transsplat_scene::formats::{self, SceneFormat};
+use transsplat_scene::spz;
 use transsplat_scenes::SimulatedEditor;
 use transsplat_session as session;
 use transsplat_session::edit::{EditRequest, EditorSpec, Features, OutputRequest};
@@ -92,6 +93,8 @@ pub struct EditArgs {
     #[arg(long, value_delimiter = ',', value_parser = SceneFormat::parse)]
     pub format: Vec<SceneFormat>,
     #[command(flatten)]
+    pub spz: SpzWriteArgs,
+    #[command(flatten)]
     pub checkpoints: CheckpointArgs,
 }
 
@@ -143,6 +146,9 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         path: args.out.clone(),
         inputs,
         formats: args.format.clone(),
+        write_options: formats::WriteOptions {
+            spz: spz::Options { version: args.spz.spz_version, axes: args.scene.spz_axes },
+        },
         checkpoints: Some(args.checkpoints.spec()),
     };
     let features = args.dino_weights.clone().map_or(Features::Builtin, Features::Dinov2);

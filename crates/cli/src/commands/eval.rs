@@ -125,7 +125,11 @@ fn render_all(
     if every == 0 {
         bail!("--every must be at least 1");
     }
-    let (g, _) = load_scene(&SceneArgs { scene: scene.to_path_buf(), drop_invalid: false })?;
+    let (g, _) = load_scene(&SceneArgs {
+        scene: scene.to_path_buf(),
+        drop_invalid: false,
+        spz_axes: Default::default(),
+    })?;
     let (mut cams, _) = load_cameras(Some(cameras), scene)?;
     cams.sort_by_key(|c| c.stem());
     let cams: Vec<_> = cams.into_iter().step_by(every).collect();

@@ -98,7 +98,11 @@ fn fmt_exp(ln: f64) -> String {
 
 /// Runs `transsplat info`.
 pub fn run(args: &InfoArgs) -> Result<()> {
-    let (g, path) = load_scene(&SceneArgs { scene: args.path.clone(), drop_invalid: args.drop_invalid })?;
+    let (g, path) = load_scene(&SceneArgs {
+        scene: args.path.clone(),
+        drop_invalid: args.drop_invalid,
+        spz_axes: Default::default(),
+    })?;
     let r = report(&g);
     if args.json {
         println!("{r}");

@@ -43,7 +43,13 @@ pub fn run(a: &ViewArgs) -> Result<()> {
     if !(0.5..=2000.0).contains(&a.max_mb) {
         bail!("--max-mb {} is outside 0.5..=2000", a.max_mb);
     }
-    let load = |p: &PathBuf| load_scene(&SceneArgs { scene: p.clone(), drop_invalid: a.drop_invalid });
+    let load = |p: &PathBuf| {
+        load_scene(&SceneArgs {
+            scene: p.clone(),
+            drop_invalid: a.drop_invalid,
+            spz_axes: Default::default(),
+        })
+    };
     let (g, scene_path) = load(&a.scene)?;
     let other = a.compare.as_ref().map(load).transpose()?;
     let cams = match &a.cameras {
