@@ -6,12 +6,12 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
+use transsplat_builtin::SimulatedEditor;
+use transsplat_builtin::{build, labels_from_extra, Scene, SceneConfig};
 use transsplat_edit::{semantic, EditConfig, EditError, EditJob, EditResult, Method, Progress};
 use transsplat_eval::ground_truth::{GtMetrics, Reference};
 use transsplat_eval::metrics::auroc;
 use transsplat_scene::{image, Gaussians};
-use transsplat_scenes::SimulatedEditor;
-use transsplat_scenes::{build, labels_from_extra, Scene, SceneConfig};
 use transsplat_session::edit_folder::{self, EditOutput};
 use transsplat_session::report::Page;
 use transsplat_session::views::ViewChoice;
@@ -100,7 +100,7 @@ pub struct DemoOutcome {
 #[derive(Debug, thiserror::Error)]
 pub enum DemoError {
     #[error(transparent)]
-    Scene(#[from] transsplat_scenes::Error),
+    Scene(#[from] transsplat_builtin::Error),
     #[error(transparent)]
     Editor(#[from] transsplat_editors::Error),
     #[error(transparent)]

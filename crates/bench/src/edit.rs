@@ -10,10 +10,10 @@ use crate::demo::{scene_job, DemoError};
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
+use transsplat_builtin::SimulatedEditor;
+use transsplat_builtin::{build, SceneConfig};
 use transsplat_edit::{EditConfig, Progress, Timing};
 use transsplat_eval::ground_truth::{GtMetrics, Reference};
-use transsplat_scenes::SimulatedEditor;
-use transsplat_scenes::{build, SceneConfig};
 
 /// One benchmark size.
 #[derive(Clone, Copy, Debug)]

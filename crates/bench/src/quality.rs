@@ -555,8 +555,8 @@ mod tests {
 
     #[test]
     fn the_edits_cover_three_scenes_and_six_kinds_and_each_parses_on_its_scene() {
-        use transsplat_scenes::simulated::parse_instruction;
-        use transsplat_scenes::{build, SceneConfig};
+        use transsplat_builtin::simulated::parse_instruction;
+        use transsplat_builtin::{build, SceneConfig};
         let mut scenes: Vec<&str> = EDITS.iter().map(|e| e.0).collect();
         scenes.dedup();
         let mut kinds: Vec<&str> = EDITS.iter().map(|e| e.1).collect();

@@ -3,15 +3,15 @@
 //! The built-in scenes are built directly as Gaussians; a scene trained from photos is
 //! different (many overlapping semi-transparent layers, view-dependent SH, colours near
 //! the clamp). [`train_from_renders`] writes the built-in scene's dataset (its images,
-//! cameras and sparse points, `transsplat_scenes::write_dataset`), loads it as `train`
+//! cameras and sparse points, `transsplat_builtin::write_dataset`), loads it as `train`
 //! does and trains a scene from it with the default settings, holding out the same test
 //! views the benchmark scores. The ground truth stays the built-in scene's: the edit of
 //! a trained scene is scored against the true edited renders.
 
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
+use transsplat_builtin::{write_dataset, Scene, WriteOptions};
 use transsplat_scene::Gaussians;
-use transsplat_scenes::{write_dataset, Scene, WriteOptions};
 use transsplat_train::dataset::{self, LoadOptions};
 use transsplat_train::{fit_with, start, Control, FitOptions, FitState, TrainConfig};
 
@@ -19,7 +19,7 @@ use transsplat_train::{fit_with, start, Control, FitOptions, FitState, TrainConf
 #[derive(Debug, thiserror::Error)]
 pub enum TrainedError {
     #[error(transparent)]
-    Scene(#[from] transsplat_scenes::Error),
+    Scene(#[from] transsplat_builtin::Error),
     #[error(transparent)]
     Io(#[from] transsplat_scene::Error),
     #[error("training the scene from its renders: {0}")]

@@ -4,8 +4,8 @@
 
 use transsplat_bench::demo::{self, DemoOptions};
 use transsplat_bench::trained::train_from_renders;
+use transsplat_builtin::{build, SceneConfig};
 use transsplat_edit::{EditConfig, Method};
-use transsplat_scenes::{build, SceneConfig};
 
 #[test]
 fn a_scene_trained_from_its_renders_matches_the_truth_on_test_views() {

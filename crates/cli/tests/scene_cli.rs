@@ -18,12 +18,12 @@ fn scene_writes_a_dataset_the_readers_open() {
     let cams = cameras::load(&out).unwrap();
     assert_eq!(cams.len(), 9);
     let g = ply::read(&scene_paths::resolve_scene(&out).unwrap()).unwrap();
-    let labels = transsplat_scenes::labels_from_extra(&g).expect("label property");
+    let labels = transsplat_builtin::labels_from_extra(&g).expect("label property");
     let cfg =
-        transsplat_scenes::SceneConfig { seed: 3, width: 64, height: 48, views: 9, ..Default::default() };
+        transsplat_builtin::SceneConfig { seed: 3, width: 64, height: 48, views: 9, ..Default::default() };
     let cfg =
-        transsplat_scenes::SceneConfig { detail: transsplat_scenes::SceneConfig::quick().detail, ..cfg };
-    let lib = transsplat_scenes::build("tabletop", &cfg).unwrap();
+        transsplat_builtin::SceneConfig { detail: transsplat_builtin::SceneConfig::quick().detail, ..cfg };
+    let lib = transsplat_builtin::build("tabletop", &cfg).unwrap();
     assert_eq!(labels, lib.labels, "binary and library disagree");
     for cam in &cams {
         let stem = cam.stem();

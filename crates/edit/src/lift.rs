@@ -75,7 +75,7 @@ pub fn shift_dc(sh: &mut [f32], k: usize, delta: &[f32], allowed: Option<&[bool]
 #[cfg(test)]
 mod tests {
     use super::*;
-    use transsplat_scenes::{build, SceneConfig};
+    use transsplat_builtin::{build, SceneConfig};
 
     /// Constant planes lift to the blend-weighted mean of the constants over the views
     /// that blend each Gaussian (weights from the rasterizer's own statistics), and to

@@ -352,7 +352,7 @@ mod tests {
     /// own opacity (an independent oracle); a masked-out Gaussian keeps its colour.
     #[test]
     fn the_colour_lift_moves_each_pixel_by_its_opacity_times_a_uniform_residual() {
-        use transsplat_scenes::{build, SceneConfig};
+        use transsplat_builtin::{build, SceneConfig};
         let scene =
             build("tabletop", &SceneConfig { width: 40, height: 32, views: 3, ..SceneConfig::quick() })
                 .unwrap();

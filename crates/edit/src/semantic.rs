@@ -164,7 +164,7 @@ mod tests {
     /// alone (`Source`): each equals the lift of the chosen projected planes.
     #[test]
     fn initial_latents_lift_the_chosen_views_features() {
-        use transsplat_scenes::{build, SceneConfig};
+        use transsplat_builtin::{build, SceneConfig};
         let scene =
             build("tabletop", &SceneConfig { width: 32, height: 24, views: 3, ..SceneConfig::quick() })
                 .unwrap();

@@ -7,11 +7,11 @@
 //! changed setting or instruction is refused; a poisoned learning rate stops naming
 //! the step and the parameter group.
 
+use transsplat_builtin::SimulatedEditor;
+use transsplat_builtin::{build, Scene, SceneConfig};
 use transsplat_edit::checkpoint::{EDITOR_FILE, STATE_FILE};
 use transsplat_edit::{run_with, semantic, EditConfig, EditError, EditJob, EditResult, Method};
 use transsplat_editors::{EditedView, Editor, SourceView};
-use transsplat_scenes::SimulatedEditor;
-use transsplat_scenes::{build, Scene, SceneConfig};
 use transsplat_train::{Checkpointer, Control};
 
 const PROMPT: &str = "make the ball blue";

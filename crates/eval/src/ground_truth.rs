@@ -18,9 +18,9 @@
 //! [`PSNR_CAP`]: below 8-bit quantisation, differences are ties.
 
 use crate::metrics::{psnr_from_mse, squared_error, ssim};
+use transsplat_builtin::Scene;
 use transsplat_raster::{render, RenderOptions, Splats};
 use transsplat_scene::Gaussians;
-use transsplat_scenes::Scene;
 
 /// PSNRs above this are reported as this: an error below half an 8-bit level
 /// everywhere (a PSNR of about 54 dB) is no visible difference, so higher values are
@@ -161,7 +161,7 @@ impl Reference {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use transsplat_scenes::{build, SceneConfig, Style};
+    use transsplat_builtin::{build, SceneConfig, Style};
 
     #[test]
     fn a_label_set_unites_the_masks_and_a_global_edit_has_no_background() {
@@ -169,7 +169,7 @@ mod tests {
         let (ball, cone) = (s.label_of("ball").unwrap(), s.label_of("cone").unwrap());
         let blue = [0.1, 0.2, 0.9];
         let truth =
-            transsplat_scenes::recolor(&s.recolor(ball, blue).unwrap(), &s.labels, cone, blue).unwrap();
+            transsplat_builtin::recolor(&s.recolor(ball, blue).unwrap(), &s.labels, cone, blue).unwrap();
         let both = Reference::new(&s, &truth, &[ball, cone]);
         let one = Reference::new(&s, &truth, &[ball]);
         for k in 0..both.views.len() {

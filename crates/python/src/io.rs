@@ -203,13 +203,13 @@ pub fn cameras_from_arrays(
 #[pyfunction]
 #[pyo3(signature = (name, out, quick=false, seed=0))]
 pub fn builtin_scene(py: Python<'_>, name: &str, out: PathBuf, quick: bool, seed: u64) -> PyResult<PathBuf> {
-    use transsplat_scenes::{build, write_dataset, SceneConfig, WriteOptions};
+    use transsplat_builtin::{build, write_dataset, SceneConfig, WriteOptions};
     let mut cfg = if quick { SceneConfig::quick() } else { SceneConfig::default() };
     cfg.seed = seed;
     let scene = build(name, &cfg).map_err(|e| value_error(e.to_string()))?;
     py.allow_threads(|| write_dataset(&scene, &out, &WriteOptions::default(), &mut |_, _| {})).map_err(
         |e| match e {
-            transsplat_scenes::Error::Io(e) => scene_error(e),
+            transsplat_builtin::Error::Io(e) => scene_error(e),
             e => value_error(e.to_string()),
         },
     )?;

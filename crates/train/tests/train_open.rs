@@ -18,7 +18,7 @@
 
 mod common;
 
-use transsplat_scenes::SceneConfig;
+use transsplat_builtin::SceneConfig;
 use transsplat_train::{
     evaluate, fit, start, Dataset, DensifyConfig, Eval, PointCloud, Strategy, TrainConfig,
 };
@@ -38,7 +38,7 @@ fn open_capture() -> ([f32; 3], Dataset) {
     let mut cloud = PointCloud::default();
     for (i, m) in scene.gaussians.means.iter().enumerate().step_by(12) {
         cloud.positions.push(*m);
-        cloud.colors.push(transsplat_scenes::edit::dc_colour(&scene.gaussians, i));
+        cloud.colors.push(transsplat_builtin::edit::dc_colour(&scene.gaussians, i));
     }
     ds.points = Some(cloud);
     (scene.background, ds)

@@ -1,5 +1,5 @@
 //! Training from the rendered images of the built-in quick tabletop
-//! (`transsplat_scenes`, ~5k Gaussians, 16 views), at 64x48, starting from a sparse
+//! (`transsplat_builtin`, ~5k Gaussians, 16 views), at 64x48, starting from a sparse
 //! noisy point cloud: every 8th true centre, jittered by 2 cm, with random colours.
 //! The held-out views (every 8th camera) must reach a stated PSNR within a bounded
 //! number of steps.

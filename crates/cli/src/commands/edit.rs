@@ -5,10 +5,10 @@ use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
+use transsplat_builtin::SimulatedEditor;
 use transsplat_edit::{EditConfig, Progress};
 use transsplat_scene::formats::{self, SceneFormat};
 use transsplat_scene::spz;
-use transsplat_scenes::SimulatedEditor;
 use transsplat_session as session;
 use transsplat_session::edit::{EditRequest, EditorSpec, Features, OutputRequest};
 use transsplat_session::views::ViewChoice;
@@ -99,7 +99,7 @@ pub struct EditArgs {
 }
 
 /// The built-in scene a dataset folder written by `transsplat scene` came from.
-fn builtin_scene(scene_arg: &Path) -> Result<transsplat_scenes::Scene> {
+fn builtin_scene(scene_arg: &Path) -> Result<transsplat_builtin::Scene> {
     let root = if scene_arg.is_dir() {
         scene_arg.to_path_buf()
     } else {
@@ -117,9 +117,9 @@ fn builtin_scene(scene_arg: &Path) -> Result<transsplat_scenes::Scene> {
             path.display()
         );
     }
-    let labels = transsplat_scenes::Labels::read(&path)?;
+    let labels = transsplat_builtin::Labels::read(&path)?;
     let (name, cfg) = (&labels.scene, labels.scene_config());
-    Ok(transsplat_scenes::build(name, &cfg)?)
+    Ok(transsplat_builtin::build(name, &cfg)?)
 }
 
 /// Runs `transsplat edit`: the arguments as an [`EditRequest`] for the session layer.

@@ -85,8 +85,8 @@ mod tests {
 
     #[test]
     fn a_stop_request_ends_rendering_between_views() {
-        let config = transsplat_scenes::SceneConfig { views: 3, ..transsplat_scenes::SceneConfig::quick() };
-        let scene = transsplat_scenes::build("tabletop", &config).unwrap();
+        let config = transsplat_builtin::SceneConfig { views: 3, ..transsplat_builtin::SceneConfig::quick() };
+        let scene = transsplat_builtin::build("tabletop", &config).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let stop = AtomicBool::new(true);
         let err =

@@ -1,10 +1,10 @@
 //! `transsplat scene NAME --out DIR`: writes a built-in benchmark scene as a dataset
-//! (INRIA output layout, renders, label masks, labels.json; see `transsplat_scenes::dataset`).
+//! (INRIA output layout, renders, label masks, labels.json; see `transsplat_builtin::dataset`).
 
 use super::common::progress;
 use anyhow::Result;
 use std::path::PathBuf;
-use transsplat_scenes::{build, write_dataset, SceneConfig, WriteOptions};
+use transsplat_builtin::{build, write_dataset, SceneConfig, WriteOptions};
 
 /// Arguments of `transsplat scene`.
 #[derive(clap::Args, Debug)]

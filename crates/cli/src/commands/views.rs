@@ -52,7 +52,7 @@ pub fn run(cmd: &ViewsCommand) -> Result<()> {
 pub fn export(args: &ExportArgs) -> Result<()> {
     let (g, scene_path) = load_scene(&args.scene)?;
     let (cams, cam_path) = load_cameras(args.cameras.as_deref(), &args.scene.scene)?;
-    let edit: Vec<usize> = (0..cams.len()).filter(|&i| !transsplat_scenes::is_test(i)).collect();
+    let edit: Vec<usize> = (0..cams.len()).filter(|&i| !transsplat_builtin::is_test(i)).collect();
     if edit.is_empty() {
         anyhow::bail!(
             "{}: only {} camera(s), all held out as test views; nothing to export",

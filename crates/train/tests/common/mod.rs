@@ -1,8 +1,8 @@
 //! Shared by the integration tests that train on the built-in tabletop scene.
 #![allow(dead_code)] // each test file uses some of these helpers
 
+use transsplat_builtin::{build, is_test, Scene, SceneConfig};
 use transsplat_raster::{render, RenderOptions, Splats};
-use transsplat_scenes::{build, is_test, Scene, SceneConfig};
 use transsplat_train::dataset::{scale_camera, Dataset, DatasetKind, View};
 use transsplat_train::{DensifyConfig, FitOptions, TrainConfig};
 

@@ -11,9 +11,9 @@
 //! change ("turn the red ball blue"), and is the change otherwise ("a grey vase"). An
 //! instruction that names a style ([`Style`]) and no object is a **global edit** of
 //! the whole scene, background included: "make it autumn", "give the scene a winter
-//! look", "make everything sepia". A colour becomes [`transsplat_scenes::recolor`] of
-//! each named object, a material [`transsplat_scenes::retexture`] of each, a style
-//! [`transsplat_scenes::restyle`]. An instruction that asks for several changes, names
+//! look", "make everything sepia". A colour becomes [`transsplat_builtin::recolor`] of
+//! each named object, a material [`transsplat_builtin::retexture`] of each, a style
+//! [`transsplat_builtin::restyle`]. An instruction that asks for several changes, names
 //! a style together with objects, or names neither an object nor a style is refused.
 //!
 //! **Target**: the labels the edit changes ([`Instruction::labels`]): the named

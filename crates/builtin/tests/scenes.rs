@@ -2,13 +2,13 @@
 
 #![allow(clippy::needless_range_loop)]
 
-use transsplat_raster::{gaussian_stats, Splats};
-use transsplat_scene::{cameras, image, ply, scene_paths, Gaussians};
-use transsplat_scenes::dataset::PLY_PATH;
-use transsplat_scenes::{
+use transsplat_builtin::dataset::PLY_PATH;
+use transsplat_builtin::{
     build, is_test, labels_from_extra, one_hot, write_dataset, Error, Material, Scene, SceneConfig,
     WriteOptions, SCENE_NAMES,
 };
+use transsplat_raster::{gaussian_stats, Splats};
+use transsplat_scene::{cameras, image, ply, scene_paths, Gaussians};
 
 fn quick(name: &str) -> Scene {
     build(name, &SceneConfig::quick()).unwrap()
@@ -82,7 +82,7 @@ fn unknown_scene_and_bad_config_are_errors() {
     assert!(s.recolor(0, [0.0, 0.0, 1.0]).is_err(), "background is not an object");
     assert!(s.recolor(9, [0.0, 0.0, 1.0]).is_err());
     assert!(s.recolor(1, [0.0, 2.0, 1.0]).is_err());
-    assert!(transsplat_scenes::recolor(&s.gaussians, &s.labels[1..], 1, [0.0; 3]).is_err());
+    assert!(transsplat_builtin::recolor(&s.gaussians, &s.labels[1..], 1, [0.0; 3]).is_err());
 }
 
 #[test]
@@ -121,7 +121,7 @@ fn ball_in_occluded_is_partly_hidden() {
     for (v, cam) in s.cameras.iter().enumerate() {
         let with = s.render_view(v).unwrap().area(ball);
         let without =
-            transsplat_scenes::render_labels(&g, &labels, s.num_labels(), cam, s.background).area(ball);
+            transsplat_builtin::render_labels(&g, &labels, s.num_labels(), cam, s.background).area(ball);
         if (with as f32) < 0.85 * without as f32 {
             hidden += 1;
         }
@@ -134,7 +134,7 @@ fn mean_colours(s: &Scene) -> Vec<[f32; 3]> {
     let mut sum = vec![[0.0f64; 3]; s.num_labels()];
     let mut n = vec![0usize; s.num_labels()];
     for (i, &l) in s.labels.iter().enumerate() {
-        let c = transsplat_scenes::edit::dc_colour(&s.gaussians, i);
+        let c = transsplat_builtin::edit::dc_colour(&s.gaussians, i);
         for k in 0..3 {
             sum[l as usize][k] += c[k] as f64;
         }
@@ -299,7 +299,7 @@ fn recolor_keeps_texture_as_luminance_variation() {
     let g = s.recolor(crate_label, [0.5, 0.5, 0.5]).unwrap();
     let greys: Vec<f32> = (0..g.len())
         .filter(|&i| s.labels[i] == crate_label)
-        .map(|i| transsplat_scenes::edit::dc_colour(&g, i)[0])
+        .map(|i| transsplat_builtin::edit::dc_colour(&g, i)[0])
         .collect();
     let (lo, hi) = greys.iter().fold((1f32, 0f32), |(l, h), &v| (l.min(v), h.max(v)));
     assert!(hi - lo > 0.1, "texture lost: {lo}..{hi}");
@@ -323,7 +323,7 @@ fn retexture_changes_only_the_target_and_materials_differ() {
         assert!(g.first_non_finite().is_none());
         let cols: Vec<[f32; 3]> = (0..g.len())
             .filter(|&i| s.labels[i] == ball)
-            .map(|i| transsplat_scenes::edit::dc_colour(&g, i))
+            .map(|i| transsplat_builtin::edit::dc_colour(&g, i))
             .collect();
         assert!(cols.iter().flatten().all(|c| (-1e-5..=1.0 + 1e-5).contains(c)));
         let mean: [f32; 3] =
@@ -397,7 +397,7 @@ fn dataset_round_trips_through_the_scene_readers() {
     assert_eq!(meta["objects"][0]["name"], "ball");
     assert_eq!(meta["objects"][0]["label"], 1);
     // The typed reader rebuilds the scene bit for bit from what the writer recorded.
-    let labels = transsplat_scenes::Labels::read(&dir.join("labels.json")).unwrap();
+    let labels = transsplat_builtin::Labels::read(&dir.join("labels.json")).unwrap();
     assert_eq!(labels.views.len(), s.cameras.len());
     let rebuilt = build(&labels.scene, &labels.scene_config()).unwrap();
     assert_eq!(rebuilt.gaussians, s.gaussians);
