@@ -34,11 +34,15 @@ pub fn run(args: &RenderArgs, cancel: &AtomicBool) -> Result<()> {
     let staged = staged_output(&args.out, &[&args.scene.scene, &scene_path, &cam_path], MARKER)?;
     render_views(&g, &cams, staged.path(), args.background, args.raw, cancel)
         .with_context(|| format!("nothing was written to {}", args.out.display()))?;
-    let summary = serde_json::json!({
-        "scene": std::path::absolute(&scene_path)?, "cameras": std::path::absolute(&cam_path)?,
-        "views": cams.len(), "background": args.background, "raw": args.raw,
-    });
-    atomic::write_bytes(&staged.path().join(MARKER), format!("{summary:#}\n").as_bytes())?;
+    let summary = RenderSummary {
+        scene: std::path::absolute(&scene_path)?,
+        cameras: std::path::absolute(&cam_path)?,
+        views: cams.len(),
+        background: args.background,
+        raw: args.raw,
+    };
+    let text = serde_json::to_string_pretty(&summary).expect("plain data serialises") + "\n";
+    atomic::write_bytes(&staged.path().join(MARKER), text.as_bytes())?;
     let out = staged.commit()?;
     tracing::info!("rendered {} views to {}", cams.len(), out.display());
     Ok(())
@@ -47,6 +51,19 @@ pub fn run(args: &RenderArgs, cancel: &AtomicBool) -> Result<()> {
 /// What `render` writes beside the images (the scene, cameras and settings); it marks a
 /// folder as `render`'s own, which a rerun may replace.
 pub const MARKER: &str = "render.json";
+
+/// `render.json`.
+#[derive(Debug, serde::Serialize)]
+struct RenderSummary {
+    /// The scene file rendered (absolute).
+    scene: PathBuf,
+    /// The cameras' file (absolute).
+    cameras: PathBuf,
+    views: usize,
+    background: [f32; 3],
+    /// Whether the float renders were written too (`.npy`).
+    raw: bool,
+}
 
 /// Renders `g` from every camera to `out/<image name>.png` (and `.npy` with `raw`).
 /// Stops between views when `cancel` is set; every file written is complete (each is
