@@ -66,6 +66,25 @@ pub enum Features {
     Dinov2(PathBuf),
 }
 
+impl Features {
+    /// Checks that the feature model's folder is there with its files (cheap: nothing
+    /// is loaded), so a front can refuse a missing folder before it builds anything
+    /// slow of its own; [`run`] loads the model.
+    pub fn check(&self) -> Result<(), SessionError> {
+        match self {
+            Features::Builtin => Ok(()),
+            Features::Dinov2(dir) => transsplat_models::ModelDir::open(dir, "DINOv2", &dinov2_hint(dir))
+                .map(|_| ())
+                .map_err(|e| SessionError::Model(e.to_string())),
+        }
+    }
+}
+
+/// The download command of DINOv2 into `dir`.
+fn dinov2_hint(dir: &Path) -> String {
+    format!("hf download facebook/dinov2-small --local-dir {}", dir.display())
+}
+
 /// The output folder of an edit.
 #[derive(Clone, Debug)]
 pub struct OutputRequest {
@@ -152,8 +171,7 @@ pub fn run(
     let dino = match &features {
         Features::Dinov2(dir) => {
             use transsplat_models::{dinov2::Dinov2, ModelDir};
-            let hint = format!("hf download facebook/dinov2-small --local-dir {}", dir.display());
-            let model = ModelDir::open(dir, "DINOv2", &hint)
+            let model = ModelDir::open(dir, "DINOv2", &dinov2_hint(dir))
                 .and_then(|d| Dinov2::load(&d, &transsplat_models::default_device()))
                 .map_err(|e| SessionError::Model(e.to_string()))?;
             Some(model)

@@ -141,6 +141,9 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
     inputs.extend(
         [&args.edits, &args.config, &args.ip2p_weights, &args.dino_weights].into_iter().flatten().cloned(),
     );
+    let features = args.dino_weights.clone().map_or(Features::Builtin, Features::Dinov2);
+    // A missing model folder is refused before the editor is built.
+    features.check()?;
     let (editor, target) = editor_spec(args, &scene_path, &g, &config)?;
     let output = OutputRequest {
         path: args.out.clone(),
@@ -151,7 +154,6 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         },
         checkpoints: Some(args.checkpoints.spec()),
     };
-    let features = args.dino_weights.clone().map_or(Features::Builtin, Features::Dinov2);
     let bar = progress(config.schedule.steps as u64, "edit");
     let editor_name = editor.name();
     let request = EditRequest {
