@@ -202,6 +202,15 @@ pub fn run(
         (Err(e @ EditError::Train(_)), Some(o)) => return Err(checkpoints::failed(e, &control, &o.path)),
         (Err(e), _) => return Err(e.into()),
     };
+    // A stop asked for during the last step (after the loop's last check) still stops:
+    // nothing is written.
+    if cancel.is_some_and(|c| c.load(std::sync::atomic::Ordering::SeqCst)) {
+        let step = config.schedule.steps as u64;
+        return Err(match &output {
+            Some(o) => checkpoints::interrupted(step, &control, &o.path),
+            None => EditError::Interrupted(step as usize).into(),
+        });
+    }
     let out = match (staged, &output) {
         (Some(staged), Some(o)) => {
             let folder = EditOutput {
