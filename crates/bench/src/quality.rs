@@ -34,9 +34,9 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use transsplat_edit::{EditConfig, Method, Progress};
-use transsplat_scene::atomic::StagedDir;
 use transsplat_session::report::{esc, Page};
 use transsplat_session::views::ViewChoice;
+use transsplat_session::Output;
 
 /// Marker file of a finished suite folder.
 pub const MARKER: &str = "quality.json";
@@ -156,8 +156,8 @@ pub fn run(
     cancel: Option<&AtomicBool>,
     on_progress: &mut dyn FnMut(&str, &str, Progress),
 ) -> Result<(PathBuf, Vec<CaseResult>), DemoError> {
-    let staged = StagedDir::begin(&opts.out, MARKER)?;
-    let dir = staged.path().to_path_buf();
+    let staged = Output::begin(&opts.out, &[], MARKER)?;
+    let dir = staged.dir().to_path_buf();
     let mut results = Vec::new();
     for c in &opts.cases {
         if cancel.is_some_and(|f| f.load(std::sync::atomic::Ordering::SeqCst)) {
@@ -197,14 +197,27 @@ pub fn run(
         results.push(r);
     }
     let summary = averages(&results);
-    let json = serde_json::json!({"cases": results, "averages": summary});
-    transsplat_scene::atomic::write_bytes(&dir.join("quality.md"), table(&results, &summary).as_bytes())?;
-    write_report(&dir, &results, &summary)?;
-    transsplat_scene::atomic::write_bytes(
-        &dir.join(MARKER),
-        serde_json::to_string_pretty(&json).expect("json").as_bytes(),
-    )?;
+    let json = SuiteSummary { cases: &results, averages: &summary };
+    let write = || -> Result<(), DemoError> {
+        transsplat_scene::atomic::write_bytes(&dir.join("quality.md"), table(&results, &summary).as_bytes())?;
+        write_report(&dir, &results, &summary)?;
+        let text = serde_json::to_string_pretty(&json).expect("plain data serialises");
+        Ok(transsplat_scene::atomic::write_bytes(&dir.join(MARKER), text.as_bytes())?)
+    };
+    // A failed write names the output the user gave, not the staging folder.
+    write().map_err(|e| match e {
+        DemoError::Io(e) => DemoError::Io(staged.user_error(e)),
+        e => e,
+    })?;
     Ok((staged.commit()?, results))
+}
+
+/// `quality.json`, the marker of a finished suite folder: every case's scores and the
+/// per-method averages.
+#[derive(Debug, serde::Serialize)]
+pub struct SuiteSummary<'a> {
+    pub cases: &'a [CaseResult],
+    pub averages: &'a std::collections::BTreeMap<String, Average>,
 }
 
 /// Per-method means over the cases that ran; each metric over the cases where it has

@@ -45,7 +45,7 @@
 //! in it is touched.
 
 use crate::child::{tail, Run};
-use crate::folder::{read_edits, view_entries};
+use crate::folder::{read_edits, view_entries, ViewEntry};
 use crate::{EditedView, Editor, Error, SourceView};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -124,11 +124,19 @@ impl<'c> CommandEditor<'c> {
         for (v, e) in views.iter().zip(&entries) {
             image::write_png(&input.join(&e.file), e.width, e.height, v.image)?;
         }
-        let json = serde_json::json!({ "prompt": prompt, "views": entries });
-        let text = serde_json::to_string_pretty(&json).expect("plain data serialises");
+        let text = serde_json::to_string_pretty(&Request { prompt, views: &entries })
+            .expect("plain data serialises");
         atomic::write_bytes(&request, text.as_bytes())?;
         Ok((input, output, request))
     }
+}
+
+/// `request.json`, what the command reads beside the input images: the instruction and
+/// one entry per view (name, file, index, width, height; the protocol in the module doc).
+#[derive(Debug, serde::Serialize)]
+struct Request<'a> {
+    prompt: &'a str,
+    views: &'a [ViewEntry],
 }
 
 impl Editor for CommandEditor<'_> {
