@@ -4,7 +4,7 @@
 //! point is the image centre.
 
 use crate::{atomic, Camera, Error, Result};
-use serde_json::{json, Value};
+use serde_json::Value;
 use std::path::Path;
 
 /// Reads an INRIA `cameras.json`.
@@ -17,6 +17,22 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<Vec<Camera>> {
     let value: Value =
         serde_json::from_slice(bytes).map_err(|e| Error::format(path, format!("not valid JSON: {e}")))?;
     from_value(&value, path)
+}
+
+/// One camera of a `cameras.json` as INRIA's code writes it (the reader below is more
+/// tolerant: numeric names, extra fields).
+#[derive(serde::Serialize)]
+struct Entry<'a> {
+    id: usize,
+    img_name: &'a str,
+    width: u32,
+    height: u32,
+    /// The camera centre.
+    position: [f32; 3],
+    /// Camera-to-world rotation, rows.
+    rotation: [[f32; 3]; 3],
+    fy: f32,
+    fx: f32,
 }
 
 /// Writes an INRIA `cameras.json` atomically. The principal point is not stored (the
@@ -33,23 +49,21 @@ pub fn write(path: &Path, cameras: &[Camera]) -> Result<()> {
             path.display()
         );
     }
-    let list: Vec<Value> = cameras
+    let list: Vec<Entry> = cameras
         .iter()
         .enumerate()
-        .map(|(id, c)| {
-            json!({
-                "id": id,
-                "img_name": c.name,
-                "width": c.width,
-                "height": c.height,
-                "position": c.centre(),
-                "rotation": c.c2w_rotation(),
-                "fy": c.fy,
-                "fx": c.fx,
-            })
+        .map(|(id, c)| Entry {
+            id,
+            img_name: &c.name,
+            width: c.width,
+            height: c.height,
+            position: c.centre(),
+            rotation: c.c2w_rotation(),
+            fy: c.fy,
+            fx: c.fx,
         })
         .collect();
-    let text = serde_json::to_string_pretty(&Value::Array(list))
+    let text = serde_json::to_string_pretty(&list)
         .map_err(|e| Error::format(path, format!("cannot serialise cameras: {e}")))?;
     atomic::write_bytes(path, text.as_bytes())
 }
