@@ -37,15 +37,12 @@ STEPS = 20
 
 
 def torch_models(torch):
-    from diffusers import AutoencoderKL, UNet2DConditionModel
+    """The UNet and the VAE of `bench_ip2p_gpu.py` (the same SD 1.5 configuration), f32 on the CPU."""
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from bench_ip2p_gpu import models
 
-    unet = UNet2DConditionModel(in_channels=8, out_channels=4, cross_attention_dim=768,
-                                attention_head_dim=8, sample_size=64)
-    vae = AutoencoderKL(in_channels=3, out_channels=3, latent_channels=4,
-                        block_out_channels=(128, 256, 512, 512),
-                        down_block_types=("DownEncoderBlock2D",) * 4,
-                        up_block_types=("UpDecoderBlock2D",) * 4, layers_per_block=2)
-    return unet.eval(), vae.eval()
+    unet, vae, _ = models(torch.float32, "cpu")
+    return unet, vae
 
 
 def best_of(repeats, f, warm_up=True):
