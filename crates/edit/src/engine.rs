@@ -14,7 +14,7 @@ use crate::edits;
 use crate::error::EditError;
 use crate::job::{EditJob, EditResult, Progress, Timing};
 use crate::methods::{Context, EditMethod};
-use crate::optimise::{self, LoopState, Renderer, StageTimes, StepLosses};
+use crate::optimise::{self, LoopState, Renderer, StepLosses};
 use crate::semantic::{set_semantic_extras, SemanticSpace};
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
@@ -125,18 +125,7 @@ pub fn run_with(
             loop_state.stages.lift += t.elapsed().as_secs_f64();
         }
         let k = loop_state.order.next(views.len());
-        let stages = &mut loop_state.stages;
-        optimise_step(
-            step,
-            &mut trainer,
-            method.as_mut(),
-            &mut renderer,
-            k,
-            &ctx,
-            cfg,
-            &mut loop_state.losses,
-            stages,
-        )?;
+        optimise_step(&mut trainer, method.as_mut(), &mut renderer, k, &ctx, cfg, &mut loop_state)?;
         let rec = loop_state.losses.last().expect("the step's record");
         progress(Progress::Step {
             step: step + 1,
@@ -216,19 +205,17 @@ fn checkpoint_or_stop(
 /// One optimisation step on usable view `k`: L_img (colour gradients inside the
 /// method's colour mask) and the method's terms, the NaN checks, Adam and
 /// densification (only where the method allows); the step's record is pushed onto
-/// `losses`.
-#[allow(clippy::too_many_arguments)]
+/// `loop_state.losses` and its stage times added to `loop_state.stages`.
 fn optimise_step(
-    step: usize,
     trainer: &mut Trainer,
     method: &mut dyn EditMethod,
     renderer: &mut Renderer,
     k: usize,
     ctx: &Context,
     cfg: &EditConfig,
-    losses: &mut Vec<StepLosses>,
-    times: &mut StageTimes,
+    loop_state: &mut LoopState,
 ) -> Result<(), EditError> {
+    let (step, losses, times) = (loop_state.step, &mut loop_state.losses, &mut loop_state.stages);
     trainer.begin_step();
     let view = &ctx.views[k];
     let cam = &ctx.cameras[view.cam];
