@@ -82,7 +82,7 @@ impl SceneConfig {
 }
 
 /// One labelled object of a scene.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SceneObject {
     /// Name used in instructions ("ball").
     pub name: String,

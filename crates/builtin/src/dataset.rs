@@ -156,15 +156,11 @@ pub struct Label {
     pub gaussians: usize,
 }
 
-/// One object of `labels.json`.
+/// One object of `labels.json`: the scene's object and its Gaussian count.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct LabelledObject {
-    pub name: String,
-    pub label: u32,
-    pub colour: String,
-    pub base_rgb: [f32; 3],
-    pub shape: String,
-    pub centre: [f32; 3],
+    #[serde(flatten)]
+    pub object: crate::SceneObject,
     pub gaussians: usize,
 }
 
@@ -252,15 +248,10 @@ fn write_into(
     let gaussians_of = |label: usize| counts.get(label).copied().unwrap_or(0);
     let labels =
         names.iter().enumerate().map(|(id, n)| Label { id, name: n.clone(), gaussians: gaussians_of(id) });
-    let objects = scene.objects.iter().map(|o| LabelledObject {
-        name: o.name.clone(),
-        label: o.label,
-        colour: o.colour.clone(),
-        base_rgb: o.base_rgb,
-        shape: o.shape.clone(),
-        centre: o.centre,
-        gaussians: gaussians_of(o.label as usize),
-    });
+    let objects = scene
+        .objects
+        .iter()
+        .map(|o| LabelledObject { object: o.clone(), gaussians: gaussians_of(o.label as usize) });
     let stems: Vec<String> = scene.cameras.iter().map(|c| c.stem()).collect();
     let doc = Labels {
         scene: scene.name.clone(),

@@ -85,9 +85,9 @@ impl Options {
         }
     }
 }
-/// The zstd level of version 4's streams: 19, high, as the blocks are small and
-/// written once (the reference and splat-transform use zstd's default level 3;
-/// decoding speed does not depend on the level).
+/// The zstd level of version 4's streams: 19, high, as files are written once and
+/// zstd's decoding speed does not depend on the level (on the 46k-Gaussian tabletop
+/// at SH 1: 5.8 bytes a Gaussian, against 6.7 for splat-transform 2.7.1's own v4).
 const ZSTD_LEVEL: i32 = 19;
 /// Most Gaussians a file may declare (bounded before allocating).
 const MAX_POINTS: u64 = 1 << 28;

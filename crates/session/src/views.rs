@@ -31,7 +31,8 @@ pub enum ViewChoice {
 }
 
 impl ViewChoice {
-    /// Parses `all`, a positive count `K` or a fraction `1/N`.
+    /// Parses `all`, a positive count `K` or a fraction `1/N` (the message names no flag:
+    /// fronts add theirs).
     pub fn parse(text: &str) -> Result<ViewChoice, String> {
         match text.trim() {
             "all" => Ok(ViewChoice::All),

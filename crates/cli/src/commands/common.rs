@@ -2,9 +2,9 @@
 
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
-use transsplat_scene::atomic::StagedDir;
+
 use transsplat_scene::{cameras, formats, scene_paths, spz, Camera, Gaussians};
-use transsplat_session::Checkpoints;
+use transsplat_session::{Checkpoints, Output};
 
 /// Options shared by every command that reads a scene.
 #[derive(clap::Args, Debug, Clone)]
@@ -72,13 +72,12 @@ pub fn load_cameras(cameras_arg: Option<&Path>, scene: &Path) -> Result<(Vec<Cam
 
 pub use transsplat_scene::atomic::check_output;
 
-/// Begins a folder output: the one output rule ([`check_output`]), then a staging
-/// folder beside `out` that replaces it only on commit. Nothing appears at `out` until
-/// the command completes; any failure, full disk or signal leaves `out` as it was. An
-/// existing `out` must be empty or hold `marker` (an earlier output of the same command).
-pub fn staged_output(out: &Path, inputs: &[&Path], marker: &str) -> Result<StagedDir> {
-    check_output(out, inputs)?;
-    Ok(StagedDir::begin(out, marker)?)
+/// Begins a folder output through the session layer's [`Output`]: the one output rule
+/// ([`check_output`]), then a staging folder beside `out` that replaces it only on
+/// commit; errors name `out`. An existing `out` must be empty or hold `marker` (an
+/// earlier output of the same command).
+pub fn staged_output(out: &Path, inputs: &[&Path], marker: &str) -> Result<Output> {
+    Ok(Output::begin(out, inputs, marker)?)
 }
 
 /// Parses a finite number (a flag value; NaN and infinities are refused).

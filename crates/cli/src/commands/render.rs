@@ -32,7 +32,7 @@ pub fn run(args: &RenderArgs, cancel: &AtomicBool) -> Result<()> {
     let (g, scene_path) = load_scene(&args.scene)?;
     let (cams, cam_path) = load_cameras(args.cameras.as_deref(), &args.scene.scene)?;
     let staged = staged_output(&args.out, &[&args.scene.scene, &scene_path, &cam_path], MARKER)?;
-    render_views(&g, &cams, staged.path(), args.background, args.raw, cancel)
+    render_views(&g, &cams, staged.dir(), args.background, args.raw, cancel)
         .with_context(|| format!("nothing was written to {}", args.out.display()))?;
     let summary = RenderSummary {
         scene: std::path::absolute(&scene_path)?,
@@ -42,7 +42,7 @@ pub fn run(args: &RenderArgs, cancel: &AtomicBool) -> Result<()> {
         raw: args.raw,
     };
     let text = serde_json::to_string_pretty(&summary).expect("plain data serialises") + "\n";
-    atomic::write_bytes(&staged.path().join(MARKER), text.as_bytes())?;
+    atomic::write_bytes(&staged.dir().join(MARKER), text.as_bytes())?;
     let out = staged.commit()?;
     tracing::info!("rendered {} views to {}", cams.len(), out.display());
     Ok(())

@@ -95,7 +95,7 @@ pub fn export(args: &ExportArgs) -> Result<()> {
         reuse: Some(&args.out),
         background: args.background,
     };
-    let done = export_views(&views, staged.path(), spec, |_, _, cam| {
+    let done = export_views(&views, staged.dir(), spec, |_, _, cam| {
         let (img, _) = render(&splats, cam, &opts);
         pb.inc(1);
         Ok(img.rgb)
