@@ -17,7 +17,12 @@ with `images/`, a sparse point cloud `points3d.ply` standing in for SfM (surface
 seen in at least two training views, unprojected from the renderer's depth, every held-out
 view excluded: `transsplat train` holds out every 8th camera by name), and for the edit
 studies `masks/<stem>.png` (the edit target's visibility, from the renderer's segmentation)
-and `edited/<stem>.png` (the same view with the target recoloured: the ground-truth edit).
+`edited/<stem>.png` (the same view with the target recoloured: the ground-truth edit) and
+`labels/<stem>.png` (which object each sample of the supersampled render shows: 0 the
+floor and sky, 1 the table, then the objects as `capture.json` lists them; at `supersample`
+times the image size, so box-filtering a label's indicator gives its coverage of a pixel,
+the way a blend weight does). `transsplat bench quality --captures DIR` edits these
+captures with the simulated editor's corruption of the true edits.
 
 The sky is an environment at infinity: each background pixel takes a colour from its
 ray direction (a horizon-to-zenith gradient with soft cloud bands), so it is consistent
@@ -187,8 +192,12 @@ def sky(dirs):
     return base * (1 - cloud[..., None] * 0.6) + 0.97 * cloud[..., None] * 0.6
 
 
-def render(c2w, size, supersample=3):
-    """RGB in [0, 1] (sky composited), world points (NaN on the sky) and segmentation.
+SUPERSAMPLE = 3
+
+
+def render(c2w, size, supersample=SUPERSAMPLE):
+    """RGB in [0, 1] (sky composited), world points (NaN on the sky), the centre
+    sample's segmentation and the full-resolution segmentation.
 
     Rendered at `supersample` times the size and box-filtered down, as a camera's
     pixels integrate light (TinyRenderer has no antialiasing; the checker floor would
@@ -197,7 +206,7 @@ def render(c2w, size, supersample=3):
     rgb, points, seg = render_once(c2w, big)
     k = supersample
     rgb = rgb.reshape(size, k, size, k, 3).mean(axis=(1, 3))
-    return rgb, points[k // 2::k, k // 2::k], seg[k // 2::k, k // 2::k]
+    return rgb, points[k // 2::k, k // 2::k], seg[k // 2::k, k // 2::k], seg
 
 
 def render_once(c2w, size):
@@ -250,17 +259,26 @@ def capture(kind, variant, out, size, views, seed, points_max):
     poses = camera_path(kind, views, rng)
     if os.path.exists(out):
         shutil.rmtree(out)
-    for sub in ("images", "masks", "edited"):
+    for sub in ("images", "masks", "edited", "labels"):
         os.makedirs(os.path.join(out, sub))
     frames, cloud_xyz, cloud_rgb = [], [], []
     # Edited appearance: the target recoloured (texture removed, a plain colour).
     edit_colour = [0.15, 0.35, 0.95, 1.0]
+    # Object labels: 0 the floor and the sky, 1 the table, then the objects.
+    objects = [n for n in bodies if n not in ("floor", "table")]
+    label_of_body = {bodies["table"]: 1}
+    label_of_body.update({bodies[n]: 2 + k for k, n in enumerate(objects)})
     for i, c2w in enumerate(poses):
         stem = f"view_{i:03d}"
-        rgb, pts, seg = render(c2w, size)
+        rgb, pts, seg, seg_full = render(c2w, size)
         save_png(os.path.join(out, "images", stem + ".png"), rgb)
         mask = (seg & ((1 << 24) - 1)) == bodies[target]
         Image.fromarray((mask * 255).astype(np.uint8)).save(os.path.join(out, "masks", stem + ".png"))
+        body = np.where(seg_full < 0, -1, seg_full & ((1 << 24) - 1))
+        labels = np.zeros(body.shape, dtype=np.uint8)
+        for b, l in label_of_body.items():
+            labels[body == b] = l
+        Image.fromarray(labels).save(os.path.join(out, "labels", stem + ".png"))
         frames.append({"file_path": f"images/{stem}.png", "transform_matrix": c2w.tolist()})
         if i % 8 != 0:  # SfM sees only the training views
             ok = np.isfinite(pts[..., 0])  # not the sky
@@ -271,7 +289,7 @@ def capture(kind, variant, out, size, views, seed, points_max):
     # Ground-truth edit renders.
     pb.changeVisualShape(bodies[target], -1, textureUniqueId=-1, rgbaColor=edit_colour)
     for i, c2w in enumerate(poses):
-        rgb, _, _ = render(c2w, size)
+        rgb, _, _, _ = render(c2w, size)
         save_png(os.path.join(out, "edited", f"view_{i:03d}.png"), rgb)
     xyz, col = np.concatenate(cloud_xyz), np.concatenate(cloud_rgb)
     # A real SfM cloud is sparse and noisy: keep at most points_max, jitter by 2 mm.
@@ -289,6 +307,8 @@ def capture(kind, variant, out, size, views, seed, points_max):
         json.dump(meta, fh, indent=1)
     with open(os.path.join(out, "capture.json"), "w") as fh:
         json.dump({"path": kind, "variant": variant, "target": target, "edit_rgb": edit_colour[:3],
+                   "objects": [{"name": n, "label": 2 + k} for k, n in enumerate(objects)],
+                   "supersample": SUPERSAMPLE,
                    "views": len(poses), "size": size, "seed": seed, "renderer": "pybullet TinyRenderer"},
                   fh, indent=1)
     print(f"{kind}: {len(poses)} views, {len(keep)} points, target {target} -> {out}")

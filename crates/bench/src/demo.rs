@@ -6,12 +6,13 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
-use transsplat_builtin::SimulatedEditor;
-use transsplat_builtin::{build, labels_from_extra, Scene, SceneConfig};
+use transsplat_builtin::{build, labels_from_extra, LabelRender, Scene, SceneConfig, SimulatedEditor};
 use transsplat_edit::{semantic, EditConfig, EditError, EditJob, EditResult, Method, Progress};
-use transsplat_eval::ground_truth::{GtMetrics, Reference};
-use transsplat_eval::metrics::auroc;
-use transsplat_scene::{image, Gaussians};
+use transsplat_editors::{Editor, SourceView};
+use transsplat_eval::ground_truth::{GtMetrics, Reference, PSNR_CAP};
+use transsplat_eval::metrics::{auroc, psnr_from_mse, squared_error};
+use transsplat_raster::{render, RenderOptions, Splats};
+use transsplat_scene::{image, Camera, Gaussians};
 use transsplat_session::edit_folder::{self, EditOutput};
 use transsplat_session::report::Page;
 use transsplat_session::views::ViewChoice;
@@ -94,6 +95,8 @@ pub struct DemoOutcome {
     pub scores: Vec<MethodScore>,
     /// The trained source's fidelity, for a scene trained from its renders.
     pub trained: Option<Fidelity>,
+    /// The 2D evidence's own PSNR inside the target (dB; see [`CaseRun`]).
+    pub evidence_psnr: f64,
 }
 
 /// The demo's errors.
@@ -112,6 +115,9 @@ pub enum DemoError {
     /// A `--views` choice the scene cannot give.
     #[error("{0}")]
     Views(String),
+    /// A capture case whose capture was not loaded.
+    #[error("{0}")]
+    Capture(String),
 }
 
 /// `metrics.json`, the marker of a finished demo folder: the case and each method's
@@ -129,6 +135,9 @@ pub struct DemoMetrics<'a> {
     pub test_views: &'a [usize],
     pub trained_steps: u64,
     pub trained: Option<Fidelity>,
+    /// The editor's images of the edit views against the true edit, inside the target
+    /// (dB): the evidence every method lifts.
+    pub evidence_psnr: f64,
     pub methods: std::collections::BTreeMap<&'a str, MethodMetrics<'a>>,
 }
 
@@ -173,14 +182,14 @@ pub fn run(
     on_progress: &mut dyn FnMut(&str, Progress),
 ) -> Result<DemoOutcome, DemoError> {
     let staged = Output::begin(&opts.out, &[], MARKER)?;
-    let (scores, trained) = match run_into(staged.dir(), opts, cancel, on_progress) {
+    let (scores, trained, evidence_psnr) = match run_into(staged.dir(), opts, cancel, on_progress) {
         Ok(done) => done,
         // A failed write names the output the user gave, not the staging folder.
         Err(DemoError::Io(e)) => return Err(DemoError::Io(staged.user_error(e))),
         Err(e) => return Err(e),
     };
     let out = staged.commit()?;
-    Ok(DemoOutcome { out, scores, trained })
+    Ok(DemoOutcome { out, scores, trained, evidence_psnr })
 }
 
 /// The demo written into `dir` (the staged output folder).
@@ -189,7 +198,7 @@ fn run_into(
     opts: &DemoOptions,
     cancel: Option<&AtomicBool>,
     on_progress: &mut dyn FnMut(&str, Progress),
-) -> Result<(Vec<MethodScore>, Option<Fidelity>), DemoError> {
+) -> Result<(Vec<MethodScore>, Option<Fidelity>, f64), DemoError> {
     let dir = dir.to_path_buf();
     let scfg = if opts.quick { SceneConfig::quick() } else { SceneConfig::default() };
     let scene = build(&opts.scene, &SceneConfig { seed: opts.seed, ..scfg })?;
@@ -207,17 +216,17 @@ fn run_into(
     };
     let (source, trained) = if opts.trained > 0 {
         let (g, psnr) = train(&scene)?;
-        let (target, background) = reference.fidelity(&scene, &g);
+        let (target, background) = reference.fidelity(&scene.cameras, &g);
         tracing::info!(
             "trained scene against the unedited truth: PSNR {target:.2} dB inside the target, {background:.2} dB \
              over the background (the target value bounds an edit's target PSNR)"
         );
         // Background PSNR then measures what the edit changed outside the target, not
         // the trained scene's own error.
-        reference = reference.with_source(&scene, &g);
+        reference = reference.with_source(&scene.cameras, &g);
         let retrained = if opts.retrain_truth {
             let (t, _) = train(&Scene { gaussians: truth.clone(), ..scene.clone() })?;
-            let r = reference.score(&scene, &t).target_psnr;
+            let r = reference.score(&scene.cameras, &t).target_psnr;
             tracing::info!(
                 "scene trained from the true edit's renders: target PSNR {r:.2} dB against the truth"
             );
@@ -237,42 +246,135 @@ fn run_into(
     } else {
         (scene.gaussians_with_labels(), None)
     };
-    let bg = scene.background;
-    let test = scene.test_views();
-    let stems: Vec<String> = test.iter().map(|&v| scene.cameras[v].stem()).collect();
+    let edit_views = transsplat_session::views::choose(&scene.cameras, &scene.train_views(), opts.views)
+        .map_err(|e| DemoError::Views(e.to_string()))?;
+    // Gaussian labels exist for the built-in Gaussians only (not for a trained scene).
+    let built_labels = (opts.trained == 0).then(|| scene.labels.clone());
+    let target_of = |g: &Gaussians| {
+        let labels = labels_from_extra(g)
+            .or_else(|| built_labels.clone())
+            .filter(|l| l.len() == g.len())
+            .unwrap_or_default();
+        labels.iter().map(|l| target_labels.contains(l)).collect()
+    };
+    let truth_of = |v: usize| scene.render_edited(&truth, v).expect("an edit view exists");
+    let case = CaseRun {
+        scene: &scene.name,
+        description: &description,
+        cameras: &scene.cameras,
+        source: &source,
+        edit_views,
+        test: scene.test_views(),
+        background: scene.background,
+        reference: &reference,
+        target_labels: &target_labels,
+        target_of: &target_of,
+        truth_of: &truth_of,
+        trained,
+    };
+    let (scores, evidence) = run_case(&dir, opts, &case, &sim, cancel, on_progress)?;
+    Ok((scores, trained, evidence))
+}
+
+/// What a case hands to [`run_case`]: the scene, its source, the edit's truth and how to
+/// score against it. The built-in demo and a capture case (`crate::capture`) fill it.
+pub(crate) struct CaseRun<'a> {
+    pub scene: &'a str,
+    /// The edit in words (the simulated editor's description).
+    pub description: &'a str,
+    pub cameras: &'a [Camera],
+    /// The edited source (built or trained).
+    pub source: &'a Gaussians,
+    pub edit_views: Vec<usize>,
+    pub test: Vec<usize>,
+    pub background: [f32; 3],
+    pub reference: &'a Reference,
+    /// The target's labels in [`CaseRun::truth_of`]'s label renders.
+    pub target_labels: &'a [u32],
+    /// Which Gaussians of an edited scene are the target (empty when unknown).
+    pub target_of: &'a dyn Fn(&Gaussians) -> Vec<bool>,
+    /// The true edit of a camera with its labels.
+    pub truth_of: &'a (dyn Fn(usize) -> LabelRender + Sync),
+    pub trained: Option<Fidelity>,
+}
+
+/// The 2D evidence's own PSNR inside the target: the editor's images of the edit views
+/// (from the source's renders) against the true edit, squared errors pooled over the
+/// target's pixels of every view (dB, capped). A corruption whose mean is off (a
+/// saturation below 1, a hue shift) leaves every method short of the truth by about what
+/// this shows; a method above it has averaged the views' independent errors away.
+fn evidence_psnr<E: Editor + Clone>(case: &CaseRun, editor: &E, prompt: &str) -> Result<f64, DemoError> {
+    let splats = Splats::new(case.source);
+    let opts = RenderOptions { background: case.background };
+    let images: Vec<Vec<f32>> =
+        case.edit_views.iter().map(|&v| render(&splats, &case.cameras[v], &opts).0.rgb).collect();
+    let views: Vec<SourceView> = case
+        .edit_views
+        .iter()
+        .zip(&images)
+        .map(|(&v, image)| SourceView { index: v, camera: &case.cameras[v], image })
+        .collect();
+    let edited = editor.clone().edit(&views, prompt)?;
+    let (mut se, mut n) = (0.0, 0);
+    for (view, out) in views.iter().zip(&edited) {
+        let truth = (case.truth_of)(view.index);
+        let inside = truth.mask_of(case.target_labels);
+        // a view the editor returned nothing for is its source render
+        let image = out.as_ref().map_or(view.image, |e| &e.image[..]);
+        let (a, b) = squared_error(image, &truth.rgb, Some(&inside));
+        (se, n) = (se + a, n + b);
+    }
+    Ok(if n == 0 { f64::NAN } else { psnr_from_mse(se / n as f64).min(PSNR_CAP) })
+}
+
+/// Runs every method of `opts` on `case` with (a fresh copy of) `editor`, scores each
+/// against the case's reference and writes the method folders, `metrics.json` and
+/// `report.html` into `dir`; returns the scores and the 2D evidence's own target PSNR.
+pub(crate) fn run_case<E: Editor + Clone>(
+    dir: &Path,
+    opts: &DemoOptions,
+    case: &CaseRun,
+    editor: &E,
+    cancel: Option<&AtomicBool>,
+    on_progress: &mut dyn FnMut(&str, Progress),
+) -> Result<(Vec<MethodScore>, f64), DemoError> {
+    let reference = case.reference;
+    let test = &case.test;
+    let stems: Vec<String> = test.iter().map(|&v| case.cameras[v].stem()).collect();
 
     // Reference images for the report.
-    std::fs::create_dir_all(dir.join("reference")).map_err(|e| transsplat_scene::Error::io(&dir, e))?;
+    std::fs::create_dir_all(dir.join("reference")).map_err(|e| transsplat_scene::Error::io(dir, e))?;
     for (k, stem) in stems.iter().enumerate() {
-        let cam = &scene.cameras[test[k]];
+        let cam = &case.cameras[test[k]];
         let (w, h) = (cam.width as usize, cam.height as usize);
         image::write_png(&dir.join(format!("reference/source_{stem}.png")), w, h, &reference.source[k])?;
         image::write_png(&dir.join(format!("reference/truth_{stem}.png")), w, h, &reference.truth[k])?;
     }
+    let evidence = evidence_psnr(case, editor, &opts.prompt)?;
+    tracing::info!("the editor's images against the true edit inside the target: {evidence:.2} dB");
 
     let config = opts.config.clone();
-    let edit_views = transsplat_session::views::choose(&scene.cameras, &scene.train_views(), opts.views)
-        .map_err(|e| DemoError::Views(e.to_string()))?;
     let mut scores = Vec::new();
     let mut results: Vec<(Method, EditResult)> = Vec::new();
     // The top report's 3D viewer: the first method's edit.
     let mut viewer: Option<(String, String)> = None;
     for &m in &opts.methods {
         let cfg = config.for_method(m);
-        let mut job = scene_job(&scene, &source, &opts.prompt);
-        job.edit_views = edit_views.clone();
-        let mut editor = sim.clone();
+        let job = EditJob {
+            gaussians: case.source,
+            cameras: case.cameras,
+            edit_views: case.edit_views.clone(),
+            background: case.background,
+            prompt: &opts.prompt,
+            semantic: &semantic::builtin,
+        };
+        let mut editor = editor.clone();
         let res = transsplat_edit::run(&job, &mut editor, &cfg, cancel, &mut |p| on_progress(m.name(), p))?;
-        let metrics = reference.score(&scene, &res.gaussians);
-        // Gaussian labels exist for the built-in Gaussians only (not for a trained scene).
-        let labels = labels_from_extra(&res.gaussians)
-            .or_else(|| (opts.trained == 0).then(|| scene.labels.clone()))
-            .filter(|l| l.len() == res.gaussians.len())
-            .unwrap_or_default();
-        let is_target: Vec<bool> = labels.iter().map(|l| target_labels.contains(l)).collect();
+        let metrics = reference.score(case.cameras, &res.gaussians);
+        let is_target = (case.target_of)(&res.gaussians);
         let gate_auroc =
             res.gate.as_ref().filter(|_| !is_target.is_empty()).and_then(|g| auroc(g, &is_target));
-        if let Some(g) = &res.gate {
+        if let Some(g) = res.gate.as_ref().filter(|_| !is_target.is_empty()) {
             let mean = |want: bool| {
                 let v: Vec<f32> =
                     g.iter().zip(&is_target).filter(|(_, &t)| t == want).map(|(&x, _)| x).collect();
@@ -287,12 +389,12 @@ fn run_into(
         }
         let name = m.name();
         let output = EditOutput {
-            source: &source,
+            source: case.source,
             result: &res,
-            cameras: &scene.cameras,
-            test_views: &test,
+            cameras: case.cameras,
+            test_views: test,
             edit_views: &job.edit_views,
-            background: bg,
+            background: case.background,
             prompt: &opts.prompt,
             editor: "simulated",
             config: &cfg,
@@ -325,15 +427,16 @@ fn run_into(
     }
 
     let metrics = DemoMetrics {
-        scene: &scene.name,
+        scene: case.scene,
         prompt: &opts.prompt,
-        edit: &description,
+        edit: case.description,
         severity: opts.severity,
         quick: opts.quick,
-        gaussians: source.len(),
-        test_views: &test,
+        gaussians: case.source.len(),
+        test_views: test,
         trained_steps: opts.trained,
-        trained,
+        trained: case.trained,
+        evidence_psnr: evidence,
         methods: scores
             .iter()
             .map(|s| {
@@ -347,28 +450,35 @@ fn run_into(
             })
             .collect(),
     };
-    write_report(&dir, &opts.prompt, &description, &scene.name, &stems, &scores, &results, &config, viewer)?;
+    let report =
+        Report { prompt: &opts.prompt, description: case.description, scene: case.scene, stems: &stems };
+    write_report(dir, &report, &scores, &results, &config, viewer)?;
     transsplat_scene::atomic::write_bytes(
         &dir.join(MARKER),
         serde_json::to_string_pretty(&metrics).expect("json").as_bytes(),
     )?;
-    Ok((scores, trained))
+    Ok((scores, evidence))
 }
 
-#[allow(clippy::too_many_arguments)]
+/// What the report says about the case.
+struct Report<'a> {
+    prompt: &'a str,
+    description: &'a str,
+    scene: &'a str,
+    stems: &'a [String],
+}
+
 fn write_report(
     dir: &Path,
-    prompt: &str,
-    description: &str,
-    scene: &str,
-    stems: &[String],
+    case: &Report,
     scores: &[MethodScore],
     results: &[(Method, EditResult)],
     config: &EditConfig,
     viewer: Option<(String, String)>,
 ) -> Result<(), DemoError> {
+    let (prompt, scene, stems) = (case.prompt, case.scene, case.stems);
     let mut p = Page::new(&format!("transsplat demo: \"{prompt}\" on {scene}"));
-    p.paragraph(&format!("Simulated editor: {description}. Test views: every 8th camera."));
+    p.paragraph(&format!("Simulated editor: {}. Test views: every 8th camera.", case.description));
     p.heading("Metrics (test views)");
     let f = |v: f64| format!("{v:.3}");
     let rows: Vec<Vec<String>> = scores

@@ -118,7 +118,7 @@ pub fn run(
         per_step_s: res.timing.optimise / steps.max(1) as f64,
         timing: res.timing,
         write_s,
-        metrics: reference.score(&scene, &res.gaussians),
+        metrics: reference.score(&scene.cameras, &res.gaussians),
     })
 }
 

@@ -13,6 +13,7 @@
 //! - [`quality`]: the ground-truth suite over many demo cases (`bench quality`).
 //! - [`timing`]: best-of-N timing.
 
+pub mod capture;
 pub mod demo;
 pub mod edit;
 pub mod ip2p;

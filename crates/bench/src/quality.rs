@@ -29,11 +29,13 @@
 //! those at its lowest value among the methods with a value, ties included (naive and
 //! no_leaksup are often identical); when every method has the same value none is worst.
 
+use crate::capture::{self, Capture};
 use crate::demo::{self, DemoError, DemoOptions, MethodScore};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use transsplat_edit::{EditConfig, Method, Progress};
+use transsplat_scene::Gaussians;
 use transsplat_session::report::{esc, Page};
 use transsplat_session::views::ViewChoice;
 use transsplat_session::Output;
@@ -54,6 +56,10 @@ pub struct Case {
     pub edit: String,
     pub prompt: String,
     pub severity: f32,
+    /// A capture rendered from meshes (`--captures`; [`crate::capture`]) rather than a
+    /// built-in scene.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub capture: Option<PathBuf>,
 }
 
 /// The suite's edits: (scene, kind, instruction); see the module doc.
@@ -72,8 +78,9 @@ pub const EDITS: &[(&str, &str, &str)] = &[
 pub const TRAINED_SEVERITIES: [u32; 2] = [0, 1];
 
 /// The cases: every edit at severities 0 to 3 on the built scenes, and at
-/// [`TRAINED_SEVERITIES`] on the scenes trained from their renders (`trained_steps`).
-pub fn cases(trained_steps: u64) -> Vec<Case> {
+/// [`TRAINED_SEVERITIES`] on the scenes trained from their renders (`trained_steps`) and
+/// on each capture of `captures` trained for as many steps (none without them).
+pub fn cases(trained_steps: u64, captures: &[Capture]) -> Vec<Case> {
     let mut out = Vec::new();
     for &(scene, edit, prompt) in EDITS {
         for s in 0..=3 {
@@ -85,8 +92,20 @@ pub fn cases(trained_steps: u64) -> Vec<Case> {
             }
         }
     }
+    if trained_steps > 0 {
+        for c in captures {
+            for s in TRAINED_SEVERITIES {
+                let mut one = case(&c.name, trained_steps, CAPTURE_EDIT, &c.prompt(), s as f32);
+                one.capture = Some(c.dir.clone());
+                out.push(one);
+            }
+        }
+    }
     out
 }
+
+/// The kind of a capture's edit: its target recoloured as the capture's true edit shows.
+pub const CAPTURE_EDIT: &str = "capture-recolour";
 
 fn case(scene: &str, trained: u64, edit: &str, prompt: &str, severity: f32) -> Case {
     let variant = if trained > 0 { "trained" } else { "built" };
@@ -97,6 +116,7 @@ fn case(scene: &str, trained: u64, edit: &str, prompt: &str, severity: f32) -> C
         edit: edit.into(),
         prompt: prompt.into(),
         severity,
+        capture: None,
     }
 }
 
@@ -124,6 +144,8 @@ pub struct SuiteOptions {
     pub seed: u64,
     /// Which training views the simulated editor edits in every case (`--views`).
     pub views: ViewChoice,
+    /// The captures of the capture cases (`--captures`).
+    pub captures: Vec<Capture>,
 }
 
 /// One case's outcome.
@@ -139,6 +161,9 @@ pub struct CaseResult {
     /// A trained case at severity 0: the target PSNR of a scene trained the same way
     /// from the true edit's renders ([`crate::demo::Fidelity::retrained`]).
     pub retrained: Option<f64>,
+    /// The editor's images against the true edit inside the target (dB), the evidence
+    /// every method lifts.
+    pub evidence_psnr: Option<f64>,
     /// Why the case failed, when it did.
     pub failed: Option<String>,
 }
@@ -146,7 +171,14 @@ pub struct CaseResult {
 impl CaseResult {
     /// A case that failed, with the reason.
     pub fn failed(case: Case, why: String) -> Self {
-        CaseResult { case, scores: Vec::new(), source_fidelity: None, retrained: None, failed: Some(why) }
+        CaseResult {
+            case,
+            scores: Vec::new(),
+            source_fidelity: None,
+            retrained: None,
+            evidence_psnr: None,
+            failed: Some(why),
+        }
     }
 }
 
@@ -159,6 +191,8 @@ pub fn run(
     let staged = Output::begin(&opts.out, &[], MARKER)?;
     let dir = staged.dir().to_path_buf();
     let mut results = Vec::new();
+    // Each capture is trained once for all its cases.
+    let mut trained_captures: Vec<(PathBuf, (Gaussians, f32))> = Vec::new();
     for c in &opts.cases {
         if cancel.is_some_and(|f| f.load(std::sync::atomic::Ordering::SeqCst)) {
             return Err(DemoError::Edit(transsplat_edit::EditError::Interrupted(0)));
@@ -174,16 +208,24 @@ pub fn run(
             seed: opts.seed,
             trained: c.trained,
             // Perfect edits: how close can an edit of this trained scene come?
-            retrain_truth: c.trained > 0 && c.severity == 0.0,
+            retrain_truth: c.trained > 0 && c.severity == 0.0 && c.capture.is_none(),
             views: opts.views,
         };
-        let outcome = demo::run(&demo_opts, cancel, &mut |m, p| on_progress(&c.name, m, p));
+        let outcome = match &c.capture {
+            None => demo::run(&demo_opts, cancel, &mut |m, p| on_progress(&c.name, m, p)),
+            Some(path) => {
+                run_capture(opts, path, c, &mut trained_captures, &demo_opts, cancel, &mut |m, p| {
+                    on_progress(&c.name, m, p)
+                })
+            }
+        };
         let r = match outcome {
             Ok(d) => CaseResult {
                 case: c.clone(),
                 scores: d.scores,
                 source_fidelity: d.trained.map(|f| f.target_psnr),
                 retrained: d.trained.and_then(|f| f.retrained),
+                evidence_psnr: Some(d.evidence_psnr),
                 failed: None,
             },
             Err(DemoError::Edit(e @ transsplat_edit::EditError::Interrupted(_))) => {
@@ -210,6 +252,31 @@ pub fn run(
         e => e,
     })?;
     Ok((staged.commit()?, results))
+}
+
+/// A capture case: trains the capture (once per suite run) and edits it.
+fn run_capture(
+    opts: &SuiteOptions,
+    path: &Path,
+    case: &Case,
+    trained: &mut Vec<(PathBuf, (Gaussians, f32))>,
+    demo_opts: &DemoOptions,
+    cancel: Option<&AtomicBool>,
+    on_progress: &mut dyn FnMut(&str, Progress),
+) -> Result<demo::DemoOutcome, DemoError> {
+    let capture = opts
+        .captures
+        .iter()
+        .find(|c| c.dir == path)
+        .ok_or_else(|| DemoError::Capture(format!("the capture {} was not loaded", path.display())))?;
+    if !trained.iter().any(|(p, _)| p == path) {
+        let g = capture::train(capture, case.trained, opts.seed, cancel, &mut |s, n| {
+            on_progress("train", Progress::Step { step: s as usize, steps: n as usize, loss: 0.0 })
+        })?;
+        trained.push((path.to_path_buf(), g));
+    }
+    let (_, g) = trained.iter().find(|(p, _)| p == path).expect("trained above");
+    capture::run(capture, g, demo_opts, cancel, on_progress)
 }
 
 /// `quality.json`, the marker of a finished suite folder: every case's scores and the
@@ -413,7 +480,8 @@ pub fn ceiling_table(results: &[CaseResult]) -> String {
     let mut s = format!(
         "\nTrained cases against the ceiling ({CEILING_METHOD} fed the uncorrupted edits of the same \
          trained scene): each method's target PSNR minus the ceiling, and the default's distance \
-         to the best method of the case\n\n| case | ceiling | {} | default − best |\n|---|---|{}---|\n",
+         to the best method of the case; the 2D evidence is the editor's images against the true edit \
+         inside the target\n\n| case | ceiling | 2D evidence | {} | default − best |\n|---|---|---|{}---|\n",
         names.join(" | "),
         "---|".repeat(names.len())
     );
@@ -428,7 +496,13 @@ pub fn ceiling_table(results: &[CaseResult]) -> String {
         let best =
             r.scores.iter().map(|m| m.metrics.target_psnr).filter(|v| v.is_finite()).fold(f64::NAN, f64::max);
         let to_best = target(Method::Transsplat.name()).map_or("-".into(), |t| db(t - best));
-        s += &format!("| {} | {} | {} | {to_best} |\n", r.case.name, db(ceiling), gaps.join(" | "));
+        let evidence = r.evidence_psnr.map_or("-".into(), db);
+        s += &format!(
+            "| {} | {} | {evidence} | {} | {to_best} |\n",
+            r.case.name,
+            db(ceiling),
+            gaps.join(" | ")
+        );
     }
     s
 }
@@ -549,19 +623,19 @@ mod tests {
 
     /// A case that ran, built-in (no fidelity).
     fn ran(case: Case, scores: Vec<MethodScore>) -> CaseResult {
-        CaseResult { case, scores, source_fidelity: None, retrained: None, failed: None }
+        CaseResult { case, scores, source_fidelity: None, retrained: None, evidence_psnr: None, failed: None }
     }
 
     #[test]
     fn unknown_case_names_are_an_error_listing_the_cases() {
-        let e = select(cases(0), &["nope".into()]).unwrap_err();
+        let e = select(cases(0, &[]), &["nope".into()]).unwrap_err();
         assert!(e.contains("unknown case \"nope\"") && e.contains("tabletop-built-recolour-s1"), "{e}");
-        let one = select(cases(0), &["occluded-built-occluded-s2".into()]).unwrap();
+        let one = select(cases(0, &[]), &["occluded-built-occluded-s2".into()]).unwrap();
         assert_eq!(one.len(), 1);
-        assert_eq!(select(cases(0), &[]).unwrap().len(), 28);
-        assert_eq!(cases(500).len(), 42);
-        assert!(select(cases(500), &["garden-trained-global-s0".into()]).is_ok());
-        let e = select(cases(0), &["garden-built-global-s1".into(), "garden-built-global-s9".into()])
+        assert_eq!(select(cases(0, &[]), &[]).unwrap().len(), 28);
+        assert_eq!(cases(500, &[]).len(), 42);
+        assert!(select(cases(500, &[]), &["garden-trained-global-s0".into()]).is_ok());
+        let e = select(cases(0, &[]), &["garden-built-global-s1".into(), "garden-built-global-s9".into()])
             .unwrap_err();
         assert!(e.contains("\"garden-built-global-s9\"") && e.contains("garden-built-global-s3"), "{e}");
     }
@@ -590,7 +664,7 @@ mod tests {
 
     #[test]
     fn nan_values_are_left_out_of_their_metric_only() {
-        let c = cases(0);
+        let c = cases(0, &[]);
         let global = c.iter().find(|c| c.edit == "global").unwrap().clone();
         let results = vec![
             ran(c[0].clone(), vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)]),
@@ -626,7 +700,7 @@ mod tests {
 
     #[test]
     fn a_leak_in_one_view_counts_as_worst_though_the_mean_is_best() {
-        let c = cases(0);
+        let c = cases(0, &[]);
         let mut leaky = score("a", 30.0, 50.0);
         leaky.metrics.background_psnr_worst = 34.0;
         let results = vec![ran(c[0].clone(), vec![leaky, score("b", 30.0, 45.0)])];
@@ -637,7 +711,7 @@ mod tests {
 
     #[test]
     fn averages_skip_failed_cases_and_count_worst_places() {
-        let c = cases(0);
+        let c = cases(0, &[]);
         let results = vec![
             ran(c[0].clone(), vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)]),
             ran(c[1].clone(), vec![score("a", 10.0, 20.0), score("b", 12.0, 30.0)]),
@@ -655,7 +729,7 @@ mod tests {
 
     #[test]
     fn trained_cases_show_each_method_against_the_source_fidelity() {
-        let c = cases(500);
+        let c = cases(500, &[]);
         let trained = c.iter().find(|c| c.trained > 0 && c.severity == 0.0).unwrap().clone();
         let results = vec![
             ran(c[0].clone(), vec![score("a", 30.0, 40.0), score("b", 20.0, 50.0)]),
@@ -664,6 +738,7 @@ mod tests {
                 scores: vec![score("a", 31.5, 40.0), score("b", 34.25, 50.0)],
                 source_fidelity: Some(33.0),
                 retrained: Some(35.5),
+                evidence_psnr: None,
                 failed: None,
             },
         ];
@@ -677,7 +752,7 @@ mod tests {
 
     #[test]
     fn trained_cases_are_measured_against_naive_with_perfect_edits() {
-        let c = cases(500);
+        let c = cases(500, &[]);
         let find = |sev: f32| {
             c.iter()
                 .find(|c| c.trained > 0 && c.edit == "recolour" && c.scene == "tabletop" && c.severity == sev)
@@ -687,12 +762,18 @@ mod tests {
         let results = vec![
             ran(c[0].clone(), vec![score("transsplat", 30.0, 40.0), score("naive", 20.0, 50.0)]),
             ran(find(0.0), vec![score("transsplat", 33.0, 40.0), score("naive", 34.0, 50.0)]),
-            ran(find(1.0), vec![score("transsplat", 25.5, 40.0), score("naive", 26.0, 50.0)]),
+            CaseResult {
+                evidence_psnr: Some(18.25),
+                ..ran(find(1.0), vec![score("transsplat", 25.5, 40.0), score("naive", 26.0, 50.0)])
+            },
         ];
         let t = ceiling_table(&results);
-        assert!(t.contains("| case | ceiling | transsplat | naive | default − best |"), "{t}");
-        assert!(t.contains("| tabletop-trained-recolour-s0 | 34.00 | -1.00 | +0.00 | -1.00 |"), "{t}");
-        assert!(t.contains("| tabletop-trained-recolour-s1 | 34.00 | -8.50 | -8.00 | -0.50 |"), "{t}");
+        assert!(t.contains("| case | ceiling | 2D evidence | transsplat | naive | default − best |"), "{t}");
+        assert!(t.contains("| tabletop-trained-recolour-s0 | 34.00 | - | -1.00 | +0.00 | -1.00 |"), "{t}");
+        assert!(
+            t.contains("| tabletop-trained-recolour-s1 | 34.00 | 18.25 | -8.50 | -8.00 | -0.50 |"),
+            "{t}"
+        );
         assert!(!t.contains("built"), "built cases have no ceiling: {t}");
         assert_eq!(ceiling_table(&results[..1]), "");
         assert!(table(&results, &averages(&results)).contains(&t));

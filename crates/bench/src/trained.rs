@@ -12,7 +12,7 @@ use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use transsplat_builtin::{write_dataset, Scene, WriteOptions};
 use transsplat_scene::Gaussians;
-use transsplat_train::dataset::{self, LoadOptions};
+use transsplat_train::dataset::{self, Dataset, LoadOptions};
 use transsplat_train::{fit_with, start, Control, FitOptions, FitState, TrainConfig};
 
 /// Why a scene could not be trained from its renders.
@@ -40,22 +40,36 @@ pub fn train_from_renders(
     let data = work.join("dataset");
     write_dataset(scene, &data, &WriteOptions::default(), &mut |_, _| {})?;
     let ds = dataset::load(&data, &LoadOptions { background: scene.background, ..Default::default() })?;
+    let (g, psnr) = train_dataset(&ds, steps, seed, scene.background, cancel, on_step)?;
+    std::fs::remove_dir_all(&data).map_err(|e| transsplat_scene::Error::io(&data, e))?;
+    tracing::info!(
+        "trained {} from its renders: {steps} steps, {} Gaussians, test PSNR {psnr:.2} dB",
+        scene.name,
+        g.len()
+    );
+    Ok((g, psnr))
+}
+
+/// A scene trained from `ds` for `steps` steps with the default settings (as `transsplat
+/// train` with its defaults, rendering over `background`); returns the Gaussians and the
+/// test PSNR.
+pub fn train_dataset(
+    ds: &Dataset,
+    steps: u64,
+    seed: u64,
+    background: [f32; 3],
+    cancel: Option<&AtomicBool>,
+    on_step: &mut dyn FnMut(u64, u64),
+) -> Result<(Gaussians, f32), TrainedError> {
     let opts = FitOptions {
-        config: TrainConfig { iterations: steps, background: scene.background, seed, ..Default::default() },
+        config: TrainConfig { iterations: steps, background, seed, ..Default::default() },
         max_sh_degree: 3,
         random_points: 100_000,
         eval_every: 0,
     };
-    let (mut trainer, _) = start(&ds, &opts)?;
+    let (mut trainer, _) = start(ds, &opts)?;
     let mut control = Control { cancel, ..Default::default() };
     let eval =
-        fit_with(&ds, &mut trainer, &mut FitState::new(seed), 0, &mut control, |p| on_step(p.step, steps))?;
-    std::fs::remove_dir_all(&data).map_err(|e| transsplat_scene::Error::io(&data, e))?;
-    tracing::info!(
-        "trained {} from its renders: {steps} steps, {} Gaussians, test PSNR {:.2} dB",
-        scene.name,
-        trainer.model.len(),
-        eval.psnr
-    );
+        fit_with(ds, &mut trainer, &mut FitState::new(seed), 0, &mut control, |p| on_step(p.step, steps))?;
     Ok((trainer.model.gaussians, eval.psnr))
 }

@@ -31,7 +31,7 @@ fn demo_edits_the_trained_scene() {
         retrain_truth: true,
         ..Default::default()
     };
-    let demo::DemoOutcome { out, scores, trained } = demo::run(&opts, None, &mut |_, _| {}).unwrap();
+    let demo::DemoOutcome { out, scores, trained, .. } = demo::run(&opts, None, &mut |_, _| {}).unwrap();
     let metrics: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
     assert_eq!(metrics["trained_steps"], 300);

@@ -35,7 +35,7 @@ pub use dataset::{write_dataset, DatasetSummary, Labels, WriteOptions};
 pub use edit::{recolor, restyle, retexture, Material, Style};
 pub use masks::{one_hot, render_labels, LabelRender};
 pub use rig::{is_test, Rig};
-pub use simulated::SimulatedEditor;
+pub use simulated::{Corruption, SimulatedEditor};
 
 use std::path::PathBuf;
 

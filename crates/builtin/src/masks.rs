@@ -60,6 +60,42 @@ impl LabelRender {
         out
     }
 
+    /// A view whose labels come from a label image sampled `factor` times finer than
+    /// `rgb` in each direction (a supersampled segmentation, as a mesh renderer writes it):
+    /// a label's weight in a pixel is the share of the pixel's `factor²` samples that show
+    /// it (its coverage, as a blend weight is for a render), the alpha is 1, and the
+    /// pixel's label the one with the most samples (the lowest on a tie). `samples` are
+    /// row-major at `factor·width × factor·height`; labels ≥ `num_labels` count for none.
+    pub fn from_samples(
+        rgb: Vec<f32>,
+        width: usize,
+        height: usize,
+        samples: &[u32],
+        factor: usize,
+        num_labels: usize,
+    ) -> Self {
+        assert_eq!(rgb.len(), width * height * 3, "rgb is H × W × 3");
+        assert_eq!(samples.len(), width * height * factor * factor, "samples are factor² per pixel");
+        let share = 1.0 / (factor * factor) as f32;
+        let mut weights = vec![0.0f32; width * height * num_labels];
+        for (sy, row) in samples.chunks_exact(width * factor).enumerate() {
+            for (sx, &l) in row.iter().enumerate() {
+                if (l as usize) < num_labels {
+                    let pixel = (sy / factor) * width + sx / factor;
+                    weights[pixel * num_labels + l as usize] += share;
+                }
+            }
+        }
+        let labels = weights
+            .chunks_exact(num_labels.max(1))
+            .map(|w| {
+                w.iter().enumerate().fold((0, 0.0), |best, (l, &v)| if v > best.1 { (l, v) } else { best }).0
+                    as u32
+            })
+            .collect();
+        LabelRender { width, height, rgb, alpha: vec![1.0; width * height], weights, num_labels, labels }
+    }
+
     /// Number of pixels labelled `label`.
     pub fn area(&self, label: u32) -> usize {
         self.labels.iter().filter(|&&l| l == label).count()
@@ -179,5 +215,21 @@ mod tests {
         assert_eq!(r.weight_of(&[1]), r.weight(1));
         assert_eq!(r.mask_of(&[0, 1]), vec![true, true]);
         assert_eq!(r.mask_of(&[2]), vec![false, false]);
+    }
+
+    #[test]
+    fn coverage_from_supersampled_labels_by_hand() {
+        // a 2 × 1 image sampled 2 × 2 per pixel: pixel 0 sees labels (0, 1, 1, 1), pixel 1
+        // sees (2, 2, 1, 9): 9 is no label of the three
+        let samples = [0, 1, 2, 2, 1, 1, 1, 9];
+        let r = LabelRender::from_samples(vec![0.5; 6], 2, 1, &samples, 2, 3);
+        assert_eq!(r.weight(0), vec![0.25, 0.0]);
+        assert_eq!(r.weight(1), vec![0.75, 0.25]);
+        assert_eq!(r.weight(2), vec![0.0, 0.5]);
+        assert_eq!(r.labels, vec![1, 2]);
+        assert_eq!(r.alpha, vec![1.0, 1.0]);
+        // a tie goes to the lowest label
+        let r = LabelRender::from_samples(vec![0.5; 3], 1, 1, &[2, 1, 1, 2], 2, 3);
+        assert_eq!(r.labels, vec![1]);
     }
 }

@@ -429,18 +429,39 @@ fn draw(rng: &mut SplitMix64, s: f32, others: usize) -> Draws {
     Draws { gain, offset, hue, cast, distractor: fires.then_some(strength), wrong }
 }
 
-/// What the corruption of every view of one edit shares.
-struct Setting<'a> {
+/// What the corruption of every view of one edit shares: the module doc's items 1–8 for
+/// one target, edit colour and severity. The simulated editor makes one per instruction;
+/// a truth that comes from elsewhere (a capture rendered from meshes, with its object
+/// labels, `bench quality --captures`) is corrupted by the same model through
+/// [`Corruption::edit_view`].
+#[derive(Clone, Debug)]
+pub struct Corruption {
     /// The target labels.
-    labels: &'a [u32],
-    global: bool,
+    pub labels: Vec<u32>,
+    /// A global edit (items 7 and 8 only, on the whole image).
+    pub global: bool,
     /// c_e, the edit's mean colour.
-    colour: [f32; 3],
-    distractor: Option<u32>,
-    /// The non-target objects' labels (the candidates of a wrong-object view).
-    others: &'a [u32],
-    severity: f32,
-    want_mask: bool,
+    pub colour: [f32; 3],
+    /// The distractor of item 5, if there is one.
+    pub distractor: Option<u32>,
+    /// The non-target objects' labels (the candidates of a wrong-object view, item 6).
+    pub others: Vec<u32>,
+    /// s ≥ 0 (0: the truth exactly).
+    pub severity: f32,
+    /// Also return the SAM-like mask (the target's pixel mask slightly dilated).
+    pub want_mask: bool,
+    /// Seeds every view's generator together with the view's index.
+    pub seed: u64,
+}
+
+impl Corruption {
+    /// The corrupted edit of view `index`, whose ground-truth render is `truth` and whose
+    /// source render (the editor's input, `H × W × 3`) is `source`; depends on the view's
+    /// index and the seed only, not on the order of the calls.
+    pub fn edit_view(&self, truth: &LabelRender, source: &[f32], index: usize) -> EditedView {
+        let c = corrupt(truth, source, self, &mut view_rng(self.seed, index));
+        EditedView::new(c.image, truth.width, truth.height, c.attention, c.mask)
+    }
 }
 
 /// One view's ground-truth render and its target.
@@ -462,13 +483,13 @@ struct Corrupted {
 
 /// Applies the corruption model of the module doc to the ground-truth render `r` of
 /// one view whose source render (the editor's input) is `source`.
-fn corrupt(r: &LabelRender, source: &[f32], set: &Setting, rng: &mut SplitMix64) -> Corrupted {
+fn corrupt(r: &LabelRender, source: &[f32], set: &Corruption, rng: &mut SplitMix64) -> Corrupted {
     let (w, h) = (r.width, r.height);
     let n = w * h;
     let s = set.severity.max(0.0);
     let diag = ((w * w + h * h) as f32).sqrt();
-    let target = if set.global { vec![true; n] } else { r.mask_of(set.labels) };
-    let m = if set.global { vec![1.0; n] } else { r.weight_of(set.labels) };
+    let target = if set.global { vec![true; n] } else { r.mask_of(&set.labels) };
+    let m = if set.global { vec![1.0; n] } else { r.weight_of(&set.labels) };
     let dist = distance_to(&target, w, h);
     let mask = set.want_mask.then(|| {
         let reach = (0.01 * diag).round().max(1.0);
@@ -490,7 +511,7 @@ fn corrupt(r: &LabelRender, source: &[f32], set: &Setting, rng: &mut SplitMix64)
     let cv = clamp01(mat_vec(&d.hue, std::array::from_fn(|c| d.gain[c] * set.colour[c] + d.offset[c])));
     let view = ViewTarget { r, m, dist, diag };
     let (image, base) = match d.wrong {
-        Some(wrong) => wrong_view(source, r, set.others, wrong, cv),
+        Some(wrong) => wrong_view(source, r, &set.others, wrong, cv),
         None => target_view(&view, set, &d, cv, rng),
     };
     let image = image.chunks_exact(3).flat_map(|p| cast(&d, rgb(p))).collect();
@@ -507,7 +528,7 @@ fn cast(d: &Draws, p: [f32; 3]) -> [f32; 3] {
 /// attention's base max(m, spill, blobs, distractor).
 fn target_view(
     v: &ViewTarget,
-    set: &Setting,
+    set: &Corruption,
     d: &Draws,
     cv: [f32; 3],
     rng: &mut SplitMix64,
@@ -773,25 +794,24 @@ impl Editor for SimulatedEditor {
         }
         self.instruct(prompt)?;
         let p = self.current.as_ref().expect("set by instruct");
-        let set = Setting {
-            labels: &p.ins.labels,
+        let set = Corruption {
+            labels: p.ins.labels.clone(),
             global: p.ins.is_global(),
             colour: p.colour,
             distractor: p.distractor,
-            others: &p.others,
+            others: p.others.clone(),
             severity: self.severity,
             want_mask: self.want_mask,
+            seed: self.seed,
         };
         let scene = &self.scene;
-        let (num_labels, seed) = (scene.num_labels(), self.seed);
+        let num_labels = scene.num_labels();
         // views in parallel; each has its own generator, so the order does not matter
         let out: Vec<Option<EditedView>> = views
             .par_iter()
             .map(|v| {
-                let (w, h) = v.size();
                 let r = render_labels(&p.truth, &scene.labels, num_labels, v.camera, scene.background);
-                let c = corrupt(&r, v.image, &set, &mut view_rng(seed, v.index));
-                Some(EditedView::new(c.image, w, h, c.attention, c.mask))
+                Some(set.edit_view(&r, v.image, v.index))
             })
             .collect();
         tracing::debug!(

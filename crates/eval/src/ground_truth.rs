@@ -18,14 +18,22 @@
 //! [`PSNR_CAP`]: below 8-bit quantisation, differences are ties.
 
 use crate::metrics::{psnr_from_mse, squared_error, ssim};
-use transsplat_builtin::Scene;
+use transsplat_builtin::{LabelRender, Scene};
 use transsplat_raster::{render, RenderOptions, Splats};
-use transsplat_scene::Gaussians;
+use transsplat_scene::{Camera, Gaussians};
 
 /// PSNRs above this are reported as this: an error below half an 8-bit level
 /// everywhere (a PSNR of about 54 dB) is no visible difference, so higher values are
 /// ties, and 60 dB leaves room above that for a few stray pixels.
 pub const PSNR_CAP: f64 = 60.0;
+
+/// The target mask (pixels labelled with one of `labels`) and the background set (the
+/// target's summed weight below 1/255; empty for a global edit, whose labels include 0)
+/// of one view's label render.
+fn target_sets(lr: &LabelRender, labels: &[u32]) -> (Vec<bool>, Vec<bool>) {
+    let global = labels.contains(&0);
+    (lr.mask_of(labels), lr.weight_of(labels).iter().map(|&w| !global && w < 1.0 / 255.0).collect())
+}
 
 /// A PSNR capped at [`PSNR_CAP`] (NaN stays NaN).
 fn capped(psnr: f64) -> f64 {
@@ -67,7 +75,6 @@ impl Reference {
     /// Prepares the references for `scene` edited into `truth`; `labels` are the target
     /// labels (the objects the edit changes; every label, 0 included, for a global edit).
     pub fn new(scene: &Scene, truth: &Gaussians, labels: &[u32]) -> Self {
-        let global = labels.contains(&0);
         let views = scene.test_views();
         let opts = RenderOptions { background: scene.background };
         let (ss, ts) = (Splats::new(&scene.gaussians), Splats::new(truth));
@@ -84,23 +91,38 @@ impl Reference {
             r.source.push(render(&ss, cam, &opts).0.rgb);
             r.truth.push(render(&ts, cam, &opts).0.rgb);
             let lr = scene.render_edited(truth, v).expect("test view exists");
-            r.target_mask.push(lr.mask_of(labels));
-            r.background_mask
-                .push(lr.weight_of(labels).iter().map(|&w| !global && w < 1.0 / 255.0).collect());
+            let (target, background) = target_sets(&lr, labels);
+            r.target_mask.push(target);
+            r.background_mask.push(background);
         }
         r
+    }
+
+    /// References from images: `source[k]` and `truth[k]` of test view `views[k]`, the
+    /// truth's labels from `truth_labels[k]` (a capture's segmentation, say), `labels`
+    /// the target's (see [`Reference::new`]).
+    pub fn from_images(
+        views: Vec<usize>,
+        source: Vec<Vec<f32>>,
+        truth_labels: &[LabelRender],
+        labels: &[u32],
+        background: [f32; 3],
+    ) -> Self {
+        let (target_mask, background_mask) = truth_labels.iter().map(|lr| target_sets(lr, labels)).unzip();
+        let truth = truth_labels.iter().map(|lr| lr.rgb.clone()).collect();
+        Reference { views, source, truth, target_mask, background_mask, background }
     }
 
     /// How well `scene_like` (a scene trained from the built-in scene's renders)
     /// reproduces the unedited truth on the test views: PSNR inside the target mask and
     /// over the background, against the source renders. The target value bounds what an
     /// edit of that scene can reach on target PSNR (its reconstruction error stays).
-    pub fn fidelity(&self, scene: &Scene, scene_like: &Gaussians) -> (f64, f64) {
+    pub fn fidelity(&self, cameras: &[Camera], scene_like: &Gaussians) -> (f64, f64) {
         let opts = RenderOptions { background: self.background };
         let s = Splats::new(scene_like);
         let (mut se_t, mut n_t, mut se_b, mut n_b) = (0.0, 0, 0.0, 0);
         for (k, &v) in self.views.iter().enumerate() {
-            let img = render(&s, &scene.cameras[v], &opts).0.rgb;
+            let img = render(&s, &cameras[v], &opts).0.rgb;
             let (a, b) = squared_error(&img, &self.source[k], Some(&self.target_mask[k]));
             (se_t, n_t) = (se_t + a, n_t + b);
             let (a, b) = squared_error(&img, &self.source[k], Some(&self.background_mask[k]));
@@ -113,22 +135,22 @@ impl Reference {
     /// The same references with the source renders taken from `source` (a scene
     /// trained from the built-in scene's renders): background PSNR then measures what an
     /// edit changed outside the target rather than the trained scene's own error.
-    pub fn with_source(mut self, scene: &Scene, source: &Gaussians) -> Self {
+    pub fn with_source(mut self, cameras: &[Camera], source: &Gaussians) -> Self {
         let opts = RenderOptions { background: self.background };
         let s = Splats::new(source);
-        self.source = self.views.iter().map(|&v| render(&s, &scene.cameras[v], &opts).0.rgb).collect();
+        self.source = self.views.iter().map(|&v| render(&s, &cameras[v], &opts).0.rgb).collect();
         self
     }
 
     /// Scores `edited` (rendered on the same test views).
-    pub fn score(&self, scene: &Scene, edited: &Gaussians) -> GtMetrics {
+    pub fn score(&self, cameras: &[Camera], edited: &Gaussians) -> GtMetrics {
         let opts = RenderOptions { background: self.background };
         let s = Splats::new(edited);
         let (mut se_t, mut n_t, mut se_b, mut n_b) = (0.0, 0, 0.0, 0);
         let (mut psnr_sum, mut ssim_sum) = (0.0, 0.0);
         let mut background_views = Vec::with_capacity(self.views.len());
         for (k, &v) in self.views.iter().enumerate() {
-            let cam = &scene.cameras[v];
+            let cam = &cameras[v];
             let img = render(&s, cam, &opts).0.rgb;
             let inside = &self.target_mask[k];
             let outside = &self.background_mask[k];
@@ -187,7 +209,7 @@ mod tests {
             }
         }
         // the truth scores perfectly inside; the source leaks nothing outside (capped)
-        let m = both.score(&s, &truth);
+        let m = both.score(&s.cameras, &truth);
         assert!(m.target_psnr == PSNR_CAP && m.background_psnr == PSNR_CAP, "{m:?}");
         assert_eq!(m.background_psnr_views, vec![PSNR_CAP; both.views.len()]);
         assert_eq!(m.background_psnr_worst, PSNR_CAP);
@@ -201,7 +223,7 @@ mod tests {
                     *v = (*v + 0.1).min(1.0);
                 }
             });
-        let m = leaky.score(&s, &truth);
+        let m = leaky.score(&s.cameras, &truth);
         assert!(m.background_psnr_views[1..].iter().all(|&v| v == PSNR_CAP), "{m:?}");
         assert!(m.background_psnr_views[0] < 25.0, "{m:?}");
         assert_eq!(m.background_psnr_worst, m.background_psnr_views[0]);
@@ -212,13 +234,13 @@ mod tests {
         let g = Reference::new(&s, &autumn, &all);
         assert!(g.target_mask.iter().flatten().all(|&t| t));
         assert!(g.background_mask.iter().flatten().all(|&b| !b));
-        let m = g.score(&s, &s.gaussians);
+        let m = g.score(&s.cameras, &s.gaussians);
         assert!(m.background_psnr.is_nan() && m.background_psnr_worst.is_nan(), "{m:?}");
         assert!(m.background_psnr_views.iter().all(|v| v.is_nan()));
         assert!(
             m.target_psnr.is_finite() && m.target_psnr < 30.0,
             "the unedited scene misses the style: {m:?}"
         );
-        assert_eq!(g.score(&s, &autumn).target_psnr, PSNR_CAP);
+        assert_eq!(g.score(&s.cameras, &autumn).target_psnr, PSNR_CAP);
     }
 }

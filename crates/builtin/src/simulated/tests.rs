@@ -331,14 +331,15 @@ fn setting_for(prompt: &str) -> (SimulatedEditor, Prepared) {
 fn wrong_object_views_edit_another_object_or_return_the_source_under_the_cast() {
     let s = scene();
     let (_, p) = setting_for("make the ball blue");
-    let set = Setting {
-        labels: &p.ins.labels,
+    let set = Corruption {
+        labels: p.ins.labels.clone(),
         global: false,
         colour: p.colour,
         distractor: p.distractor,
-        others: &p.others,
+        others: p.others.clone(),
         severity: 4.0,
         want_mask: false,
+        seed: 0,
     };
     let (i, src) = &sources()[2];
     let r = s.render_edited(&p.truth, *i).unwrap();

@@ -244,6 +244,11 @@ pub struct QualityArgs {
     /// Training steps of the trained variants (0: built scenes only).
     #[arg(long, default_value_t = 2000)]
     pub trained: u64,
+    /// Also edit these captures rendered from meshes (comma-separated folders written by
+    /// tools/mesh_captures.py), each trained for `--trained` steps, at the trained
+    /// variants' severities.
+    #[arg(long, value_delimiter = ',')]
+    pub captures: Vec<PathBuf>,
     /// Methods to run (comma-separated; default all).
     #[arg(long, value_delimiter = ',')]
     pub methods: Option<Vec<String>>,
@@ -261,7 +266,18 @@ pub struct QualityArgs {
 /// Runs `transsplat bench quality`: the ground-truth suite, its table on stdout.
 pub fn quality(args: &QualityArgs, cancel: &AtomicBool) -> anyhow::Result<()> {
     use transsplat_bench::quality;
-    let cases = quality::select(quality::cases(args.trained), &args.cases).map_err(anyhow::Error::msg)?;
+    if !args.captures.is_empty() && args.trained == 0 {
+        anyhow::bail!("--captures needs trained variants (--trained above 0)");
+    }
+    let captures = args
+        .captures
+        .iter()
+        .map(|dir| {
+            transsplat_bench::capture::Capture::load(dir).map_err(|e| anyhow::anyhow!("--captures: {e}"))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let cases =
+        quality::select(quality::cases(args.trained, &captures), &args.cases).map_err(anyhow::Error::msg)?;
     let quick = !args.full;
     let mut config = EditConfig::default();
     if quick {
@@ -276,6 +292,7 @@ pub fn quality(args: &QualityArgs, cancel: &AtomicBool) -> anyhow::Result<()> {
         config,
         seed: args.seed,
         views: args.views,
+        captures,
     };
     let total = opts.cases.len();
     let mut current = String::new();
