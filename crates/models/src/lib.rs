@@ -16,6 +16,7 @@
 
 pub mod check;
 pub mod clip;
+pub mod conv;
 pub mod dinov2;
 pub mod ip2p;
 pub mod resample;

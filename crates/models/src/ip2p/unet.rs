@@ -9,9 +9,11 @@
 //! depths are read per block from the config.
 
 use candle_core::{Module, Tensor, D};
-use candle_nn::{self as nn, VarBuilder};
+use candle_nn::{self as nn, Conv2dConfig, VarBuilder};
+
+use super::blocks::{ResnetBlock, ResnetConfig};
+use crate::conv::{conv2d, Conv2d};
 use candle_transformers::models::stable_diffusion::embeddings::{TimestepEmbedding, Timesteps};
-use candle_transformers::models::stable_diffusion::resnet::{ResnetBlock2D, ResnetBlock2DConfig};
 use serde::Deserialize;
 
 use crate::check::{self, ModelConfig};
@@ -325,7 +327,7 @@ impl TransformerBlock {
 
 #[derive(Debug)]
 enum Proj {
-    Conv(nn::Conv2d),
+    Conv(Conv2d),
     Linear(nn::Linear),
 }
 
@@ -351,8 +353,8 @@ impl Transformer2D {
             )
         } else {
             (
-                Proj::Conv(nn::conv2d(channels, channels, 1, Default::default(), vb.pp("proj_in"))?),
-                Proj::Conv(nn::conv2d(channels, channels, 1, Default::default(), vb.pp("proj_out"))?),
+                Proj::Conv(conv2d(channels, channels, 1, Default::default(), vb.pp("proj_in"))?),
+                Proj::Conv(conv2d(channels, channels, 1, Default::default(), vb.pp("proj_out"))?),
             )
         };
         let blocks = (0..depth)
@@ -394,40 +396,40 @@ fn conv3(
     cout: usize,
     stride: usize,
     padding: usize,
-) -> candle_core::Result<nn::Conv2d> {
-    let cfg = nn::Conv2dConfig { padding, stride, ..Default::default() };
-    nn::conv2d(cin, cout, 3, cfg, vb)
+) -> candle_core::Result<Conv2d> {
+    let cfg = Conv2dConfig { padding, stride, ..Default::default() };
+    conv2d(cin, cout, 3, cfg, vb)
 }
 
 /// One resolution level on the way down (`CrossAttnDownBlock2D` or `DownBlock2D`).
 #[derive(Debug)]
 struct DownBlock {
-    resnets: Vec<ResnetBlock2D>,
+    resnets: Vec<ResnetBlock>,
     attentions: Vec<Transformer2D>,
-    downsample: Option<nn::Conv2d>,
+    downsample: Option<Conv2d>,
 }
 
 /// One resolution level on the way up (`CrossAttnUpBlock2D` or `UpBlock2D`).
 #[derive(Debug)]
 struct UpBlock {
-    resnets: Vec<ResnetBlock2D>,
+    resnets: Vec<ResnetBlock>,
     attentions: Vec<Transformer2D>,
-    upsample: Option<nn::Conv2d>,
+    upsample: Option<Conv2d>,
 }
 
 /// diffusers `UNet2DConditionModel` (Stable Diffusion 1.x layout).
 #[derive(Debug)]
 pub struct UNet {
     pub config: UNetConfig,
-    conv_in: nn::Conv2d,
+    conv_in: Conv2d,
     time_proj: Timesteps,
     time_embedding: TimestepEmbedding,
     down: Vec<DownBlock>,
-    mid_resnets: Vec<ResnetBlock2D>,
+    mid_resnets: Vec<ResnetBlock>,
     mid_attentions: Vec<Transformer2D>,
     up: Vec<UpBlock>,
     conv_norm_out: nn::GroupNorm,
-    conv_out: nn::Conv2d,
+    conv_out: Conv2d,
 }
 
 impl UNet {
@@ -439,16 +441,13 @@ impl UNet {
         let ch0 = cfg.block_out_channels[0];
         let temb = 4 * ch0;
         let resnet = |vb: VarBuilder, cin: usize, cout: usize, scale: f64| {
-            let rc = ResnetBlock2DConfig {
-                out_channels: Some(cout),
+            let rc = ResnetConfig {
                 temb_channels: Some(temb),
                 groups: cfg.norm_num_groups,
-                groups_out: None,
                 eps: cfg.norm_eps,
-                use_in_shortcut: None,
-                output_scale_factor: scale,
+                output_scale: scale,
             };
-            ResnetBlock2D::new(vb, cin, rc)
+            ResnetBlock::new(vb, cin, cout, rc)
         };
         let conv_in = conv3(vb.pp("conv_in"), cfg.in_channels, ch0, 1, 1)?;
         let time_proj = Timesteps::new(ch0, cfg.flip_sin_to_cos, cfg.freq_shift);

@@ -1,16 +1,13 @@
 //! The Stable Diffusion auto-encoder (diffusers `AutoencoderKL`), built from a diffusers
-//! `vae/config.json`. The blocks are candle-transformers' (they match diffusers, and
-//! read both the current `to_q/to_k/to_v/to_out.0` and the older
-//! `query/key/value/proj_attn` attention names); the encoder and decoder are wired here
-//! so that the posterior's mode (its mean) is available, which InstructPix2Pix uses as
-//! the image-conditioning latent.
+//! `vae/config.json`, from the blocks of [`super::blocks`]; the encoder and decoder are
+//! wired here so that the posterior's mode (its mean) is available, which
+//! InstructPix2Pix uses as the image-conditioning latent.
 
 use candle_core::{Module, Tensor};
-use candle_nn::{self as nn, VarBuilder};
-use candle_transformers::models::stable_diffusion::unet_2d_blocks::{
-    DownEncoderBlock2D, DownEncoderBlock2DConfig, UNetMidBlock2D, UNetMidBlock2DConfig, UpDecoderBlock2D,
-    UpDecoderBlock2DConfig,
-};
+use candle_nn::{self as nn, Conv2dConfig, VarBuilder};
+
+use super::blocks::{DecoderUpBlock, EncoderDownBlock, ResnetConfig, VaeMidBlock};
+use crate::conv::{conv2d, Conv2d};
 use serde::Deserialize;
 
 use super::unet::MAX_BLOCKS;
@@ -97,22 +94,22 @@ impl VaeConfig {
 #[derive(Debug)]
 pub struct Vae {
     pub config: VaeConfig,
-    enc_conv_in: nn::Conv2d,
-    enc_down: Vec<DownEncoderBlock2D>,
-    enc_mid: UNetMidBlock2D,
+    enc_conv_in: Conv2d,
+    enc_down: Vec<EncoderDownBlock>,
+    enc_mid: VaeMidBlock,
     enc_norm_out: nn::GroupNorm,
-    enc_conv_out: nn::Conv2d,
-    quant_conv: Option<nn::Conv2d>,
-    post_quant_conv: Option<nn::Conv2d>,
-    dec_conv_in: nn::Conv2d,
-    dec_mid: UNetMidBlock2D,
-    dec_up: Vec<UpDecoderBlock2D>,
+    enc_conv_out: Conv2d,
+    quant_conv: Option<Conv2d>,
+    post_quant_conv: Option<Conv2d>,
+    dec_conv_in: Conv2d,
+    dec_mid: VaeMidBlock,
+    dec_up: Vec<DecoderUpBlock>,
     dec_norm_out: nn::GroupNorm,
-    dec_conv_out: nn::Conv2d,
+    dec_conv_out: Conv2d,
 }
 
-fn conv3(vb: VarBuilder, cin: usize, cout: usize) -> candle_core::Result<nn::Conv2d> {
-    nn::conv2d(cin, cout, 3, nn::Conv2dConfig { padding: 1, ..Default::default() }, vb)
+fn conv3(vb: VarBuilder, cin: usize, cout: usize) -> candle_core::Result<Conv2d> {
+    conv2d(cin, cout, 3, Conv2dConfig { padding: 1, ..Default::default() }, vb)
 }
 
 impl Vae {
@@ -123,60 +120,42 @@ impl Vae {
         let chans = &c.block_out_channels;
         let n = chans.len();
         let last = chans[n - 1];
-        let mid_cfg = UNetMidBlock2DConfig {
-            num_layers: 1,
-            resnet_eps: 1e-6,
-            resnet_groups: Some(c.norm_num_groups),
-            attn_num_head_channels: None,
-            output_scale_factor: 1.0,
-        };
+        let rc =
+            ResnetConfig { temb_channels: None, groups: c.norm_num_groups, eps: 1e-6, output_scale: 1.0 };
 
         let enc = vb.pp("encoder");
         let enc_conv_in = conv3(enc.pp("conv_in"), c.in_channels, chans[0])?;
         let mut enc_down = Vec::with_capacity(n);
         for i in 0..n {
             let cin = if i == 0 { chans[0] } else { chans[i - 1] };
-            let cfg = DownEncoderBlock2DConfig {
-                num_layers: c.layers_per_block,
-                resnet_eps: 1e-6,
-                resnet_groups: c.norm_num_groups,
-                output_scale_factor: 1.0,
-                add_downsample: i + 1 < n,
-                downsample_padding: 0,
-            };
-            enc_down.push(DownEncoderBlock2D::new(enc.pp("down_blocks").pp(i), cin, chans[i], cfg)?);
+            let vb = enc.pp("down_blocks").pp(i);
+            enc_down.push(EncoderDownBlock::new(vb, (cin, chans[i]), c.layers_per_block, i + 1 < n, rc)?);
         }
-        let enc_mid = UNetMidBlock2D::new(enc.pp("mid_block"), last, None, mid_cfg)?;
+        let enc_mid = VaeMidBlock::new(enc.pp("mid_block"), last, rc)?;
         let enc_norm_out = nn::group_norm(c.norm_num_groups, last, 1e-6, enc.pp("conv_norm_out"))?;
         let enc_conv_out = conv3(enc.pp("conv_out"), last, 2 * c.latent_channels)?;
         let l2 = 2 * c.latent_channels;
         let quant_conv = if c.use_quant_conv {
-            Some(nn::conv2d(l2, l2, 1, Default::default(), vb.pp("quant_conv"))?)
+            Some(conv2d(l2, l2, 1, Default::default(), vb.pp("quant_conv"))?)
         } else {
             None
         };
         let lc = c.latent_channels;
         let post_quant_conv = if c.use_post_quant_conv {
-            Some(nn::conv2d(lc, lc, 1, Default::default(), vb.pp("post_quant_conv"))?)
+            Some(conv2d(lc, lc, 1, Default::default(), vb.pp("post_quant_conv"))?)
         } else {
             None
         };
 
         let dec = vb.pp("decoder");
         let dec_conv_in = conv3(dec.pp("conv_in"), lc, last)?;
-        let dec_mid = UNetMidBlock2D::new(dec.pp("mid_block"), last, None, mid_cfg)?;
+        let dec_mid = VaeMidBlock::new(dec.pp("mid_block"), last, rc)?;
         let rev: Vec<usize> = chans.iter().rev().copied().collect();
         let mut dec_up = Vec::with_capacity(n);
         for i in 0..n {
             let cin = if i == 0 { rev[0] } else { rev[i - 1] };
-            let cfg = UpDecoderBlock2DConfig {
-                num_layers: c.layers_per_block + 1,
-                resnet_eps: 1e-6,
-                resnet_groups: c.norm_num_groups,
-                output_scale_factor: 1.0,
-                add_upsample: i + 1 < n,
-            };
-            dec_up.push(UpDecoderBlock2D::new(dec.pp("up_blocks").pp(i), cin, rev[i], cfg)?);
+            let vb = dec.pp("up_blocks").pp(i);
+            dec_up.push(DecoderUpBlock::new(vb, (cin, rev[i]), c.layers_per_block + 1, i + 1 < n, rc)?);
         }
         let dec_norm_out = nn::group_norm(c.norm_num_groups, chans[0], 1e-6, dec.pp("conv_norm_out"))?;
         let dec_conv_out = conv3(dec.pp("conv_out"), chans[0], c.out_channels)?;
@@ -203,7 +182,7 @@ impl Vae {
         for block in &self.enc_down {
             h = block.forward(&h)?;
         }
-        h = self.enc_mid.forward(&h, None)?;
+        h = self.enc_mid.forward(&h)?;
         h = self.enc_conv_out.forward(&nn::ops::silu(&self.enc_norm_out.forward(&h)?)?)?;
         if let Some(q) = &self.quant_conv {
             h = q.forward(&h)?;
@@ -217,7 +196,7 @@ impl Vae {
             Some(p) => p.forward(z)?,
             None => z.clone(),
         };
-        let mut h = self.dec_mid.forward(&self.dec_conv_in.forward(&z)?, None)?;
+        let mut h = self.dec_mid.forward(&self.dec_conv_in.forward(&z)?)?;
         for block in &self.dec_up {
             h = block.forward(&h)?;
         }
