@@ -17,6 +17,10 @@
 //! itself. The im2col matrix is built for as many output rows at a time as fit
 //! [`COL_BUDGET`] floats, so a VAE decoder at 512² does not allocate gigabytes.
 //!
+//! The `gemm` crate is built with its `x86-v4` kernels (AVX-512, chosen at run time where
+//! the CPU has it; AVX2 and FMA otherwise); the feature applies to candle's own matrix
+//! products as well, since cargo builds one `gemm` for both.
+//!
 //! [`Conv2d`] uses this on CPU tensors in f32 and candle's own `conv2d` everywhere else
 //! (CUDA, other dtypes, groups or dilation), so the two are interchangeable; the tests
 //! compare them.
