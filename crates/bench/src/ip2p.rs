@@ -57,6 +57,8 @@ pub fn sd15_models(device: &Device) -> candle_core::Result<Sd15> {
 pub enum Case {
     /// One UNet evaluation on a batch of 3 (text, image, unconditional).
     UnetStep,
+    /// One UNet evaluation on a batch of 3 × this many views (the editor's batch).
+    UnetStepViews(usize),
     /// VAE encoder to the posterior mode, one image.
     VaeEncode,
     /// VAE decoder, one image.
@@ -66,12 +68,21 @@ pub enum Case {
 impl Case {
     pub const ALL: [Case; 3] = [Case::UnetStep, Case::VaeEncode, Case::VaeDecode];
 
+    /// Views per case (the time per view is the case's time over this).
+    pub fn views(self) -> usize {
+        match self {
+            Case::UnetStepViews(n) => n,
+            _ => 1,
+        }
+    }
+
     /// Name as reported, e.g. `ip2p unet step (batch 3) 512x512`.
     pub fn name(self, size: usize) -> String {
         let what = match self {
-            Case::UnetStep => "ip2p unet step (batch 3)",
-            Case::VaeEncode => "ip2p vae encode",
-            Case::VaeDecode => "ip2p vae decode",
+            Case::UnetStep => "ip2p unet step (batch 3)".to_string(),
+            Case::UnetStepViews(n) => format!("ip2p unet step (batch 3x{n})"),
+            Case::VaeEncode => "ip2p vae encode".to_string(),
+            Case::VaeDecode => "ip2p vae decode".to_string(),
         };
         format!("{what} {size}x{size}")
     }
@@ -80,9 +91,10 @@ impl Case {
     pub fn run(self, m: &Sd15, size: usize, device: &Device) -> candle_core::Result<()> {
         let l = size / m.vae.config.downscale();
         match self {
-            Case::UnetStep => {
-                let x = Tensor::randn(0f32, 1.0, (3, 8, l, l), device)?;
-                let ctx = Tensor::randn(0f32, 1.0, (3, 77, 768), device)?;
+            Case::UnetStep | Case::UnetStepViews(_) => {
+                let b = 3 * self.views();
+                let x = Tensor::randn(0f32, 1.0, (b, 8, l, l), device)?;
+                let ctx = Tensor::randn(0f32, 1.0, (b, 77, 768), device)?;
                 m.unet.forward(&x, 500.0, &ctx)?;
             }
             Case::VaeEncode => {

@@ -28,6 +28,14 @@ pub fn cases() -> Vec<Case> {
         Case { name: "dinov2-base 256x256", run: |d| dinov2(d, 768, 12, 256) },
         Case { name: "dinov2-base 512x512", run: |d| dinov2(d, 768, 12, 512) },
         Case { name: "ip2p unet step (batch 3) 256x256", run: |d| ip2p(d, Ip2pCase::UnetStep, 256) },
+        Case {
+            name: "ip2p unet step (batch 3x2) 256x256",
+            run: |d| ip2p(d, Ip2pCase::UnetStepViews(2), 256),
+        },
+        Case {
+            name: "ip2p unet step (batch 3x4) 256x256",
+            run: |d| ip2p(d, Ip2pCase::UnetStepViews(4), 256),
+        },
         Case { name: "ip2p vae encode 256x256", run: |d| ip2p(d, Ip2pCase::VaeEncode, 256) },
         Case { name: "ip2p vae decode 256x256", run: |d| ip2p(d, Ip2pCase::VaeDecode, 256) },
         Case { name: "ip2p unet step (batch 3) 512x512", run: |d| ip2p(d, Ip2pCase::UnetStep, 512) },

@@ -127,3 +127,34 @@ fn bad_settings_are_refused() {
     let err = Ip2pEditor::load(&fixtures(), bad, 0, &Device::Cpu).err().unwrap().to_string();
     assert!(err.contains("t_min"), "{err}");
 }
+
+/// Views batched into one pipeline call come out as each view edited alone; a view of
+/// another size goes to its own batch.
+#[test]
+fn batched_views_edit_as_one_view_per_call() {
+    let cams =
+        [camera("a.png", 24, 16), camera("b.png", 24, 16), camera("c.png", 16, 16), camera("d.png", 24, 16)];
+    let imgs = [image(24, 16, 0.0), image(24, 16, 1.0), image(16, 16, 2.0), image(24, 16, 3.0)];
+    let views: Vec<SourceView> = cams
+        .iter()
+        .zip(&imgs)
+        .enumerate()
+        .map(|(index, (camera, image))| SourceView { index, camera, image })
+        .collect();
+    let prompt = "turn the chair into bronze";
+    let one = editor(5).edit(&views, prompt).unwrap();
+    let batched = editor(5).with_batch(3).edit(&views, prompt).unwrap();
+    assert_eq!(one.len(), 4);
+    for (k, (a, b)) in one.iter().zip(&batched).enumerate() {
+        let (a, b) = (a.as_ref().unwrap(), b.as_ref().unwrap());
+        assert_eq!((a.width, a.height), (b.width, b.height), "view {k}");
+        let err = a.image.iter().zip(&b.image).fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+        assert!(err < 1e-4, "view {k}: batched image differs by {err}");
+        let scale = a.attention.iter().fold(0f32, |m, v| m.max(v.abs()));
+        let err = a.attention.iter().zip(&b.attention).fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+        assert!(
+            err <= 1e-4 * scale.max(1e-6),
+            "view {k}: batched attention differs by {err} (scale {scale})"
+        );
+    }
+}

@@ -92,7 +92,7 @@ fn whole_edit_matches_diffusers() {
         PromptEmbeds { cond: r["edit.prompt_embeds"].clone(), uncond: r["edit.uncond_embeds"].clone() };
     let mut calls = 0;
     let edit = p
-        .edit(&r["edit.image"], &prompt, &r["edit.noise"], span, &settings, &mut |i, n| {
+        .edit(&r["edit.image"], &prompt, &r["edit.noise"], &[span], &settings, &mut |i, n| {
             calls += 1;
             assert_eq!((i, n), (calls, settings.steps));
             true
@@ -101,4 +101,44 @@ fn whole_edit_matches_diffusers() {
     assert_eq!(calls, settings.steps);
     assert_close("edit attention", &edit.attention, &r["edit.attention"]);
     assert_close("edit image", &edit.image, &r["edit.edited"]);
+}
+
+/// Several images in one call (the batch the editor makes of a shard's views) give each
+/// image's edit alone: the fixture's image at its span, and the same image mirrored with
+/// other noise at another span.
+#[test]
+fn a_batch_of_images_edits_each_as_alone() {
+    let r = reference();
+    let p = pipeline();
+    let settings = Settings { steps: scalar(&r, "edit.steps") as usize, ..Settings::default() };
+    let span = scalar(&r, "edit.span") as usize;
+    let prompt =
+        PromptEmbeds { cond: r["edit.prompt_embeds"].clone(), uncond: r["edit.uncond_embeds"].clone() };
+    let image = &r["edit.image"];
+    let noise = &r["edit.noise"];
+    let mirrored = image.flip(&[3]).unwrap();
+    let other_noise = (noise.flip(&[2]).unwrap() * -1.0).unwrap();
+    let other_span = span + settings.steps;
+    let alone = |img: &Tensor, n: &Tensor, s: usize| {
+        p.edit(img, &prompt, n, &[s], &settings, &mut |_, _| true).unwrap()
+    };
+    let (a, b) = (alone(image, noise, span), alone(&mirrored, &other_noise, other_span));
+    let both = p
+        .edit(
+            &Tensor::cat(&[image, &mirrored], 0).unwrap(),
+            &prompt,
+            &Tensor::cat(&[noise, &other_noise], 0).unwrap(),
+            &[span, other_span],
+            &settings,
+            &mut |_, _| true,
+        )
+        .unwrap();
+    for (k, one) in [a, b].iter().enumerate() {
+        assert_close("batched image", &both.image.narrow(0, k, 1).unwrap(), &one.image);
+        assert_close("batched attention", &both.attention.narrow(0, k, 1).unwrap(), &one.attention);
+    }
+    assert!(
+        p.edit(image, &prompt, noise, &[span, span], &settings, &mut |_, _| true).is_err(),
+        "one span per image"
+    );
 }

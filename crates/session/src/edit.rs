@@ -38,8 +38,8 @@ pub enum EditorSpec<'a> {
     /// ended with its process group after `timeout`. Needs an output folder: it works
     /// inside the staged output.
     Command { command: String, timeout: Option<Duration> },
-    /// InstructPix2Pix from a local diffusers folder.
-    Ip2p { weights: PathBuf },
+    /// InstructPix2Pix from a local diffusers folder, `batch` views per pipeline call.
+    Ip2p { weights: PathBuf, batch: usize },
     /// Any other editor: a Python callable, the benchmark's simulated editor.
     Custom(Box<dyn Editor + Send + 'a>),
 }
@@ -264,11 +264,12 @@ fn build_editor<'a>(
             }
             Box::new(e)
         }
-        EditorSpec::Ip2p { weights } => {
+        EditorSpec::Ip2p { weights, batch } => {
             use transsplat_models::ip2p::{Ip2pEditor, Settings};
             let device = transsplat_models::default_device();
             let mut e = Ip2pEditor::load(&weights, Settings::default(), config.seed, &device)
-                .map_err(|e| SessionError::Model(e.to_string()))?;
+                .map_err(|e| SessionError::Model(e.to_string()))?
+                .with_batch(batch);
             if let Some(flag) = cancel {
                 e = e.with_cancel(flag);
             }

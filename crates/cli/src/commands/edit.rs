@@ -57,6 +57,12 @@ pub struct EditArgs {
     /// `hf download timbrooks/instruct-pix2pix --local-dir DIR`.
     #[arg(long, value_name = "DIR")]
     pub ip2p_weights: Option<PathBuf>,
+    /// Views the `ip2p` editor edits per pipeline call (the UNet then runs a batch of 3 ×
+    /// this many; views keep their own noise and timesteps, so the edit does not depend
+    /// on it). More views per call use more memory.
+    #[arg(long, default_value_t = transsplat_models::ip2p::editor::DEFAULT_BATCH as u64,
+          value_parser = clap::value_parser!(u64).range(1..=64))]
+    pub ip2p_batch: u64,
     /// DINOv2 folder (`facebook/dinov2-small` or `-base`, Hugging Face layout): its
     /// features become the semantic features E of the source renders and of every edited
     /// view (the built-in fallback features otherwise).
@@ -210,7 +216,7 @@ fn editor_spec(
                     transsplat_models::ip2p::download_hint(Path::new("DIR"))
                 )
             })?;
-            (EditorSpec::Ip2p { weights }, None)
+            (EditorSpec::Ip2p { weights, batch: args.ip2p_batch as usize }, None)
         }
     })
 }

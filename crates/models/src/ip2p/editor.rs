@@ -1,11 +1,13 @@
 //! [`Ip2pEditor`]: InstructPix2Pix as a transsplat [`Editor`].
 //!
-//! Every view is edited on its own (the UNet already runs a batch of three per step for
-//! the guidance; views differ in size and start timestep), with a progress bar per
-//! view. Per view, a SplitMix64 generator seeded from the editor's seed and the view
-//! index draws the start span T ∈ [t_min, t_max] × 1000 and the initial noise, so an
-//! edit is reproducible. The render is resized to a multiple of the VAE's down-scaling
-//! (8) for the model and the edited image and attention are resized back to the view.
+//! Views are edited in batches of up to [`Ip2pEditor::with_batch`] views of the same
+//! model size: the UNet then runs 3 × views per step (the guidance's three branches for
+//! each view, each view at its own timestep), with a progress bar per batch. Per view, a
+//! SplitMix64 generator seeded from the editor's seed and the view index draws the start
+//! span T ∈ [t_min, t_max] × 1000 and the initial noise, so an edit is reproducible and
+//! does not depend on the batch a view falls in (the pipeline keeps the images apart:
+//! [`Ip2p::edit`]). The render is resized to a multiple of the VAE's down-scaling (8) for
+//! the model and the edited image and attention are resized back to the view.
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -28,7 +30,11 @@ pub struct Ip2pEditor<'c> {
     seed: u64,
     progress: bool,
     cancel: Option<&'c AtomicBool>,
+    batch: usize,
 }
+
+/// Views per UNet call unless [`Ip2pEditor::with_batch`] says otherwise.
+pub const DEFAULT_BATCH: usize = 1;
 
 /// The download command with the user's folder in place of `DIR`.
 pub fn download_hint(dir: &Path) -> String {
@@ -63,6 +69,7 @@ impl<'c> Ip2pEditor<'c> {
             seed,
             progress: true,
             cancel: None,
+            batch: DEFAULT_BATCH,
         })
     }
 
@@ -75,6 +82,12 @@ impl<'c> Ip2pEditor<'c> {
     /// Stops between denoising steps once `flag` is set (the edit then errors).
     pub fn with_cancel(mut self, flag: &'c AtomicBool) -> Self {
         self.cancel = Some(flag);
+        self
+    }
+
+    /// Edits up to `views` views (of the same size) per pipeline call (at least 1).
+    pub fn with_batch(mut self, views: usize) -> Self {
+        self.batch = views.max(1);
         self
     }
 
@@ -104,24 +117,51 @@ impl<'c> Ip2pEditor<'c> {
         (span, noise)
     }
 
-    /// Edits one view: the edited image and A_v at the view's size.
-    pub fn edit_view(&self, view: &SourceView, prompt: &PromptEmbeds) -> Result<EditedView, EditError> {
-        view.check()?;
-        let (w, h) = view.size();
+    /// The model's size for a `w × h` view: each side rounded to a multiple of the VAE's
+    /// down-scaling.
+    fn model_size(&self, w: usize, h: usize) -> (usize, usize) {
         let f = self.pipeline.vae.config.downscale();
         let round = |v: usize| ((v + f / 2) / f).max(1) * f;
-        let (mw, mh) = (round(w), round(h));
+        (round(w), round(h))
+    }
+
+    /// Edits `views` (of the same model size) in one pipeline call: the edited images and
+    /// A_v at each view's size.
+    pub fn edit_views(
+        &self,
+        views: &[&SourceView],
+        prompt: &PromptEmbeds,
+    ) -> Result<Vec<EditedView>, EditError> {
+        let Some(first) = views.first() else { return Ok(Vec::new()) };
+        for v in views {
+            v.check()?;
+        }
+        let (w0, h0) = first.size();
+        let (mw, mh) = self.model_size(w0, h0);
+        let f = self.pipeline.vae.config.downscale();
+        let names: Vec<String> = views.iter().map(|v| format!("{} ({})", v.index, v.camera.name)).collect();
         let fail = |e: &dyn std::fmt::Display| {
-            EditError::Invalid(format!("ip2p: view {} ({}): {e}", view.index, view.camera.name))
+            let which = if views.len() == 1 { "view" } else { "views" };
+            EditError::Invalid(format!("ip2p: {which} {}: {e}", names.join(", ")))
         };
-        let pixels = resize_bilinear(view.image, w, h, 3, mw, mh);
         let device = &self.pipeline.device;
-        let image = Tensor::from_vec(pixels, (1, mh, mw, 3), device)
+        let c = self.pipeline.unet.config.out_channels;
+        let (mut pixels, mut noise, mut spans) = (Vec::new(), Vec::new(), Vec::new());
+        for v in views {
+            let (w, h) = v.size();
+            if self.model_size(w, h) != (mw, mh) {
+                return Err(fail(&"a batch must share one model size"));
+            }
+            pixels.extend(resize_bilinear(v.image, w, h, 3, mw, mh));
+            let (span, n) = self.draw(v.index, mh / f, mw / f);
+            noise.extend(n);
+            spans.push(span);
+        }
+        let b = views.len();
+        let image = Tensor::from_vec(pixels, (b, mh, mw, 3), device)
             .and_then(|t| t.permute((0, 3, 1, 2)))
             .map_err(|e| fail(&e))?;
-        let (span, noise) = self.draw(view.index, mh / f, mw / f);
-        let c = self.pipeline.unet.config.out_channels;
-        let noise = Tensor::from_vec(noise, (1, c, mh / f, mw / f), device).map_err(|e| fail(&e))?;
+        let noise = Tensor::from_vec(noise, (b, c, mh / f, mw / f), device).map_err(|e| fail(&e))?;
 
         let bar = if self.progress {
             let bar = indicatif::ProgressBar::new(self.settings.steps as u64);
@@ -131,14 +171,14 @@ impl<'c> Ip2pEditor<'c> {
                 )
                 .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
             );
-            bar.set_message(format!("ip2p view {} ({})", view.index, view.camera.name));
+            bar.set_message(format!("ip2p view {}", names.join(", ")));
             bar
         } else {
             indicatif::ProgressBar::hidden()
         };
         let cancel = self.cancel;
         let mut cancelled = false;
-        let result = self.pipeline.edit(&image, prompt, &noise, span, &self.settings, &mut |i, _| {
+        let result = self.pipeline.edit(&image, prompt, &noise, &spans, &self.settings, &mut |i, _| {
             bar.set_position(i as u64);
             cancelled = cancel.is_some_and(|c| c.load(Ordering::SeqCst));
             !cancelled
@@ -148,15 +188,25 @@ impl<'c> Ip2pEditor<'c> {
             return Err(EditError::Invalid("ip2p: interrupted".into()));
         }
         let edit = result.map_err(|e| fail(&e))?;
-        let to_vec = |t: &Tensor| -> candle_core::Result<Vec<f32>> {
-            t.squeeze(0)?.permute((1, 2, 0))?.contiguous()?.flatten_all()?.to_vec1::<f32>()
+        let to_vec = |t: &Tensor, k: usize| -> candle_core::Result<Vec<f32>> {
+            t.narrow(0, k, 1)?.squeeze(0)?.permute((1, 2, 0))?.contiguous()?.flatten_all()?.to_vec1::<f32>()
         };
-        let edited = to_vec(&edit.image).map_err(|e| fail(&e))?;
-        let attention = to_vec(&edit.attention).map_err(|e| fail(&e))?;
-        let image = resize_bilinear(&edited, mw, mh, 3, w, h);
-        let attention = resize_bilinear(&attention, mw / f, mh / f, 1, w, h);
-        tracing::debug!("ip2p view {}: span {span}, {}x{} at {mw}x{mh}", view.index, w, h);
-        Ok(EditedView::new(image, w, h, attention, None))
+        let mut out = Vec::with_capacity(b);
+        for (k, v) in views.iter().enumerate() {
+            let (w, h) = v.size();
+            let edited = to_vec(&edit.image, k).map_err(|e| fail(&e))?;
+            let attention = to_vec(&edit.attention, k).map_err(|e| fail(&e))?;
+            let image = resize_bilinear(&edited, mw, mh, 3, w, h);
+            let attention = resize_bilinear(&attention, mw / f, mh / f, 1, w, h);
+            tracing::debug!("ip2p view {}: span {}, {w}x{h} at {mw}x{mh}", v.index, spans[k]);
+            out.push(EditedView::new(image, w, h, attention, None));
+        }
+        Ok(out)
+    }
+
+    /// Edits one view: the edited image and A_v at the view's size.
+    pub fn edit_view(&self, view: &SourceView, prompt: &PromptEmbeds) -> Result<EditedView, EditError> {
+        Ok(self.edit_views(&[view], prompt)?.remove(0))
     }
 }
 
@@ -170,6 +220,21 @@ impl Editor for Ip2pEditor<'_> {
             return Err(EditError::Instruction("ip2p: the edit instruction is empty".into()));
         }
         let embeds = self.encode_prompt(prompt).map_err(|e| EditError::Invalid(format!("ip2p: {e}")))?;
-        views.iter().map(|v| self.edit_view(v, &embeds).map(Some)).collect()
+        // consecutive views of one model size, up to `batch` at a time
+        let mut out = Vec::with_capacity(views.len());
+        let mut batch: Vec<&SourceView> = Vec::new();
+        for v in views {
+            let size = |v: &SourceView| {
+                let (w, h) = v.size();
+                self.model_size(w, h)
+            };
+            if batch.len() == self.batch || batch.first().is_some_and(|f| size(f) != size(v)) {
+                out.extend(self.edit_views(&batch, &embeds)?.into_iter().map(Some));
+                batch.clear();
+            }
+            batch.push(v);
+        }
+        out.extend(self.edit_views(&batch, &embeds)?.into_iter().map(Some));
+        Ok(out)
     }
 }

@@ -56,12 +56,12 @@ pub struct PromptEmbeds {
     pub uncond: Tensor,
 }
 
-/// The result of one edit.
+/// The result of one edit of B images.
 #[derive(Debug, Clone)]
 pub struct Edit {
-    /// Edited image, `1 × 3 × H × W` in [0, 1].
+    /// Edited images, `B × 3 × H × W` in [0, 1].
     pub image: Tensor,
-    /// Text-guidance magnitude at latent resolution, `1 × 1 × h × w` (see [`Ip2p::edit`]).
+    /// Text-guidance magnitude at latent resolution, `B × 1 × h × w` (see [`Ip2p::edit`]).
     pub attention: Tensor,
 }
 
@@ -134,47 +134,70 @@ impl Ip2p {
         ((self.vae.decode(&z)? / 2.0)? + 0.5)?.clamp(0f32, 1f32)
     }
 
-    /// Edits one image (`1 × 3 × H × W` in [0, 1], H and W multiples of the VAE's
-    /// down-scaling) for `prompt`, starting from its latent noised with `noise`
-    /// (`1 × 4 × h × w`) to the first of `settings.steps` DDIM timesteps over a span of
-    /// `span` training steps. `on_step(i, n)` is called after each step; returning false
-    /// stops the edit with an error.
+    /// Edits a batch of B images (`B × 3 × H × W` in [0, 1], H and W multiples of the VAE's
+    /// down-scaling) for `prompt`, image b starting from its latent noised with `noise[b]`
+    /// (`noise` is `B × 4 × h × w`) to the first of `settings.steps` DDIM timesteps over a
+    /// span of `spans[b]` training steps. `on_step(i, n)` is called after each step;
+    /// returning false stops the edit with an error.
     ///
-    /// Each step runs the UNet on a batch of three — (text, image), (∅, image), (∅, ∅) —
-    /// and combines ε = ε_u + s_T(ε_text − ε_img) + s_I(ε_img − ε_u) (docs/method.md#e2-instructpix2pix).
+    /// Each step runs the UNet once on a batch of 3B — (text, image), (∅, image), (∅, ∅)
+    /// for every image, each at its own timestep — and combines per image
+    /// ε = ε_u + s_T(ε_text − ε_img) + s_I(ε_img − ε_u) (docs/method.md#e2-instructpix2pix).
+    /// The images do not interact: every layer works per batch item, so an image edited in
+    /// a batch is the image edited alone up to the order of floating-point sums.
     /// The image-conditioning latent is the unscaled posterior mode; the edited latent is
     /// the mode × the scaling factor. The attention A_v (the paper's text-relevant map,
     /// §3.2) is DiffEdit-style: the channel mean of |ε_text − ε_img| averaged over steps.
     pub fn edit(
         &self,
-        image: &Tensor,
+        images: &Tensor,
         prompt: &PromptEmbeds,
         noise: &Tensor,
-        span: usize,
+        spans: &[usize],
         settings: &Settings,
         on_step: &mut dyn FnMut(usize, usize) -> bool,
     ) -> candle_core::Result<Edit> {
-        let ts = self.ddim.timesteps(span, settings.steps).map_err(candle_core::Error::Msg)?;
-        let ratio = span / settings.steps;
-        let cond = self.encode(image)?;
-        let mut latents = self.ddim.add_noise(&(&cond * self.vae.config.scaling_factor)?, noise, ts[0])?;
+        let b = images.dim(0)?;
+        if spans.len() != b || noise.dim(0)? != b {
+            candle_core::bail!("ip2p: {b} images, {} spans and {} noise maps", spans.len(), noise.dim(0)?);
+        }
+        let schedules = spans
+            .iter()
+            .map(|&span| Ok((self.ddim.timesteps(span, settings.steps)?, span / settings.steps)))
+            .collect::<Result<Vec<_>, String>>()
+            .map_err(candle_core::Error::Msg)?;
+        let cond = self.encode(images)?;
+        let scaled = (&cond * self.vae.config.scaling_factor)?;
+        let per_image = |f: &dyn Fn(usize) -> candle_core::Result<Tensor>| -> candle_core::Result<Tensor> {
+            Tensor::cat(&(0..b).map(f).collect::<candle_core::Result<Vec<_>>>()?, 0)
+        };
+        let mut latents = per_image(&|i| {
+            self.ddim.add_noise(&scaled.narrow(0, i, 1)?, &noise.narrow(0, i, 1)?, schedules[i].0[0])
+        })?;
         let image_cond = Tensor::cat(&[&cond, &cond, &cond.zeros_like()?], 0)?;
-        let context = Tensor::cat(&[&prompt.cond, &prompt.uncond, &prompt.uncond], 0)?;
-        let mut attention = Tensor::zeros((1, 1, cond.dim(2)?, cond.dim(3)?), DType::F32, cond.device())?;
-        for (i, &t) in ts.iter().enumerate() {
+        let repeat = |t: &Tensor| Tensor::cat(&vec![t; b], 0);
+        let context =
+            Tensor::cat(&[repeat(&prompt.cond)?, repeat(&prompt.uncond)?, repeat(&prompt.uncond)?], 0)?;
+        let mut attention = Tensor::zeros((b, 1, cond.dim(2)?, cond.dim(3)?), DType::F32, cond.device())?;
+        for i in 0..settings.steps {
+            let t: Vec<f64> = schedules.iter().map(|(ts, _)| ts[i] as f64).collect();
             let x = Tensor::cat(&[&latents, &latents, &latents], 0)?;
-            let eps = self.unet.forward(&Tensor::cat(&[&x, &image_cond], 1)?, t as f64, &context)?;
-            let (e_text, e_img, e_u) = (eps.narrow(0, 0, 1)?, eps.narrow(0, 1, 1)?, eps.narrow(0, 2, 1)?);
+            let timesteps = [t.as_slice(), t.as_slice(), t.as_slice()].concat();
+            let eps = self.unet.forward_at(&Tensor::cat(&[&x, &image_cond], 1)?, &timesteps, &context)?;
+            let (e_text, e_img, e_u) = (eps.narrow(0, 0, b)?, eps.narrow(0, b, b)?, eps.narrow(0, 2 * b, b)?);
             let text_dir = (&e_text - &e_img)?;
             let guided = ((&e_u + (&text_dir * settings.text_guidance)?)?
                 + ((&e_img - &e_u)? * settings.image_guidance)?)?;
             attention = (attention + text_dir.abs()?.mean_keepdim(1)?)?;
-            latents = self.ddim.step(&guided, t, ratio, &latents)?;
-            if !on_step(i + 1, ts.len()) {
+            latents = per_image(&|k| {
+                let (ts, ratio) = &schedules[k];
+                self.ddim.step(&guided.narrow(0, k, 1)?, ts[i], *ratio, &latents.narrow(0, k, 1)?)
+            })?;
+            if !on_step(i + 1, settings.steps) {
                 return Err(candle_core::Error::Msg("interrupted".into()));
             }
         }
-        let attention = (attention / ts.len() as f64)?;
+        let attention = (attention / settings.steps as f64)?;
         Ok(Edit { image: self.decode(&latents)?, attention })
     }
 }

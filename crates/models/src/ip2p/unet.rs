@@ -532,9 +532,23 @@ impl UNet {
     /// Predicted noise ε for `sample` (`B × in_channels × h × w`) at diffusion timestep
     /// `t`, conditioned on `context` (`B × tokens × cross_attention_dim`).
     pub fn forward(&self, sample: &Tensor, t: f64, context: &Tensor) -> candle_core::Result<Tensor> {
+        self.forward_at(sample, &vec![t; sample.dim(0)?], context)
+    }
+
+    /// [`UNet::forward`] with a timestep per batch item.
+    pub fn forward_at(
+        &self,
+        sample: &Tensor,
+        timesteps: &[f64],
+        context: &Tensor,
+    ) -> candle_core::Result<Tensor> {
         let b = sample.dim(0)?;
+        if timesteps.len() != b {
+            candle_core::bail!("UNet: {} timesteps for a batch of {b}", timesteps.len());
+        }
         let x = if self.config.center_input_sample { ((sample * 2.0)? - 1.0)? } else { sample.clone() };
-        let t = Tensor::full(t as f32, b, sample.device())?;
+        let t: Vec<f32> = timesteps.iter().map(|&t| t as f32).collect();
+        let t = Tensor::from_vec(t, b, sample.device())?;
         let emb = self.time_embedding.forward(&self.time_proj.forward(&t)?.to_dtype(x.dtype())?)?;
 
         let mut x = self.conv_in.forward(&x)?;
