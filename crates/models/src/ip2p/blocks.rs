@@ -12,16 +12,17 @@ use candle_core::{Module, Tensor, D};
 use candle_nn::{self as nn, Conv2dConfig, VarBuilder};
 
 use crate::conv::{conv2d, Conv2d};
+use crate::norm::{group_norm, GroupNorm};
 
 /// diffusers `ResnetBlock2D`: with h = conv1(silu(norm1(x))) (+ time_emb_proj(silu(t))
 /// per channel), the output is (shortcut(x) + conv2(silu(norm2(h)))) / output_scale,
 /// shortcut a 1×1 convolution when the channel count changes.
 #[derive(Debug)]
 pub struct ResnetBlock {
-    norm1: nn::GroupNorm,
+    norm1: GroupNorm,
     conv1: Conv2d,
     time_emb_proj: Option<nn::Linear>,
-    norm2: nn::GroupNorm,
+    norm2: GroupNorm,
     conv2: Conv2d,
     conv_shortcut: Option<Conv2d>,
     output_scale: f64,
@@ -40,11 +41,11 @@ pub struct ResnetConfig {
 impl ResnetBlock {
     pub fn new(vb: VarBuilder, cin: usize, cout: usize, cfg: ResnetConfig) -> candle_core::Result<Self> {
         let conv3 = Conv2dConfig { padding: 1, ..Default::default() };
-        let norm1 = nn::group_norm(cfg.groups, cin, cfg.eps, vb.pp("norm1"))?;
+        let norm1 = group_norm(cfg.groups, cin, cfg.eps, vb.pp("norm1"))?;
         let conv1 = conv2d(cin, cout, 3, conv3, vb.pp("conv1"))?;
         let time_emb_proj =
             cfg.temb_channels.map(|t| nn::linear(t, cout, vb.pp("time_emb_proj"))).transpose()?;
-        let norm2 = nn::group_norm(cfg.groups, cout, cfg.eps, vb.pp("norm2"))?;
+        let norm2 = group_norm(cfg.groups, cout, cfg.eps, vb.pp("norm2"))?;
         let conv2 = conv2d(cout, cout, 3, conv3, vb.pp("conv2"))?;
         let conv_shortcut = (cin != cout)
             .then(|| conv2d(cin, cout, 1, Default::default(), vb.pp("conv_shortcut")))
@@ -62,12 +63,12 @@ impl ResnetBlock {
 
     /// `x` `[B, C, H, W]`, `temb` `[B, T]` when the block has a time projection.
     pub fn forward(&self, x: &Tensor, temb: Option<&Tensor>) -> candle_core::Result<Tensor> {
-        let mut h = self.conv1.forward(&nn::ops::silu(&self.norm1.forward(x)?)?)?;
+        let mut h = self.conv1.forward(&self.norm1.forward_silu(x)?)?;
         if let (Some(proj), Some(t)) = (&self.time_emb_proj, temb) {
             let t = proj.forward(&nn::ops::silu(t)?)?.unsqueeze(D::Minus1)?.unsqueeze(D::Minus1)?;
             h = h.broadcast_add(&t)?;
         }
-        let h = self.conv2.forward(&nn::ops::silu(&self.norm2.forward(&h)?)?)?;
+        let h = self.conv2.forward(&self.norm2.forward_silu(&h)?)?;
         let shortcut = match &self.conv_shortcut {
             Some(c) => c.forward(x)?,
             None => x.clone(),
@@ -128,7 +129,7 @@ impl Upsample {
 /// rescale 1): tokens t = norm(x) over the pixels, x + out(softmax(q kᵀ / √C) v).
 #[derive(Debug)]
 pub struct VaeAttention {
-    group_norm: nn::GroupNorm,
+    group_norm: GroupNorm,
     to_q: nn::Linear,
     to_k: nn::Linear,
     to_v: nn::Linear,
@@ -138,7 +139,7 @@ pub struct VaeAttention {
 
 impl VaeAttention {
     pub fn new(vb: VarBuilder, channels: usize, groups: usize, eps: f64) -> candle_core::Result<Self> {
-        let group_norm = nn::group_norm(groups, channels, eps, vb.pp("group_norm"))?;
+        let group_norm = group_norm(groups, channels, eps, vb.pp("group_norm"))?;
         let linear = |name: &str| nn::linear(channels, channels, vb.pp(name));
         let (to_q, to_k, to_v, to_out) = if vb.contains_tensor("to_q.weight") {
             (linear("to_q")?, linear("to_k")?, linear("to_v")?, linear("to_out.0")?)

@@ -13,6 +13,7 @@ use candle_nn::{self as nn, Conv2dConfig, VarBuilder};
 
 use super::blocks::{ResnetBlock, ResnetConfig};
 use crate::conv::{conv2d, Conv2d};
+use crate::norm::{group_norm, GroupNorm};
 use candle_transformers::models::stable_diffusion::embeddings::{TimestepEmbedding, Timesteps};
 use serde::Deserialize;
 
@@ -335,7 +336,7 @@ enum Proj {
 /// transformer blocks over the H·W tokens, projection out, residual.
 #[derive(Debug)]
 struct Transformer2D {
-    norm: nn::GroupNorm,
+    norm: GroupNorm,
     proj_in: Proj,
     blocks: Vec<TransformerBlock>,
     proj_out: Proj,
@@ -345,7 +346,7 @@ impl Transformer2D {
     /// The transformer of resolution `level` (its heads and depth come from the config).
     fn new(vb: VarBuilder, channels: usize, level: usize, cfg: &UNetConfig) -> candle_core::Result<Self> {
         let (heads, depth) = (cfg.heads(level), cfg.transformer_layers_per_block.get(level));
-        let norm = nn::group_norm(cfg.norm_num_groups, channels, 1e-6, vb.pp("norm"))?;
+        let norm = group_norm(cfg.norm_num_groups, channels, 1e-6, vb.pp("norm"))?;
         let (proj_in, proj_out) = if cfg.use_linear_projection {
             (
                 Proj::Linear(nn::linear(channels, channels, vb.pp("proj_in"))?),
@@ -428,7 +429,7 @@ pub struct UNet {
     mid_resnets: Vec<ResnetBlock>,
     mid_attentions: Vec<Transformer2D>,
     up: Vec<UpBlock>,
-    conv_norm_out: nn::GroupNorm,
+    conv_norm_out: GroupNorm,
     conv_out: Conv2d,
 }
 
@@ -513,7 +514,7 @@ impl UNet {
             };
             up.push(UpBlock { resnets, attentions, upsample });
         }
-        let conv_norm_out = nn::group_norm(cfg.norm_num_groups, ch0, cfg.norm_eps, vb.pp("conv_norm_out"))?;
+        let conv_norm_out = group_norm(cfg.norm_num_groups, ch0, cfg.norm_eps, vb.pp("conv_norm_out"))?;
         let conv_out = conv3(vb.pp("conv_out"), ch0, cfg.out_channels, 1, 1)?;
         Ok(Self {
             config,
@@ -590,7 +591,7 @@ impl UNet {
                 x = up.forward(&x.upsample_nearest2d(h, w)?)?;
             }
         }
-        let x = nn::ops::silu(&self.conv_norm_out.forward(&x)?)?;
+        let x = self.conv_norm_out.forward_silu(&x)?;
         self.conv_out.forward(&x)
     }
 }

@@ -4,10 +4,11 @@
 //! InstructPix2Pix uses as the image-conditioning latent.
 
 use candle_core::{Module, Tensor};
-use candle_nn::{self as nn, Conv2dConfig, VarBuilder};
+use candle_nn::{Conv2dConfig, VarBuilder};
 
 use super::blocks::{DecoderUpBlock, EncoderDownBlock, ResnetConfig, VaeMidBlock};
 use crate::conv::{conv2d, Conv2d};
+use crate::norm::{group_norm, GroupNorm};
 use serde::Deserialize;
 
 use super::unet::MAX_BLOCKS;
@@ -97,14 +98,14 @@ pub struct Vae {
     enc_conv_in: Conv2d,
     enc_down: Vec<EncoderDownBlock>,
     enc_mid: VaeMidBlock,
-    enc_norm_out: nn::GroupNorm,
+    enc_norm_out: GroupNorm,
     enc_conv_out: Conv2d,
     quant_conv: Option<Conv2d>,
     post_quant_conv: Option<Conv2d>,
     dec_conv_in: Conv2d,
     dec_mid: VaeMidBlock,
     dec_up: Vec<DecoderUpBlock>,
-    dec_norm_out: nn::GroupNorm,
+    dec_norm_out: GroupNorm,
     dec_conv_out: Conv2d,
 }
 
@@ -132,7 +133,7 @@ impl Vae {
             enc_down.push(EncoderDownBlock::new(vb, (cin, chans[i]), c.layers_per_block, i + 1 < n, rc)?);
         }
         let enc_mid = VaeMidBlock::new(enc.pp("mid_block"), last, rc)?;
-        let enc_norm_out = nn::group_norm(c.norm_num_groups, last, 1e-6, enc.pp("conv_norm_out"))?;
+        let enc_norm_out = group_norm(c.norm_num_groups, last, 1e-6, enc.pp("conv_norm_out"))?;
         let enc_conv_out = conv3(enc.pp("conv_out"), last, 2 * c.latent_channels)?;
         let l2 = 2 * c.latent_channels;
         let quant_conv = if c.use_quant_conv {
@@ -157,7 +158,7 @@ impl Vae {
             let vb = dec.pp("up_blocks").pp(i);
             dec_up.push(DecoderUpBlock::new(vb, (cin, rev[i]), c.layers_per_block + 1, i + 1 < n, rc)?);
         }
-        let dec_norm_out = nn::group_norm(c.norm_num_groups, chans[0], 1e-6, dec.pp("conv_norm_out"))?;
+        let dec_norm_out = group_norm(c.norm_num_groups, chans[0], 1e-6, dec.pp("conv_norm_out"))?;
         let dec_conv_out = conv3(dec.pp("conv_out"), chans[0], c.out_channels)?;
         Ok(Self {
             config,
@@ -183,7 +184,7 @@ impl Vae {
             h = block.forward(&h)?;
         }
         h = self.enc_mid.forward(&h)?;
-        h = self.enc_conv_out.forward(&nn::ops::silu(&self.enc_norm_out.forward(&h)?)?)?;
+        h = self.enc_conv_out.forward(&self.enc_norm_out.forward_silu(&h)?)?;
         if let Some(q) = &self.quant_conv {
             h = q.forward(&h)?;
         }
@@ -200,6 +201,6 @@ impl Vae {
         for block in &self.dec_up {
             h = block.forward(&h)?;
         }
-        self.dec_conv_out.forward(&nn::ops::silu(&self.dec_norm_out.forward(&h)?)?)
+        self.dec_conv_out.forward(&self.dec_norm_out.forward_silu(&h)?)
     }
 }
