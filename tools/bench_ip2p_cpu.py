@@ -8,7 +8,8 @@ the VAE) with random weights: real weights cannot be downloaded here, and the
 arithmetic is the same. Rows, each the best of `--repeats` timed runs after one
 untimed warm-up (the whole view: one run, its parts already warm):
 
-- one UNet step on a batch of 3 (the three-way guidance) at 256² and 512²;
+- one UNet step on a batch of 3 (the three-way guidance) at 256² and 512², and at 256²
+  on a batch of 3 × 2 and 3 × 4 (several views per call, `edit --ip2p-batch`);
 - VAE encode and VAE decode at 256² and 512²;
 - a whole view at 256²: encode, 20 UNet steps, decode (measured on PyTorch; for candle
   composed from its rows, as `transsplat bench models` times the stages, not the loop);
@@ -71,6 +72,12 @@ def torch_rows(args):
             t = torch.tensor(500)
             rows[f"unet step (batch 3) {size}"] = best_of(
                 args.repeats, lambda: unet(x, t, encoder_hidden_states=text).sample)
+            if size == 256:
+                for views in (2, 4):
+                    xv = torch.randn(3 * views, 8, lat, lat)
+                    tv = text.repeat(views, 1, 1)
+                    rows[f"unet step (batch 3x{views}) {size}"] = best_of(
+                        args.repeats, lambda: unet(xv, t, encoder_hidden_states=tv).sample)
             img = torch.rand(1, 3, size, size) * 2 - 1
             rows[f"vae encode {size}"] = best_of(args.repeats, lambda: vae.encode(img).latent_dist.mode())
             z = torch.randn(1, 4, lat, lat)
@@ -101,7 +108,7 @@ def candle_rows(args):
                          capture_output=True, text=True, check=True).stdout
     rows = {}
     for line in out.splitlines():
-        m = re.match(r"ip2p (unet step \(batch 3\)|vae encode|vae decode) (\d+)x\d+\s+([\d.]+)", line)
+        m = re.match(r"ip2p (unet step \(batch 3(?:x\d+)?\)|vae encode|vae decode) (\d+)x\d+\s+([\d.]+)", line)
         if m and int(m.group(2)) in args.sizes:
             rows[f"{m.group(1)} {m.group(2)}"] = float(m.group(3))
     if all(f"{k} 256" in rows for k in ("unet step (batch 3)", "vae encode", "vae decode")):

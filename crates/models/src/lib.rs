@@ -21,6 +21,7 @@ pub mod dinov2;
 pub mod ip2p;
 pub mod norm;
 pub mod resample;
+pub mod softmax;
 pub mod tokenizer;
 pub mod weights;
 

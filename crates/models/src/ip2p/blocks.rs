@@ -154,7 +154,7 @@ impl VaeAttention {
         let t = self.group_norm.forward(x)?.reshape((b, c, h * w))?.transpose(1, 2)?.contiguous()?;
         let (q, k, v) = (self.to_q.forward(&t)?, self.to_k.forward(&t)?, self.to_v.forward(&t)?);
         let scale = 1.0 / (self.channels as f64).sqrt();
-        let weights = nn::ops::softmax_last_dim(&(q.matmul(&k.t()?)? * scale)?)?;
+        let weights = crate::softmax::softmax_last_dim(&(q.matmul(&k.t()?)? * scale)?)?;
         let o = self.to_out.forward(&weights.matmul(&v)?)?;
         o.transpose(1, 2)?.reshape((b, c, h, w))? + x
     }

@@ -248,13 +248,15 @@ impl Attention {
     }
 }
 
-/// Largest number of attention weights (f32) computed at once: 2²⁵ (128 MB).
-const ATTENTION_BUDGET: usize = 1 << 25;
+/// Largest number of attention weights (f32) computed at once: 2²⁰ (4 MiB), a block that
+/// stays in the cache between the product, the softmax and the product with v.
+const ATTENTION_BUDGET: usize = 1 << 20;
 
-/// softmax(q kᵀ · scale) v for `q`: `S × n × d`, `k`, `v`: `S × m × d`, over slices of
-/// the S (batch × heads) axis holding at most `budget` weights, so the n × m weights of
-/// a 64 × 64 latent (4096 tokens) never exist for all heads at once. Each slice is
-/// computed exactly as the whole would be.
+/// softmax(q kᵀ · scale) v for `q`: `S × n × d`, `k`, `v`: `S × m × d`, in blocks of at
+/// most `budget` weights: several of the S (batch × heads) slices at once when their
+/// n × m weights fit, else blocks of query rows of one slice. The scale is applied to q
+/// (n × d values) rather than to the weights (n × m), and each block is computed exactly
+/// as the whole would be (a softmax row depends on its own weights only).
 fn sliced_attention(
     q: &Tensor,
     k: &Tensor,
@@ -264,15 +266,33 @@ fn sliced_attention(
 ) -> candle_core::Result<Tensor> {
     let (s, n, _) = q.dims3()?;
     let m = k.dim(1)?;
-    let per = (budget / (n * m).max(1)).clamp(1, s.max(1));
-    let mut outs = Vec::with_capacity(s.div_ceil(per));
-    for start in (0..s).step_by(per) {
-        let len = per.min(s - start);
-        let (q, k, v) = (q.narrow(0, start, len)?, k.narrow(0, start, len)?, v.narrow(0, start, len)?);
-        let w = (q.matmul(&k.t()?)? * scale)?;
-        outs.push(nn::ops::softmax_last_dim(&w)?.matmul(&v)?);
+    let q = (q * scale)?;
+    let block =
+        |q: &Tensor, k: &Tensor, v: &Tensor| crate::softmax::softmax_last_dim(&q.matmul(&k.t()?)?)?.matmul(v);
+    if n * m <= budget {
+        let per = (budget / (n * m).max(1)).clamp(1, s.max(1));
+        let mut outs = Vec::with_capacity(s.div_ceil(per));
+        for start in (0..s).step_by(per) {
+            let len = per.min(s - start);
+            outs.push(block(
+                &q.narrow(0, start, len)?,
+                &k.narrow(0, start, len)?,
+                &v.narrow(0, start, len)?,
+            )?);
+        }
+        return Tensor::cat(&outs, 0);
     }
-    Tensor::cat(&outs, 0)
+    let rows = (budget / m.max(1)).clamp(1, n);
+    let mut heads = Vec::with_capacity(s);
+    for h in 0..s {
+        let (qh, kh, vh) = (q.narrow(0, h, 1)?, k.narrow(0, h, 1)?, v.narrow(0, h, 1)?);
+        let mut outs = Vec::with_capacity(n.div_ceil(rows));
+        for r0 in (0..n).step_by(rows) {
+            outs.push(block(&qh.narrow(1, r0, rows.min(n - r0))?, &kh, &vh)?);
+        }
+        heads.push(Tensor::cat(&outs, 1)?);
+    }
+    Tensor::cat(&heads, 0)
 }
 
 /// GEGLU feed-forward: `proj` to twice the inner width, value × GELU(gate), back.
@@ -622,7 +642,7 @@ mod tests {
         let k = Tensor::randn(0f32, 1.0, (6, 7, 4), &d).unwrap();
         let v = Tensor::randn(0f32, 1.0, (6, 7, 4), &d).unwrap();
         let whole = sliced_attention(&q, &k, &v, 0.5, usize::MAX).unwrap();
-        for budget in [1, 70, 140, 300] {
+        for budget in [1, 7, 20, 70, 140, 300] {
             let sliced = sliced_attention(&q, &k, &v, 0.5, budget).unwrap();
             let diff =
                 (&sliced - &whole).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
