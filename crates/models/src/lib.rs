@@ -19,6 +19,7 @@ pub mod clip;
 pub mod conv;
 pub mod dinov2;
 pub mod ip2p;
+pub mod linear;
 pub mod norm;
 pub mod resample;
 pub mod softmax;

@@ -85,7 +85,7 @@ fn softmax_row_portable(x: &[f32], y: &mut [f32]) {
 
 /// eᵗ for t ≤ 0 (module doc); 0 below −87.
 #[inline(always)]
-fn exp_nonpositive(t: f32) -> f32 {
+pub(crate) fn exp_nonpositive(t: f32) -> f32 {
     const LOG2E: f32 = std::f32::consts::LOG2_E;
     const LN2_HI: f32 = 0.693_145_75;
     const LN2_LO: f32 = 1.428_606_8e-6;

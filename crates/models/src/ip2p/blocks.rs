@@ -12,6 +12,7 @@ use candle_core::{Module, Tensor, D};
 use candle_nn::{self as nn, Conv2dConfig, VarBuilder};
 
 use crate::conv::{conv2d, Conv2d};
+use crate::linear::{linear, Linear};
 use crate::norm::{group_norm, GroupNorm};
 
 /// diffusers `ResnetBlock2D`: with h = conv1(silu(norm1(x))) (+ time_emb_proj(silu(t))
@@ -21,7 +22,7 @@ use crate::norm::{group_norm, GroupNorm};
 pub struct ResnetBlock {
     norm1: GroupNorm,
     conv1: Conv2d,
-    time_emb_proj: Option<nn::Linear>,
+    time_emb_proj: Option<Linear>,
     norm2: GroupNorm,
     conv2: Conv2d,
     conv_shortcut: Option<Conv2d>,
@@ -43,8 +44,7 @@ impl ResnetBlock {
         let conv3 = Conv2dConfig { padding: 1, ..Default::default() };
         let norm1 = group_norm(cfg.groups, cin, cfg.eps, vb.pp("norm1"))?;
         let conv1 = conv2d(cin, cout, 3, conv3, vb.pp("conv1"))?;
-        let time_emb_proj =
-            cfg.temb_channels.map(|t| nn::linear(t, cout, vb.pp("time_emb_proj"))).transpose()?;
+        let time_emb_proj = cfg.temb_channels.map(|t| linear(t, cout, vb.pp("time_emb_proj"))).transpose()?;
         let norm2 = group_norm(cfg.groups, cout, cfg.eps, vb.pp("norm2"))?;
         let conv2 = conv2d(cout, cout, 3, conv3, vb.pp("conv2"))?;
         let conv_shortcut = (cin != cout)
@@ -130,17 +130,17 @@ impl Upsample {
 #[derive(Debug)]
 pub struct VaeAttention {
     group_norm: GroupNorm,
-    to_q: nn::Linear,
-    to_k: nn::Linear,
-    to_v: nn::Linear,
-    to_out: nn::Linear,
+    to_q: Linear,
+    to_k: Linear,
+    to_v: Linear,
+    to_out: Linear,
     channels: usize,
 }
 
 impl VaeAttention {
     pub fn new(vb: VarBuilder, channels: usize, groups: usize, eps: f64) -> candle_core::Result<Self> {
         let group_norm = group_norm(groups, channels, eps, vb.pp("group_norm"))?;
-        let linear = |name: &str| nn::linear(channels, channels, vb.pp(name));
+        let linear = |name: &str| linear(channels, channels, vb.pp(name));
         let (to_q, to_k, to_v, to_out) = if vb.contains_tensor("to_q.weight") {
             (linear("to_q")?, linear("to_k")?, linear("to_v")?, linear("to_out.0")?)
         } else {

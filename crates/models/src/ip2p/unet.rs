@@ -8,11 +8,12 @@
 //! uses the exact (erf) one, and because block types, head counts and transformer
 //! depths are read per block from the config.
 
-use candle_core::{Module, Tensor, D};
+use candle_core::{Module, Tensor};
 use candle_nn::{self as nn, Conv2dConfig, VarBuilder};
 
 use super::blocks::{ResnetBlock, ResnetConfig};
 use crate::conv::{conv2d, Conv2d};
+use crate::linear::{linear, linear_no_bias, Linear};
 use crate::norm::{group_norm, GroupNorm};
 use candle_transformers::models::stable_diffusion::embeddings::{TimestepEmbedding, Timesteps};
 use serde::Deserialize;
@@ -205,10 +206,10 @@ impl UNetConfig {
 /// Multi-head attention with diffusers' weight names (`to_q`, `to_k`, `to_v`, `to_out.0`).
 #[derive(Debug)]
 struct Attention {
-    to_q: nn::Linear,
-    to_k: nn::Linear,
-    to_v: nn::Linear,
-    to_out: nn::Linear,
+    to_q: Linear,
+    to_k: Linear,
+    to_v: Linear,
+    to_out: Linear,
     heads: usize,
     scale: f64,
 }
@@ -217,10 +218,10 @@ impl Attention {
     fn new(vb: VarBuilder, dim: usize, context_dim: usize, heads: usize) -> candle_core::Result<Self> {
         let d_head = dim / heads;
         Ok(Self {
-            to_q: nn::linear_no_bias(dim, dim, vb.pp("to_q"))?,
-            to_k: nn::linear_no_bias(context_dim, dim, vb.pp("to_k"))?,
-            to_v: nn::linear_no_bias(context_dim, dim, vb.pp("to_v"))?,
-            to_out: nn::linear(dim, dim, vb.pp("to_out.0"))?,
+            to_q: linear_no_bias(dim, dim, vb.pp("to_q"))?,
+            to_k: linear_no_bias(context_dim, dim, vb.pp("to_k"))?,
+            to_v: linear_no_bias(context_dim, dim, vb.pp("to_v"))?,
+            to_out: linear(dim, dim, vb.pp("to_out.0"))?,
             heads,
             scale: 1.0 / (d_head as f64).sqrt(),
         })
@@ -298,22 +299,21 @@ fn sliced_attention(
 /// GEGLU feed-forward: `proj` to twice the inner width, value × GELU(gate), back.
 #[derive(Debug)]
 struct FeedForward {
-    proj_in: nn::Linear,
-    proj_out: nn::Linear,
+    proj_in: Linear,
+    proj_out: Linear,
 }
 
 impl FeedForward {
     fn new(vb: VarBuilder, dim: usize) -> candle_core::Result<Self> {
         let inner = 4 * dim;
         Ok(Self {
-            proj_in: nn::linear(dim, 2 * inner, vb.pp("net.0.proj"))?,
-            proj_out: nn::linear(inner, dim, vb.pp("net.2"))?,
+            proj_in: linear(dim, 2 * inner, vb.pp("net.0.proj"))?,
+            proj_out: linear(inner, dim, vb.pp("net.2"))?,
         })
     }
 
     fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
-        let h = self.proj_in.forward(x)?.chunk(2, D::Minus1)?;
-        self.proj_out.forward(&(&h[0] * h[1].gelu_erf()?)?)
+        self.proj_out.forward(&crate::linear::geglu(&self.proj_in.forward(x)?)?)
     }
 }
 
@@ -349,7 +349,7 @@ impl TransformerBlock {
 #[derive(Debug)]
 enum Proj {
     Conv(Conv2d),
-    Linear(nn::Linear),
+    Linear(Linear),
 }
 
 /// diffusers `Transformer2DModel` (continuous input): group norm, projection in,
@@ -369,8 +369,8 @@ impl Transformer2D {
         let norm = group_norm(cfg.norm_num_groups, channels, 1e-6, vb.pp("norm"))?;
         let (proj_in, proj_out) = if cfg.use_linear_projection {
             (
-                Proj::Linear(nn::linear(channels, channels, vb.pp("proj_in"))?),
-                Proj::Linear(nn::linear(channels, channels, vb.pp("proj_out"))?),
+                Proj::Linear(linear(channels, channels, vb.pp("proj_in"))?),
+                Proj::Linear(linear(channels, channels, vb.pp("proj_out"))?),
             )
         } else {
             (
