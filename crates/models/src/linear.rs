@@ -19,15 +19,19 @@ use rayon::prelude::*;
 
 use crate::softmax::exp_nonpositive;
 
-/// A linear layer loaded like `candle_nn::linear` (`weight` `[out, in]`, `bias` `[out]`).
+/// A linear layer loaded like `candle_nn::linear` (`weight` `[out, in]`, `bias` `[out]`);
+/// the weights live in one place, plain memory on the CPU path.
 #[derive(Debug, Clone)]
-pub struct Linear {
-    candle: candle_nn::Linear,
-    op: Option<LinearOp>,
+pub enum Linear {
+    /// f32 on the CPU: the GEMM of the module doc.
+    Cpu(LinearOp),
+    /// Anything else: candle's layer.
+    Candle(candle_nn::Linear),
 }
 
+/// The CPU layer's weights.
 #[derive(Debug, Clone)]
-struct LinearOp {
+pub struct LinearOp {
     /// `[out, in]` row-major.
     weight: Vec<f32>,
     bias: Option<Vec<f32>>,
@@ -47,27 +51,35 @@ pub fn linear_no_bias(inputs: usize, outputs: usize, vb: VarBuilder) -> candle_c
 
 fn from_candle(candle: candle_nn::Linear) -> candle_core::Result<Linear> {
     let w = candle.weight();
-    let op = if w.device().is_cpu() && w.dtype() == DType::F32 {
-        let (outputs, inputs) = w.dims2()?;
-        Some(LinearOp {
-            weight: w.flatten_all()?.to_vec1()?,
-            bias: candle.bias().map(|b| b.to_vec1()).transpose()?,
-            inputs,
-            outputs,
-        })
-    } else {
-        None
-    };
-    Ok(Linear { candle, op })
+    if !w.device().is_cpu() || w.dtype() != DType::F32 {
+        return Ok(Linear::Candle(candle));
+    }
+    let (outputs, inputs) = w.dims2()?;
+    Ok(Linear::Cpu(LinearOp {
+        weight: w.flatten_all()?.to_vec1()?,
+        bias: candle.bias().map(|b| b.to_vec1()).transpose()?,
+        inputs,
+        outputs,
+    }))
+}
+
+impl LinearOp {
+    /// The same layer as a candle layer on `device` (for an input the CPU path does not take).
+    fn to_candle(&self, device: &candle_core::Device) -> candle_core::Result<candle_nn::Linear> {
+        let w = Tensor::from_slice(&self.weight, (self.outputs, self.inputs), device)?;
+        let b = self.bias.as_ref().map(|b| Tensor::from_slice(b, self.outputs, device)).transpose()?;
+        Ok(candle_nn::Linear::new(w, b))
+    }
 }
 
 impl Module for Linear {
     fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
-        match &self.op {
-            Some(op) if x.device().is_cpu() && x.dtype() == DType::F32 => {
+        match self {
+            Linear::Cpu(op) if x.device().is_cpu() && x.dtype() == DType::F32 => {
                 x.contiguous()?.apply_op1_no_bwd(op)
             }
-            _ => self.candle.forward(x),
+            Linear::Cpu(op) => op.to_candle(x.device())?.forward(x),
+            Linear::Candle(c) => c.forward(x),
         }
     }
 }
@@ -225,10 +237,11 @@ mod tests {
             } else {
                 linear_no_bias(7, 5, vb.pp(&name)).unwrap()
             };
-            assert!(ours.op.is_some());
+            let Linear::Cpu(op) = &ours else { panic!("the CPU path applies") };
+            let candle = op.to_candle(&dev).unwrap();
             for shape in [vec![3, 7], vec![2, 4, 7], vec![1, 1, 2, 7]] {
                 let x = Tensor::randn(0f32, 1.0, shape.as_slice(), &dev).unwrap();
-                let (got, want) = (ours.forward(&x).unwrap(), ours.candle.forward(&x).unwrap());
+                let (got, want) = (ours.forward(&x).unwrap(), candle.forward(&x).unwrap());
                 assert_eq!(got.dims(), want.dims());
                 assert!(max_diff(&got, &want) < 1e-5, "bias {bias} {shape:?}");
             }
