@@ -4,7 +4,7 @@
 //! - [`raster`]: forward, binning, backward and splat-back timings (`bench raster`).
 //! - [`transport`]: the transport solver on view-like random problems (`bench transport`).
 //! - [`train`]: time per training step against forward + backward alone (`bench train`).
-//! - [`models`], [`ip2p`]: CLIP, DINOv2 and InstructPix2Pix at real sizes with random
+//! - [`models`], [`ip2p`]: CLIP, CLIPSeg, DINOv2 and InstructPix2Pix at real sizes with random
 //!   weights (`bench models`).
 //! - [`edit`]: a whole edit timed by stage at a stated real size (`bench edit`).
 //! - [`demo`]: the built-in benchmark: a scene, the simulated editor, TransSplat and

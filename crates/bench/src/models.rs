@@ -7,6 +7,7 @@ use candle_core::Device;
 
 use crate::ip2p::{sd15_models, Case as Ip2pCase, Sd15};
 use transsplat_models::clip::{Clip, ClipConfig, ClipTextConfig, ClipVisionConfig};
+use transsplat_models::clipseg::{ClipSeg, ClipSegConfig, ClipSegProcessorConfig};
 use transsplat_models::dinov2::{Dinov2, Dinov2Config};
 use transsplat_models::weights::random_weights;
 use transsplat_models::Error;
@@ -18,11 +19,13 @@ pub struct Case {
     pub run: fn(&Device) -> Result<f64, Error>,
 }
 
-/// Every model case (CLIP and DINOv2; the InstructPix2Pix cases join this list).
+/// Every model case (CLIP, CLIPSeg and DINOv2; the InstructPix2Pix cases join this list).
 pub fn cases() -> Vec<Case> {
     vec![
         Case { name: "clip-vit-l14 image 224", run: clip_image },
         Case { name: "clip-vit-l14 text 77", run: clip_text },
+        Case { name: "clipseg-rd64-refined segment 256x256", run: |d| clipseg(d, 256) },
+        Case { name: "clipseg-rd64-refined segment 512x512", run: |d| clipseg(d, 512) },
         Case { name: "dinov2-small 256x256", run: |d| dinov2(d, 384, 6, 256) },
         Case { name: "dinov2-small 512x512", run: |d| dinov2(d, 384, 6, 512) },
         Case { name: "dinov2-base 256x256", run: |d| dinov2(d, 768, 12, 256) },
@@ -127,4 +130,55 @@ fn dinov2(device: &Device, hidden: usize, heads: usize, size: usize) -> Result<f
     let model = Dinov2::new(vb, config)?;
     let img: Vec<f32> = (0..size * size * 3).map(|i| (i % 251) as f32 / 251.0).collect();
     time(|| model.features(&img, size, size))
+}
+
+/// `CIDAS/clipseg-rd64-refined`: CLIP ViT-B/16 towers (text 512 wide, 8 heads, vision 768
+/// wide, 12 heads, patch 16, 224 native), projection 512, decoder reading vision layers
+/// 3, 6 and 9 at width 64 (4 heads, MLP 2048), FiLM at the first step, the complex
+/// transposed convolution; the processor resizes to 352.
+fn clipseg_rd64_refined() -> ClipSegConfig {
+    ClipSegConfig {
+        text_config: ClipTextConfig {
+            vocab_size: 49408,
+            hidden_size: 512,
+            intermediate_size: 2048,
+            num_hidden_layers: 12,
+            num_attention_heads: 8,
+            max_position_embeddings: 77,
+            hidden_act: "quick_gelu".into(),
+            layer_norm_eps: 1e-5,
+            eos_token_id: 49407,
+            projection_dim: 512,
+        },
+        vision_config: ClipVisionConfig {
+            hidden_size: 768,
+            intermediate_size: 3072,
+            num_hidden_layers: 12,
+            num_attention_heads: 12,
+            image_size: 224,
+            patch_size: 16,
+            num_channels: 3,
+            hidden_act: "quick_gelu".into(),
+            layer_norm_eps: 1e-5,
+        },
+        projection_dim: 512,
+        extract_layers: vec![3, 6, 9],
+        reduce_dim: 64,
+        decoder_num_attention_heads: 4,
+        decoder_intermediate_size: 2048,
+        conditional_layer: 0,
+        use_complex_transposed_convolution: true,
+    }
+}
+
+/// One `segment` call on a `size`² view (resize to 352², both towers, the decoder, the
+/// probabilities resized back).
+fn clipseg(device: &Device, size: usize) -> Result<f64, Error> {
+    let path = std::path::Path::new("(benchmark config)");
+    let (config, processor) = (clipseg_rd64_refined(), ClipSegProcessorConfig::default());
+    let vb =
+        random_weights(device, |vb| ClipSeg::new(vb, config.clone(), processor.clone(), path).map(|_| ()))?;
+    let model = ClipSeg::new(vb, config, processor, path)?;
+    let img: Vec<f32> = (0..size * size * 3).map(|i| (i % 253) as f32 / 253.0).collect();
+    time(|| model.segment(&img, size, size, "the bear statue"))
 }

@@ -201,7 +201,7 @@ pub(crate) struct Attention {
 }
 
 impl Attention {
-    fn new(vb: VarBuilder, dim: usize, heads: usize) -> candle_core::Result<Self> {
+    pub(crate) fn new(vb: VarBuilder, dim: usize, heads: usize) -> candle_core::Result<Self> {
         Ok(Self {
             q: linear(dim, dim, vb.pp("q_proj"))?,
             k: linear(dim, dim, vb.pp("k_proj"))?,
@@ -414,12 +414,15 @@ impl ClipTextModel {
     }
 }
 
-/// The CLIP vision tower (`vision_model.*`).
+/// The CLIP vision tower (`vision_model.*`); also CLIPSeg's backbone.
 #[derive(Debug, Clone)]
-struct ClipVisionModel {
+pub(crate) struct ClipVisionModel {
     class_embedding: Tensor,
     patch_embedding: Tensor,
+    /// `[1 + n², hidden]` position embeddings of the native `n × n` patch grid.
     position_embedding: Tensor,
+    /// `n`: the side of the native patch grid (`image_size / patch_size`).
+    native_grid: usize,
     pre_ln: LayerNorm,
     layers: Vec<EncoderLayer>,
     post_ln: LayerNorm,
@@ -427,7 +430,11 @@ struct ClipVisionModel {
 }
 
 impl ClipVisionModel {
-    fn new(vb: VarBuilder, c: &ClipVisionConfig, config_path: &std::path::Path) -> Result<Self, Error> {
+    pub(crate) fn new(
+        vb: VarBuilder,
+        c: &ClipVisionConfig,
+        config_path: &std::path::Path,
+    ) -> Result<Self, Error> {
         let dims = Dims {
             hidden: c.hidden_size,
             intermediate: c.intermediate_size,
@@ -443,6 +450,7 @@ impl ClipVisionModel {
             patch_embedding: emb
                 .get((c.hidden_size, c.num_channels, c.patch_size, c.patch_size), "patch_embedding.weight")?,
             position_embedding: emb.get((grid * grid + 1, c.hidden_size), "position_embedding.weight")?,
+            native_grid: grid,
             pre_ln: layer_norm(c.hidden_size, c.layer_norm_eps, vb.pp("pre_layrnorm"))?,
             layers: encoder(vb.pp("encoder"), &dims)?,
             post_ln: layer_norm(c.hidden_size, c.layer_norm_eps, vb.pp("post_layernorm"))?,
@@ -450,17 +458,46 @@ impl ClipVisionModel {
         })
     }
 
+    /// The tokens entering the encoder, `[batch, 1 + gh·gw, hidden]`, of normalised
+    /// `[batch, 3, gh·patch, gw·patch]` pixels: patch embeddings after the class embedding,
+    /// plus positions, then `pre_layrnorm`. A grid other than the native square gets the
+    /// native position grid resized bicubically (transformers' `interpolate_pos_encoding`).
+    fn embed(&self, pixels: &Tensor) -> candle_core::Result<Tensor> {
+        let b = pixels.dim(0)?;
+        let patches = pixels.conv2d(&self.patch_embedding, 0, self.patch, 1, 1)?; // [b, d, gh, gw]
+        let (_, d, gh, gw) = patches.dims4()?;
+        let patches = patches.flatten_from(2)?.transpose(1, 2)?; // [b, gh·gw, d]
+        let cls = self.class_embedding.reshape((1, 1, d))?.broadcast_as((b, 1, d))?;
+        let positions = resample::position_grid(&self.position_embedding, self.native_grid, gh, gw)?;
+        let x = Tensor::cat(&[&cls, &patches], 1)?.broadcast_add(&positions)?;
+        self.pre_ln.forward(&x)
+    }
+
     /// Pooled (class-token) output `[batch, hidden]` of normalised `[batch, 3, size, size]` pixels.
     fn forward(&self, pixels: &Tensor) -> candle_core::Result<Tensor> {
-        let b = pixels.dim(0)?;
-        let patches = pixels.conv2d(&self.patch_embedding, 0, self.patch, 1, 1)?; // [b, d, g, g]
-        let d = patches.dim(1)?;
-        let patches = patches.flatten_from(2)?.transpose(1, 2)?; // [b, g², d]
-        let cls = self.class_embedding.reshape((1, 1, d))?.broadcast_as((b, 1, d))?;
-        let x = Tensor::cat(&[&cls, &patches], 1)?.broadcast_add(&self.position_embedding)?;
-        let x = self.pre_ln.forward(&x)?;
-        let x = run_encoder(&self.layers, x, None)?;
+        let x = run_encoder(&self.layers, self.embed(pixels)?, None)?;
         self.post_ln.forward(&x.narrow(1, 0, 1)?.squeeze(1)?)
+    }
+
+    /// The outputs `[batch, 1 + gh·gw, hidden]` of the encoder layers numbered in `layers`
+    /// (0 is the first layer; transformers' `hidden_states[i + 1]`), in that order. Layers
+    /// after the deepest one asked for are not run.
+    pub(crate) fn layer_outputs(
+        &self,
+        pixels: &Tensor,
+        layers: &[usize],
+    ) -> candle_core::Result<Vec<Tensor>> {
+        let Some(&deepest) = layers.iter().max() else { return Ok(Vec::new()) };
+        if deepest >= self.layers.len() {
+            candle_core::bail!("vision layer {deepest} asked for; the tower has {}", self.layers.len());
+        }
+        let mut x = self.embed(pixels)?;
+        let mut outputs = Vec::with_capacity(deepest + 1);
+        for layer in &self.layers[..=deepest] {
+            x = run_encoder(std::slice::from_ref(layer), x, None)?;
+            outputs.push(x.clone());
+        }
+        Ok(layers.iter().map(|&i| outputs[i].clone()).collect())
     }
 }
 

@@ -174,21 +174,6 @@ impl Dinov2 {
         (side(height), side(width))
     }
 
-    /// Position embeddings `[1 + gh·gw, C]` for a `gh × gw` grid.
-    fn positions(&self, gh: usize, gw: usize) -> candle_core::Result<Tensor> {
-        let n = self.config.image_size / self.config.patch_size;
-        if gh == n && gw == n {
-            return Ok(self.position.clone());
-        }
-        let c = self.config.hidden_size;
-        let cls = self.position.narrow(0, 0, 1)?;
-        // [n², C] → planar [C, n, n], resized, back to [gh·gw, C].
-        let grid = self.position.narrow(0, 1, n * n)?.t()?.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
-        let resized = resample::bicubic(&grid, c, n, n, gh, gw);
-        let patch = Tensor::from_vec(resized, (c, gh * gw), &self.device)?.t()?;
-        Tensor::cat(&[&cls, &patch], 0)
-    }
-
     /// `last_hidden_state` `[1 + gh·gw, C]` (class token first, after the final layernorm)
     /// of one normalised planar image `3 × (gh·14) × (gw·14)`.
     pub fn forward(&self, planar: Vec<f32>, gh: usize, gw: usize) -> Result<Tensor, Error> {
@@ -199,8 +184,8 @@ impl Dinov2 {
             .conv2d(&self.patch_weight, 0, p, 1, 1)?
             .broadcast_add(&self.patch_bias.reshape((1, c, 1, 1))?)?;
         let patches = patches.flatten_from(2)?.squeeze(0)?.t()?; // [gh·gw, C]
-        let mut h =
-            Tensor::cat(&[&self.cls_token, &patches], 0)?.add(&self.positions(gh, gw)?)?.unsqueeze(0)?;
+        let positions = resample::position_grid(&self.position, self.config.image_size / p, gh, gw)?;
+        let mut h = Tensor::cat(&[&self.cls_token, &patches], 0)?.add(&positions)?.unsqueeze(0)?;
         for l in &self.layers {
             let y = l.attn.forward(&l.norm1.forward(&h)?, None)?;
             h = (h + y.broadcast_mul(&l.scale1)?)?;

@@ -5,6 +5,7 @@
 //!   encoder, DDIM with three-way guidance), with a DiffEdit-style edit-attention map.
 //! - [`dinov2`]: DINOv2 patch features, upsampled to the image: the semantic features E_v.
 //! - [`clip`]: CLIP image and text features for the CLIP-sim / CLIP-dir metrics.
+//! - [`clipseg`]: CLIPSeg, the text-grounded segmenter behind the mask M_sam of the edit region.
 //! - [`tokenizer`]: the CLIP byte-pair tokenizer with its vocabulary bundled.
 //! - [`resample`]: torch-exact bicubic / bilinear resizing for the models' preprocessing.
 //! - [`check`]: field-by-field checks of model configs before building.
@@ -16,6 +17,7 @@
 
 pub mod check;
 pub mod clip;
+pub mod clipseg;
 pub mod conv;
 pub mod dinov2;
 pub mod ip2p;

@@ -83,6 +83,27 @@ pub fn bilinear(src: &[f32], channels: usize, h: usize, w: usize, oh: usize, ow:
     out
 }
 
+/// Position embeddings `[1 + gh·gw, C]` of a ViT for a `gh × gw` patch grid, from its
+/// embeddings `[1 + n², C]` for the native `n × n` grid (class position first): the patch
+/// positions, as `C` planes of `n × n`, resized bicubically as transformers'
+/// `interpolate_pos_encoding` does (DINOv2, CLIPSeg); the native grid is returned as is.
+pub fn position_grid(
+    position: &candle_core::Tensor,
+    n: usize,
+    gh: usize,
+    gw: usize,
+) -> candle_core::Result<candle_core::Tensor> {
+    if gh == n && gw == n {
+        return Ok(position.clone());
+    }
+    let c = position.dim(1)?;
+    let cls = position.narrow(0, 0, 1)?;
+    let grid = position.narrow(0, 1, n * n)?.t()?.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
+    let resized = bicubic(&grid, c, n, n, gh, gw);
+    let patch = candle_core::Tensor::from_vec(resized, (c, gh * gw), position.device())?.t()?;
+    candle_core::Tensor::cat(&[&cls, &patch], 0)
+}
+
 /// `H × W × 3` interleaved pixels to planar `3 × H × W`.
 pub fn hwc_to_chw(hwc: &[f32], h: usize, w: usize, c: usize) -> Vec<f32> {
     let mut out = vec![0f32; c * h * w];
