@@ -17,7 +17,7 @@
 //! editor picks it over Gaussians). The scores are the demo's for a trained scene: target
 //! PSNR against the true edit, background PSNR against the trained scene's own render.
 
-use crate::demo::{CaseRun, DemoError, DemoOptions, DemoOutcome, Fidelity, MethodScore};
+use crate::demo::{CaseRun, CaseScores, DemoError, DemoOptions, DemoOutcome, Fidelity};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -27,7 +27,6 @@ use transsplat_editors::{EditedView, Editor, SourceView};
 use transsplat_eval::ground_truth::Reference;
 use transsplat_scene::cameras::split_views;
 use transsplat_scene::{image, Gaussians};
-use transsplat_session::Output;
 use transsplat_train::dataset::{self, Dataset, LoadOptions, Masks};
 
 /// Largest label sampling factor read from `capture.json` (the tool writes 3).
@@ -269,16 +268,7 @@ pub fn run(
     cancel: Option<&AtomicBool>,
     on_progress: &mut dyn FnMut(&str, Progress),
 ) -> Result<DemoOutcome, DemoError> {
-    let staged = Output::begin(&opts.out, &[], crate::demo::MARKER)?;
-    let (scores, trained, evidence_psnr) =
-        match run_into(staged.dir(), capture, trained, opts, cancel, on_progress) {
-            Ok(done) => done,
-            // A failed write names the output the user gave, not the staging folder.
-            Err(DemoError::Io(e)) => return Err(DemoError::Io(staged.user_error(e))),
-            Err(e) => return Err(e),
-        };
-    let out = staged.commit()?;
-    Ok(DemoOutcome { out, scores, trained, evidence_psnr })
+    crate::demo::staged(&opts.out, |dir| run_into(dir, capture, trained, opts, cancel, on_progress))
 }
 
 fn run_into(
@@ -288,7 +278,7 @@ fn run_into(
     opts: &DemoOptions,
     cancel: Option<&AtomicBool>,
     on_progress: &mut dyn FnMut(&str, Progress),
-) -> Result<(Vec<MethodScore>, Option<Fidelity>, f64), DemoError> {
+) -> Result<CaseScores, DemoError> {
     let cameras = &capture.dataset.cameras;
     let (test, train_views) = split_views(cameras.len());
     let background = LoadOptions::default().background;

@@ -181,10 +181,22 @@ pub fn run(
     cancel: Option<&AtomicBool>,
     on_progress: &mut dyn FnMut(&str, Progress),
 ) -> Result<DemoOutcome, DemoError> {
-    let staged = Output::begin(&opts.out, &[], MARKER)?;
-    let (scores, trained, evidence_psnr) = match run_into(staged.dir(), opts, cancel, on_progress) {
+    staged(&opts.out, |dir| run_into(dir, opts, cancel, on_progress))
+}
+
+/// What a case writes into its staged folder returns: the scores, the trained source's
+/// fidelity and the 2D evidence's target PSNR.
+pub(crate) type CaseScores = (Vec<MethodScore>, Option<Fidelity>, f64);
+
+/// Runs `write` into a staged folder for `out` and commits it; a failed write names the
+/// output the user gave, not the staging folder.
+pub(crate) fn staged(
+    out: &Path,
+    write: impl FnOnce(&Path) -> Result<CaseScores, DemoError>,
+) -> Result<DemoOutcome, DemoError> {
+    let staged = Output::begin(out, &[], MARKER)?;
+    let (scores, trained, evidence_psnr) = match write(staged.dir()) {
         Ok(done) => done,
-        // A failed write names the output the user gave, not the staging folder.
         Err(DemoError::Io(e)) => return Err(DemoError::Io(staged.user_error(e))),
         Err(e) => return Err(e),
     };
@@ -198,7 +210,7 @@ fn run_into(
     opts: &DemoOptions,
     cancel: Option<&AtomicBool>,
     on_progress: &mut dyn FnMut(&str, Progress),
-) -> Result<(Vec<MethodScore>, Option<Fidelity>, f64), DemoError> {
+) -> Result<CaseScores, DemoError> {
     let dir = dir.to_path_buf();
     let scfg = if opts.quick { SceneConfig::quick() } else { SceneConfig::default() };
     let scene = build(&opts.scene, &SceneConfig { seed: opts.seed, ..scfg })?;

@@ -29,6 +29,8 @@ use candle_core::{CpuStorage, CustomOp1, DType, Layout, Module, Shape, Tensor};
 use candle_nn::{Conv2dConfig, VarBuilder};
 use rayon::prelude::*;
 
+use crate::cpu::{f32_input, gemm_accumulate, Matrix};
+
 /// Most floats of one im2col matrix (64 MiB): tiles of output rows are sized to it.
 pub const COL_BUDGET: usize = 16 << 20;
 
@@ -199,8 +201,8 @@ impl RowConv {
     }
 }
 
-/// y[:, offset..offset + n] += W · X: W `[m, k]` row-major, X `[k, n]` row-major, y rows of
-/// `y_stride` floats (the GEMM of the module doc, on every rayon thread).
+/// y[:, offset..offset + n] += W · X: W `[m, k]` and X `[k, n]` row-major, y rows of
+/// `y_stride` floats (the GEMM of the module doc).
 #[allow(clippy::too_many_arguments)]
 fn gemm_into(
     y: &mut [f32],
@@ -212,34 +214,9 @@ fn gemm_into(
     m: usize,
     k: usize,
 ) {
-    assert!(w.len() >= m * k && x.len() >= k * n && y.len() >= (m - 1) * y_stride + offset + n);
-    let threads = rayon::current_num_threads();
-    let parallelism = if threads > 1 { gemm::Parallelism::Rayon(threads) } else { gemm::Parallelism::None };
-    // SAFETY: the assert above bounds every access: dst rows of y_stride from offset (m rows,
-    // n columns), lhs m × k and rhs k × n, all row-major with unit column stride.
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            y.as_mut_ptr().add(offset),
-            1,
-            y_stride as isize,
-            true,
-            w.as_ptr(),
-            1,
-            k as isize,
-            x.as_ptr(),
-            1,
-            n as isize,
-            1.0,
-            1.0,
-            false,
-            false,
-            false,
-            parallelism,
-        );
-    }
+    let lhs = Matrix { data: w, rows: k, cols: 1 };
+    let rhs = Matrix { data: x, rows: n, cols: 1 };
+    gemm_accumulate(y, offset, y_stride, lhs, rhs, (m, n, k));
 }
 
 impl CustomOp1 for RowConv {
@@ -248,14 +225,7 @@ impl CustomOp1 for RowConv {
     }
 
     fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
-        let x = match storage {
-            CpuStorage::F32(x) => x,
-            _ => candle_core::bail!("row-conv2d: the input must be f32"),
-        };
-        let Some((start, end)) = layout.contiguous_offsets() else {
-            candle_core::bail!("row-conv2d: the input must be contiguous")
-        };
-        let x = &x[start..end];
+        let x = f32_input(storage, layout, "row-conv2d")?;
         let (b, c, h, w) = layout.shape().dims4()?;
         if c != self.in_channels {
             candle_core::bail!("row-conv2d: input has {c} channels, the weight {}", self.in_channels);

@@ -19,6 +19,7 @@ pub mod check;
 pub mod clip;
 pub mod clipseg;
 pub mod conv;
+mod cpu;
 pub mod dinov2;
 pub mod ip2p;
 pub mod linear;

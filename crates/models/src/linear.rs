@@ -17,6 +17,7 @@ use candle_core::{CpuStorage, CustomOp1, DType, Layout, Module, Shape, Tensor, D
 use candle_nn::VarBuilder;
 use rayon::prelude::*;
 
+use crate::cpu::{f32_input, gemm_accumulate, Matrix};
 use crate::softmax::exp_nonpositive;
 
 /// A linear layer loaded like `candle_nn::linear` (`weight` `[out, in]`, `bias` `[out]`);
@@ -90,11 +91,7 @@ impl CustomOp1 for LinearOp {
     }
 
     fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
-        let CpuStorage::F32(x) = storage else { candle_core::bail!("linear: the input must be f32") };
-        let Some((start, end)) = layout.contiguous_offsets() else {
-            candle_core::bail!("linear: the input must be contiguous")
-        };
-        let x = &x[start..end];
+        let x = f32_input(storage, layout, "linear")?;
         let dims = layout.shape().dims();
         if dims.last() != Some(&self.inputs) {
             candle_core::bail!("linear: input {dims:?} does not end in {} features", self.inputs);
@@ -104,34 +101,10 @@ impl CustomOp1 for LinearOp {
         if let Some(b) = &self.bias {
             y.chunks_exact_mut(self.outputs).for_each(|row| row.copy_from_slice(b));
         }
-        let threads = rayon::current_num_threads();
-        let parallelism =
-            if threads > 1 { gemm::Parallelism::Rayon(threads) } else { gemm::Parallelism::None };
-        // SAFETY: y is rows × outputs, x rows × inputs and the weight outputs × inputs, all
-        // row-major; the rhs is the weight read transposed (step 1 along k, `inputs` along n).
-        unsafe {
-            gemm::gemm(
-                rows,
-                self.outputs,
-                self.inputs,
-                y.as_mut_ptr(),
-                1,
-                self.outputs as isize,
-                true,
-                x.as_ptr(),
-                1,
-                self.inputs as isize,
-                self.weight.as_ptr(),
-                self.inputs as isize,
-                1,
-                1.0,
-                1.0,
-                false,
-                false,
-                false,
-                parallelism,
-            );
-        }
+        // the rhs is the weight read transposed: step 1 along k, `inputs` along n
+        let lhs = Matrix { data: x, rows: self.inputs, cols: 1 };
+        let rhs = Matrix { data: &self.weight, rows: 1, cols: self.inputs };
+        gemm_accumulate(&mut y, 0, self.outputs, lhs, rhs, (rows, self.outputs, self.inputs));
         let mut out = dims.to_vec();
         *out.last_mut().expect("checked above") = self.outputs;
         Ok((CpuStorage::F32(y), Shape::from(out)))
@@ -156,11 +129,7 @@ impl CustomOp1 for Geglu {
     }
 
     fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
-        let CpuStorage::F32(x) = storage else { candle_core::bail!("geglu: the input must be f32") };
-        let Some((start, end)) = layout.contiguous_offsets() else {
-            candle_core::bail!("geglu: the input must be contiguous")
-        };
-        let x = &x[start..end];
+        let x = f32_input(storage, layout, "geglu")?;
         let mut dims = layout.shape().dims().to_vec();
         let width = dims.last().copied().unwrap_or(0);
         if width == 0 || width % 2 != 0 {

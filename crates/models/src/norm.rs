@@ -84,11 +84,7 @@ impl CustomOp1 for GroupNormOp {
     }
 
     fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
-        let CpuStorage::F32(x) = storage else { candle_core::bail!("group-norm: the input must be f32") };
-        let Some((start, end)) = layout.contiguous_offsets() else {
-            candle_core::bail!("group-norm: the input must be contiguous")
-        };
-        let x = &x[start..end];
+        let x = crate::cpu::f32_input(storage, layout, "group-norm")?;
         let dims = layout.shape().dims();
         let c = dims[1];
         if c != self.weight.len() || self.groups == 0 || !c.is_multiple_of(self.groups) {

@@ -30,11 +30,7 @@ impl CustomOp1 for Softmax {
     }
 
     fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
-        let CpuStorage::F32(x) = storage else { candle_core::bail!("softmax: the input must be f32") };
-        let Some((start, end)) = layout.contiguous_offsets() else {
-            candle_core::bail!("softmax: the input must be contiguous")
-        };
-        let x = &x[start..end];
+        let x = crate::cpu::f32_input(storage, layout, "softmax")?;
         let row = layout.shape().dims().last().copied().unwrap_or(1).max(1);
         let mut y = vec![0.0f32; x.len()];
         // rows in parallel, a few at a time so short rows do not drown in scheduling

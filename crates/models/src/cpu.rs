@@ -1,0 +1,78 @@
+//! What this crate's CPU operations share: reading a contiguous f32 input from candle's
+//! storage, and a bounds-checked GEMM over row-major or transposed matrices on every
+//! rayon thread (the `gemm` crate, AVX-512 kernels where the CPU has them).
+
+use candle_core::{CpuStorage, Layout};
+
+/// The contiguous f32 values of an operation's input; an error naming `op` otherwise.
+pub(crate) fn f32_input<'a>(
+    storage: &'a CpuStorage,
+    layout: &Layout,
+    op: &str,
+) -> candle_core::Result<&'a [f32]> {
+    let CpuStorage::F32(x) = storage else { candle_core::bail!("{op}: the input must be f32") };
+    let Some((start, end)) = layout.contiguous_offsets() else {
+        candle_core::bail!("{op}: the input must be contiguous")
+    };
+    Ok(&x[start..end])
+}
+
+/// A matrix in a slice: element (i, j) at `i · rows + j · cols`.
+#[derive(Clone, Copy)]
+pub(crate) struct Matrix<'a> {
+    pub data: &'a [f32],
+    /// Stride between rows.
+    pub rows: usize,
+    /// Stride between columns.
+    pub cols: usize,
+}
+
+impl Matrix<'_> {
+    /// Whether an `r × c` matrix fits in the slice.
+    fn holds(&self, r: usize, c: usize) -> bool {
+        r == 0 || c == 0 || (r - 1) * self.rows + (c - 1) * self.cols < self.data.len()
+    }
+}
+
+/// dst += lhs · rhs for lhs `m × k` and rhs `k × n`; dst is `m × n` starting at `offset`
+/// of `y`, rows `y_rows` apart, columns adjacent.
+pub(crate) fn gemm_accumulate(
+    y: &mut [f32],
+    offset: usize,
+    y_rows: usize,
+    lhs: Matrix,
+    rhs: Matrix,
+    (m, n, k): (usize, usize, usize),
+) {
+    if m == 0 || n == 0 {
+        return;
+    }
+    assert!(lhs.holds(m, k) && rhs.holds(k, n), "gemm: an operand is smaller than {m}x{k} · {k}x{n}");
+    assert!(offset + (m - 1) * y_rows + n <= y.len(), "gemm: the output is smaller than {m}x{n}");
+    let threads = rayon::current_num_threads();
+    let parallelism = if threads > 1 { gemm::Parallelism::Rayon(threads) } else { gemm::Parallelism::None };
+    // SAFETY: the asserts above bound every access of the three matrices by their strides.
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            y.as_mut_ptr().add(offset),
+            1,
+            y_rows as isize,
+            true,
+            lhs.data.as_ptr(),
+            lhs.cols as isize,
+            lhs.rows as isize,
+            rhs.data.as_ptr(),
+            rhs.cols as isize,
+            rhs.rows as isize,
+            1.0,
+            1.0,
+            false,
+            false,
+            false,
+            parallelism,
+        );
+    }
+}
