@@ -222,6 +222,7 @@ pub fn edit<'py>(
         cameras: &cams,
         prompt: &prompt,
         editor: EditorSpec::Custom(Box::new(PyEditor { adapter, raised: raised.clone() })),
+        segmenter: None,
         features: Features::Builtin,
         views,
         config: cfg,

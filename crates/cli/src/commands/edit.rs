@@ -167,6 +167,7 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         cameras: &cams,
         prompt: &args.prompt,
         editor,
+        segmenter: None,
         features,
         views: args.views,
         background: args.background,
