@@ -409,6 +409,7 @@ pub(crate) fn run_case<E: Editor + Clone>(
             background: case.background,
             prompt: &opts.prompt,
             editor: "simulated",
+            segmenter: None,
             config: &cfg,
             target: Some(&is_target),
             formats: &[],

@@ -40,6 +40,8 @@ fn outputs_over_inputs_are_refused_by_every_command() {
     }
     std::fs::create_dir(dir.path().join("weights")).unwrap();
     std::fs::write(dir.path().join("weights/config.json"), b"{}").unwrap();
+    std::fs::create_dir(dir.path().join("masks")).unwrap();
+    std::fs::write(dir.path().join("masks/view_001.png"), b"not read").unwrap();
     let before = snapshot(dir.path());
     let cases: Vec<(Vec<String>, &str, &str)> = vec![
         (vec!["render".into(), "--scene".into(), d("ds"), "--out".into(), d("ds/images")], "ds/images", "ds"),
@@ -106,6 +108,25 @@ fn outputs_over_inputs_are_refused_by_every_command() {
             .to_vec(),
             "weights/edit",
             "weights",
+        ),
+        (
+            [
+                "edit",
+                "--scene",
+                "ds",
+                "--prompt",
+                "make the ball blue",
+                "--editor",
+                "simulated",
+                "--masks",
+                "masks",
+                "--out",
+                "masks/edit",
+            ]
+            .map(|a| if a == "ds" || a.starts_with("masks") { d(a) } else { a.to_string() })
+            .to_vec(),
+            "masks/edit",
+            "masks",
         ),
         (
             [

@@ -124,21 +124,29 @@ impl EditFolders {
     }
 }
 
-/// Reads an image as grey `H × W` (mean of RGB), resized to `w × h`, with a warning
-/// when the size differs.
-fn read_grey(path: &Path, w: usize, h: usize) -> Result<Vec<f32>, Error> {
+/// Reads an image as grey (mean of RGB, RGBA composited on black): its `H × W` values
+/// and its `(width, height)`. The one reader of mask files (the folder and command
+/// editors' `masks/`, the mask-folder segmenter).
+pub(crate) fn read_grey(path: &Path) -> Result<(Vec<f32>, usize, usize), Error> {
     let img = image::read(path)?.composite([0.0; 3]);
-    let grey: Vec<f32> = img.data.chunks_exact(3).map(|p| (p[0] + p[1] + p[2]) / 3.0).collect();
-    if (img.width, img.height) != (w, h) {
-        tracing::warn!(
-            "{}: mask is {}x{}, the view is {w}x{h}; resizing it",
-            path.display(),
-            img.width,
-            img.height
-        );
-        return Ok(resize_bilinear(&grey, img.width, img.height, 1, w, h));
+    let grey = img.data.chunks_exact(3).map(|p| (p[0] + p[1] + p[2]) / 3.0).collect();
+    Ok((grey, img.width, img.height))
+}
+
+/// A grey plane as a binary mask: 1 where the value is above 0.5, else 0.
+pub(crate) fn binarize(grey: Vec<f32>) -> Vec<f32> {
+    grey.into_iter().map(|v| if v > 0.5 { 1.0 } else { 0.0 }).collect()
+}
+
+/// Reads an editor's mask image as a binary `H × W` mask at the view's size `w × h`,
+/// resized with a warning when its size differs.
+fn read_editor_mask(path: &Path, w: usize, h: usize) -> Result<Vec<f32>, Error> {
+    let (grey, gw, gh) = read_grey(path)?;
+    if (gw, gh) != (w, h) {
+        tracing::warn!("{}: mask is {gw}x{gh}, the view is {w}x{h}; resizing it", path.display());
+        return Ok(binarize(resize_bilinear(&grey, gw, gh, 1, w, h)));
     }
-    Ok(grey)
+    Ok(binarize(grey))
 }
 
 /// Reads an attention map `.npy` (`H × W` or `H × W × 1` float32, at the view's size or
@@ -204,11 +212,8 @@ pub(crate) fn read_edits(
         };
         let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or(&stem);
         let mask_path = path.with_file_name("masks").join(format!("{name}.png"));
-        let mask: Option<Vec<f32>> = if mask_path.is_file() {
-            Some(read_grey(&mask_path, w, h)?.into_iter().map(|v| if v > 0.5 { 1.0 } else { 0.0 }).collect())
-        } else {
-            None
-        };
+        let mask: Option<Vec<f32>> =
+            if mask_path.is_file() { Some(read_editor_mask(&mask_path, w, h)?) } else { None };
         let npy_path = attention_dir.map(|d| d.join(format!("{stem}.npy"))).filter(|p| p.is_file());
         let attention = match (&npy_path, &mask) {
             (Some(p), _) => read_attention(p, w, h, (img.width, img.height))?,

@@ -8,6 +8,9 @@
 //!   possibly assembled from shards.
 //! - [`command`]: runs a user command on an exported folder (a file protocol), as a
 //!   [`child`] process: own process group, output to logs, time limit, cancellation.
+//! - [`segment`]: segmenters (views → target masks) and [`Segmented`], the one door
+//!   through which a segmenter's masks reach the engine: CLIPSeg from a phrase
+//!   (`transsplat_models`), [`MaskFolder`] (masks made elsewhere), a Python callable.
 //! - [`features`]: built-in appearance features Φ (CIELAB + local texture statistics),
 //!   the fallback semantic features E used when no feature model is given, and the
 //!   change map that serves as attention when an editor gives none.
@@ -17,6 +20,7 @@ pub mod command;
 pub mod features;
 pub mod folder;
 pub mod resize;
+pub mod segment;
 
 pub use command::CommandEditor;
 pub use features::{appearance, change_attention, semantic_fallback};
@@ -25,6 +29,7 @@ pub use folder::{
     ViewsListing,
 };
 pub use resize::resize_bilinear;
+pub use segment::{check_masks, MaskFolder, Segmented, Segmenter};
 
 use transsplat_scene::Camera;
 
@@ -69,7 +74,8 @@ pub struct EditedView {
     pub image: Vec<f32>,
     /// Text-relevant attention A_v ≥ 0, `H × W`.
     pub attention: Vec<f32>,
-    /// Optional target mask in [0, 1], `H × W`.
+    /// Optional target mask in [0, 1], `H × W` (inside where > 0.5): the editor's own,
+    /// or a segmenter's ([`Segmented`] replaces the editor's).
     pub mask: Option<Vec<f32>>,
 }
 
@@ -122,6 +128,16 @@ pub trait Editor {
     fn name(&self) -> &str;
     /// Edits the views for `prompt`.
     fn edit(&mut self, views: &[SourceView], prompt: &str) -> Result<Vec<Option<EditedView>>, Error>;
+}
+
+impl<E: Editor + ?Sized> Editor for Box<E> {
+    fn name(&self) -> &str {
+        (**self).name()
+    }
+
+    fn edit(&mut self, views: &[SourceView], prompt: &str) -> Result<Vec<Option<EditedView>>, Error> {
+        (**self).edit(views, prompt)
+    }
 }
 
 #[cfg(test)]

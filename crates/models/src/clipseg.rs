@@ -53,9 +53,19 @@ use crate::dinov2::{IMAGENET_MEAN, IMAGENET_STD};
 use crate::resample;
 use crate::tokenizer::{ClipTokenizer, END_OF_TEXT};
 use crate::{Error, ModelDir};
+use transsplat_editors::{Error as EditorError, Segmenter, SourceView};
 
 /// Download command for the CLIPSeg weights.
 pub const CLIPSEG_HINT: &str = "hf download CIDAS/clipseg-rd64-refined --local-dir DIR";
+
+/// [`CLIPSEG_HINT`] for the folder `dir`.
+pub fn download_hint(dir: &Path) -> String {
+    CLIPSEG_HINT.replace("DIR", &dir.display().to_string())
+}
+
+/// Views segmented per forward pass by [`ClipSeg::segment_many`] (a batch of 352² inputs
+/// through ViT-B/16 needs about 60 MB of activations per view).
+pub const SEGMENT_BATCH: usize = 4;
 
 /// The processor's square input side when the folder has no `preprocessor_config.json`
 /// (352, as `CIDAS/clipseg-rd64-refined`'s).
@@ -495,7 +505,7 @@ impl ClipSeg {
     /// Loads a `CIDAS/clipseg-rd64-refined` folder: `config.json`, `model.safetensors`
     /// and, if present, `preprocessor_config.json`.
     pub fn load(dir: &Path, device: &Device) -> Result<Self, Error> {
-        let dir = ModelDir::open(dir, "CLIPSeg", CLIPSEG_HINT)?;
+        let dir = ModelDir::open(dir, "CLIPSeg", &download_hint(dir))?;
         let config: ClipSegConfig =
             dir.checked("config.json", ClipSegConfig::resolve(dir.json("config.json")?))?;
         let processor = Self::processor_config(&dir, &config)?;
@@ -652,13 +662,99 @@ impl ClipSeg {
         height: usize,
         ids: &[u32],
     ) -> Result<Vec<f32>, Error> {
-        let s = self.input_size();
-        let pixels = Tensor::from_vec(self.preprocess(rgb, width, height)?, (1, 3, s, s), &self.device)?;
         let conditional = self.conditional_embeddings(&[ids.to_vec()])?;
-        let logits = self.forward(&pixels, &conditional)?.logits.squeeze(0)?;
-        let (lh, lw) = logits.dims2()?;
-        let probabilities = candle_nn::ops::sigmoid(&logits)?.flatten_all()?.to_vec1::<f32>()?;
-        Ok(transsplat_editors::resize_bilinear(&probabilities, lw, lh, 1, width, height))
+        let mut out = self.segment_many(&[(rgb, width, height)], &conditional)?;
+        Ok(out.pop().expect("one mask per image"))
+    }
+
+    /// [`ClipSeg::segment`] of several `(rgb, width, height)` images for one prompt's
+    /// conditional embedding `[1, projection_dim]` ([`ClipSeg::conditional_embeddings`]),
+    /// [`SEGMENT_BATCH`] images per forward pass: per image, the probabilities at its
+    /// own size.
+    pub fn segment_many(
+        &self,
+        images: &[(&[f32], usize, usize)],
+        conditional: &Tensor,
+    ) -> Result<Vec<Vec<f32>>, Error> {
+        let s = self.input_size();
+        let mut out = Vec::with_capacity(images.len());
+        for batch in images.chunks(SEGMENT_BATCH) {
+            let mut planar = Vec::with_capacity(batch.len() * 3 * s * s);
+            for &(rgb, width, height) in batch {
+                planar.extend(self.preprocess(rgb, width, height)?);
+            }
+            let b = batch.len();
+            let pixels = Tensor::from_vec(planar, (b, 3, s, s), &self.device)?;
+            let conditional = conditional.broadcast_as((b, self.config.projection_dim))?.contiguous()?;
+            let logits = self.forward(&pixels, &conditional)?.logits;
+            let (_, lh, lw) = logits.dims3()?;
+            let probabilities = candle_nn::ops::sigmoid(&logits)?.flatten_all()?.to_vec1::<f32>()?;
+            for (&(_, width, height), p) in batch.iter().zip(probabilities.chunks_exact(lh * lw)) {
+                out.push(transsplat_editors::resize_bilinear(p, lw, lh, 1, width, height));
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// CLIPSeg as a [`Segmenter`]: per view, the probability that each pixel shows what the
+/// phrase names ([`ClipSeg::segment`]), [`SEGMENT_BATCH`] views per forward pass. The
+/// phrase's conditional embedding is computed once ([`ClipSegSegmenter::prepare`]).
+#[derive(Debug)]
+pub struct ClipSegSegmenter {
+    model: ClipSeg,
+    /// The phrase last prepared and its conditional embedding `[1, projection_dim]`.
+    prepared: Option<(String, Tensor)>,
+}
+
+impl ClipSegSegmenter {
+    pub fn new(model: ClipSeg) -> Self {
+        ClipSegSegmenter { model, prepared: None }
+    }
+
+    /// Loads a `CIDAS/clipseg-rd64-refined` folder ([`ClipSeg::load`]).
+    pub fn load(dir: &Path, device: &Device) -> Result<Self, Error> {
+        ClipSeg::load(dir, device).map(Self::new)
+    }
+
+    /// Encodes `phrase` (cheap: the text tower only), so a phrase the model cannot take
+    /// is refused before any view is segmented.
+    pub fn prepare(&mut self, phrase: &str) -> Result<(), Error> {
+        if self.prepared.as_ref().is_some_and(|(p, _)| p == phrase) {
+            return Ok(());
+        }
+        let embedding = self.model.conditional_embeddings(&[self.model.tokenize(phrase)])?;
+        self.prepared = Some((phrase.to_string(), embedding));
+        Ok(())
+    }
+
+    pub fn model(&self) -> &ClipSeg {
+        &self.model
+    }
+}
+
+impl Segmenter for ClipSegSegmenter {
+    fn name(&self) -> &str {
+        "clipseg"
+    }
+
+    fn segment(&mut self, views: &[SourceView], phrase: &str) -> Result<Vec<Option<Vec<f32>>>, EditorError> {
+        let fail = |e: Error| EditorError::Invalid(format!("CLIPSeg, {phrase:?}: {e}"));
+        self.prepare(phrase).map_err(fail)?;
+        let (_, conditional) = self.prepared.as_ref().expect("prepared above");
+        for v in views {
+            v.check()?;
+        }
+        let images: Vec<(&[f32], usize, usize)> = views
+            .iter()
+            .map(|v| {
+                let (w, h) = v.size();
+                (v.image, w, h)
+            })
+            .collect();
+        let masks = self.model.segment_many(&images, conditional).map_err(fail)?;
+        // The antialiased resize may overshoot [0, 1] by a rounding error.
+        Ok(masks.into_iter().map(|m| Some(m.into_iter().map(|p| p.clamp(0.0, 1.0)).collect())).collect())
     }
 }
 

@@ -11,7 +11,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use candle_core::{DType, Device, Tensor};
-use transsplat_models::clipseg::{ClipSeg, CLIPSEG_HINT};
+use transsplat_models::clipseg::{download_hint, ClipSeg, ClipSegSegmenter, CLIPSEG_HINT, SEGMENT_BATCH};
 
 const VARIANTS: [&str; 2] = ["simple", "complex"];
 const TOLERANCE: f32 = 1e-4;
@@ -149,7 +149,8 @@ fn copy_without(from: &Path, to: &Path, skip: &str) {
 #[test]
 fn missing_folder_or_weights_name_the_file_and_the_download_command() {
     let err = ClipSeg::load(Path::new("/nonexistent/clipseg"), &Device::Cpu).unwrap_err().to_string();
-    assert!(err.contains("/nonexistent/clipseg") && err.contains(CLIPSEG_HINT), "{err}");
+    let hint = download_hint(Path::new("/nonexistent/clipseg"));
+    assert!(err.contains(&hint), "{err}");
     assert!(CLIPSEG_HINT.contains("hf download CIDAS/clipseg-rd64-refined --local-dir"));
 
     let tmp = tempfile::tempdir().unwrap();
@@ -158,7 +159,7 @@ fn missing_folder_or_weights_name_the_file_and_the_download_command() {
         copy_without(&fixtures().join("complex"), &dir, missing);
         let err = ClipSeg::load(&dir, &Device::Cpu).unwrap_err().to_string();
         assert!(!err.contains('\n'), "{err}");
-        assert!(err.contains(missing) && err.contains(CLIPSEG_HINT), "{err}");
+        assert!(err.contains(missing) && err.contains(&download_hint(&dir)), "{err}");
     }
 }
 
@@ -240,4 +241,41 @@ fn impossible_configs_are_refused_naming_the_field() {
         let err = load_edited(variant, file, edit);
         assert!(err.contains(file) && err.contains(words), "{variant} {file}: expected {words:?} in {err:?}");
     }
+}
+
+#[test]
+fn many_views_in_batches_give_each_views_own_segmentation() {
+    let model = load("complex");
+    let ids = [0u32, 7, 42, 499];
+    let sizes = [(20, 12), (8, 8), (33, 17), (16, 24), (5, 9), (12, 12)];
+    assert!(sizes.len() > SEGMENT_BATCH, "crosses a batch boundary");
+    let images: Vec<Vec<f32>> = sizes
+        .iter()
+        .enumerate()
+        .map(|(k, &(w, h))| (0..w * h * 3).map(|i| ((i * (k + 3)) % 97) as f32 / 96.0).collect())
+        .collect();
+    let batch: Vec<(&[f32], usize, usize)> =
+        images.iter().zip(&sizes).map(|(img, &(w, h))| (img.as_slice(), w, h)).collect();
+    let conditional = model.conditional_embeddings(&[ids.to_vec()]).unwrap();
+    let many = model.segment_many(&batch, &conditional).unwrap();
+    assert_eq!(many.len(), sizes.len());
+    for (k, &(img, w, h)) in batch.iter().enumerate() {
+        let one = model.segment_ids(img, w, h, &ids).unwrap();
+        assert_eq!(many[k].len(), w * h);
+        assert_close(&many[k], &one, &format!("image {k} in a batch"));
+    }
+}
+
+#[test]
+fn the_segmenter_refuses_a_phrase_the_model_cannot_take_naming_it() {
+    use transsplat_editors::Segmenter;
+    let mut seg = ClipSegSegmenter::load(&fixtures().join("simple"), &Device::Cpu).unwrap();
+    // The bundled tokenizer's start token does not fit the tiny model's vocabulary.
+    let err = seg.prepare("the ball").unwrap_err().to_string();
+    assert!(err.contains("outside vocab_size 500"), "{err}");
+    let cam = transsplat_scene::Camera::pinhole("v.png", 8, 8, 10.0);
+    let img = vec![0.5f32; 8 * 8 * 3];
+    let views = [transsplat_editors::SourceView { index: 3, camera: &cam, image: &img }];
+    let err = seg.segment(&views, "the ball").unwrap_err().to_string();
+    assert!(err.contains("CLIPSeg") && err.contains("\"the ball\"") && !err.contains('\n'), "{err}");
 }

@@ -14,15 +14,18 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use transsplat_edit::{EditConfig, EditError, Progress};
-use transsplat_editors::{change_attention, EditedView, Editor, SourceView};
+use transsplat_editors::{change_attention, EditedView, Editor, Segmenter, SourceView};
 use transsplat_scene::Camera;
 use transsplat_session as session;
-use transsplat_session::edit::{EditRequest, EditorSpec, Features, OutputRequest};
+use transsplat_session::edit::{EditRequest, EditorSpec, Features, OutputRequest, SegmenterSpec};
 use transsplat_session::views::ViewChoice;
 use transsplat_session::SessionError;
 
 /// Name of the Python editor in logs and outputs.
 const EDITOR_NAME: &str = "python";
+
+/// Name of the Python segmenter in logs and outputs.
+const SEGMENTER_NAME: &str = "python";
 
 /// True for the held-out test views (every 8th camera, the llffhold split): the edit
 /// uses the others.
@@ -40,23 +43,105 @@ struct PyEditor {
     raised: Arc<Mutex<Option<PyErr>>>,
 }
 
-impl PyEditor {
-    /// The views as the adapter receives them: `(index, name, image (H, W, 3), viewmat,
-    /// K, width, height)`.
-    fn views<'py>(py: Python<'py>, views: &[SourceView]) -> PyResult<Bound<'py, PyList>> {
-        let list = PyList::empty(py);
-        for v in views {
-            let (w, h) = v.size();
-            let c = v.camera;
-            let image = to_numpy(py, v.image.to_vec(), &[h, w, 3])?;
-            let vm = to_numpy(py, viewmat(c).to_vec(), &[4, 4])?;
-            let k = to_numpy(py, intrinsics(c).to_vec(), &[3, 3])?;
-            let item = (v.index, c.name.clone(), image, vm, k, w, h);
-            list.append(item)?;
+/// The views as the adapters (editor and segmenter) receive them: `(index, name, image
+/// (H, W, 3), viewmat, K, width, height)`.
+fn py_views<'py>(py: Python<'py>, views: &[SourceView]) -> PyResult<Bound<'py, PyList>> {
+    let list = PyList::empty(py);
+    for v in views {
+        let (w, h) = v.size();
+        let c = v.camera;
+        let image = to_numpy(py, v.image.to_vec(), &[h, w, 3])?;
+        let vm = to_numpy(py, viewmat(c).to_vec(), &[4, 4])?;
+        let k = to_numpy(py, intrinsics(c).to_vec(), &[3, 3])?;
+        let item = (v.index, c.name.clone(), image, vm, k, w, h);
+        list.append(item)?;
+    }
+    Ok(list)
+}
+
+/// Calls `adapter(views, text)`; an exception is kept in `raised` (raised again by
+/// [`edit`]) and becomes an editor error quoting it.
+fn call_adapter(
+    py: Python<'_>,
+    adapter: &Py<PyAny>,
+    raised: &Mutex<Option<PyErr>>,
+    who: &str,
+    views: &[SourceView],
+    text: &str,
+) -> Result<Py<PyAny>, transsplat_editors::Error> {
+    match py_views(py, views).and_then(|list| adapter.call1(py, (list, text))) {
+        Ok(out) => Ok(out),
+        Err(e) => {
+            let msg = e.to_string();
+            *raised.lock().unwrap_or_else(|p| p.into_inner()) = Some(e);
+            Err(transsplat_editors::Error::Command(format!("the {who} raised {msg}")))
         }
-        Ok(list)
+    }
+}
+
+/// A segmenter that calls `adapter(views, phrase)`; the adapter (Python,
+/// `transsplat._edit.call_segmenter`) calls the user's segmenter and returns per view
+/// `None` or an `H × W` float32 mask (values are checked by the wrapper,
+/// `transsplat_editors::segment`).
+struct PySegmenter {
+    adapter: Py<PyAny>,
+    /// The Python exception that stopped the segmenter, raised again by [`edit`].
+    raised: Arc<Mutex<Option<PyErr>>>,
+}
+
+impl Segmenter for PySegmenter {
+    fn name(&self) -> &str {
+        SEGMENTER_NAME
     }
 
+    fn segment(
+        &mut self,
+        views: &[SourceView],
+        phrase: &str,
+    ) -> Result<Vec<Option<Vec<f32>>>, transsplat_editors::Error> {
+        Python::with_gil(|py| {
+            let out = call_adapter(py, &self.adapter, &self.raised, "segmenter", views, phrase)?;
+            let bad = |m: String| transsplat_editors::Error::Invalid(m);
+            let list = out
+                .bind(py)
+                .downcast::<PyList>()
+                .map_err(|_| bad("the segmenter adapter returned no list".into()))?;
+            if list.len() != views.len() {
+                return Err(bad(format!(
+                    "the segmenter returned {} masks for {} views",
+                    list.len(),
+                    views.len()
+                )));
+            }
+            views
+                .iter()
+                .zip(list.iter())
+                .map(|(v, item)| {
+                    if item.is_none() {
+                        return Ok(None);
+                    }
+                    let (w, h) = v.size();
+                    let what = format!("view {} ({}): mask", v.index, v.camera.name);
+                    let arr = item
+                        .downcast::<numpy::PyArrayDyn<f32>>()
+                        .map_err(|_| bad(format!("{what} is not a float32 array")))?
+                        .readonly();
+                    if arr.shape() != [h, w] {
+                        return Err(bad(format!(
+                            "{what} has shape {:?}, the view is {h}x{w} (H x W)",
+                            arr.shape()
+                        )));
+                    }
+                    slice(&what, &arr, &[Some(h), Some(w)])
+                        .map(|s| Some(s.to_vec()))
+                        .map_err(|e| bad(Python::with_gil(|py| e.value(py).to_string())))
+                })
+                .collect()
+        })
+    }
+}
+
+impl PyEditor {
     /// One view's output from the adapter's `(image, attention, mask)`.
     fn output(v: &SourceView, item: &Bound<'_, PyAny>) -> Result<Option<EditedView>, String> {
         if item.is_none() {
@@ -113,15 +198,7 @@ impl Editor for PyEditor {
         prompt: &str,
     ) -> Result<Vec<Option<EditedView>>, transsplat_editors::Error> {
         Python::with_gil(|py| {
-            let result = Self::views(py, views).and_then(|list| self.adapter.call1(py, (list, prompt)));
-            let out = match result {
-                Ok(out) => out,
-                Err(e) => {
-                    let msg = e.to_string();
-                    *self.raised.lock().unwrap_or_else(|p| p.into_inner()) = Some(e);
-                    return Err(transsplat_editors::Error::Command(format!("the editor raised {msg}")));
-                }
-            };
+            let out = call_adapter(py, &self.adapter, &self.raised, "editor", views, prompt)?;
             let bad = |m: String| transsplat_editors::Error::Invalid(m);
             let list =
                 out.bind(py).downcast::<PyList>().map_err(|_| bad("the adapter returned no list".into()))?;
@@ -158,7 +235,8 @@ fn config(
 #[pyo3(signature = (
     means, quats, log_scales, opacity_logits, sh, extra_names, extra,
     viewmats, ks, widths, heights, names,
-    prompt, adapter, config_toml, overrides, method, steps, background, out, inputs, progress, views
+    prompt, adapter, config_toml, overrides, method, steps, background, out, inputs, progress, views,
+    segmenter=None, segment=None
 ))]
 #[allow(clippy::too_many_arguments)]
 pub fn edit<'py>(
@@ -186,6 +264,8 @@ pub fn edit<'py>(
     inputs: Vec<PathBuf>,
     progress: Option<Py<PyAny>>,
     views: String,
+    segmenter: Option<Py<PyAny>>,
+    segment: Option<String>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let views = ViewChoice::parse(&views).map_err(|e| value_error(format!("views: {e}")))?;
     let g = gaussians_from_arrays(
@@ -217,11 +297,17 @@ pub fn edit<'py>(
         checkpoints: None,
     });
     let raised = Arc::new(Mutex::new(None));
+    // The segmenter is given the phrase, else the whole instruction.
+    let segmenter = segmenter.map(|adapter| {
+        let phrase = segment.unwrap_or_else(|| prompt.clone());
+        SegmenterSpec::Custom(Box::new(PySegmenter { adapter, raised: raised.clone() }), phrase)
+    });
     let request = EditRequest {
         gaussians: &g,
         cameras: &cams,
         prompt: &prompt,
         editor: EditorSpec::Custom(Box::new(PyEditor { adapter, raised: raised.clone() })),
+        segmenter,
         features: Features::Builtin,
         views,
         config: cfg,

@@ -17,7 +17,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 use transsplat_edit::checkpoint::STATE_FILE;
 use transsplat_edit::{semantic, EditConfig, EditError, EditJob, EditResult, Progress};
-use transsplat_editors::{CommandEditor, Editor, FolderEditor};
+use transsplat_editors::{CommandEditor, Editor, FolderEditor, MaskFolder, Segmented, Segmenter};
 use transsplat_scene::cameras::split_views;
 use transsplat_scene::formats::{self, SceneFormat};
 use transsplat_scene::{Camera, Gaussians};
@@ -54,6 +54,85 @@ impl EditorSpec<'_> {
             EditorSpec::Custom(e) => e.name().into(),
         }
     }
+}
+
+/// Where the target masks M_sam of the edited views come from
+/// (`transsplat_editors::segment`). The edit's editor is wrapped so every edited view's
+/// mask is the segmenter's, whichever way it is made, replacing any mask the editor gave.
+pub enum SegmenterSpec<'a> {
+    /// CLIPSeg from a local Hugging Face folder (`CIDAS/clipseg-rd64-refined`), segmenting
+    /// what `phrase` names ("the ball"), given by the user.
+    ClipSeg { weights: PathBuf, phrase: String },
+    /// Masks made elsewhere: `DIR/<stem>.png` (or the view's content name), grey, one per
+    /// edited view at the view's size.
+    Folder(PathBuf),
+    /// Any other segmenter (a Python callable) and the phrase it is given.
+    Custom(Box<dyn Segmenter + Send + 'a>, String),
+}
+
+impl SegmenterSpec<'_> {
+    /// Checks what can be checked without loading anything (the weights folder and its
+    /// files, the mask folder, a non-empty phrase), so a front can refuse a bad request
+    /// before it builds anything slow of its own; [`run`] loads the model.
+    pub fn check(&self) -> Result<(), SessionError> {
+        match self {
+            SegmenterSpec::ClipSeg { weights, phrase } => {
+                if phrase.trim().is_empty() {
+                    return Err(SessionError::Input(
+                        "segment: the phrase is empty; name the target, e.g. \"the ball\"".into(),
+                    ));
+                }
+                let dir = transsplat_models::ModelDir::open(weights, "CLIPSeg", &clipseg_hint(weights))
+                    .map_err(|e| SessionError::Model(e.to_string()))?;
+                dir.file("config.json").map_err(|e| SessionError::Model(e.to_string()))?;
+                dir.safetensors("model").map_err(|e| SessionError::Model(e.to_string()))?;
+                Ok(())
+            }
+            SegmenterSpec::Folder(dir) => {
+                MaskFolder::new(dir).check().map_err(|e| SessionError::Input(e.to_string()))
+            }
+            SegmenterSpec::Custom(..) => Ok(()),
+        }
+    }
+
+    /// The folders the segmenter reads (inputs of the output rule).
+    fn inputs(&self) -> Vec<PathBuf> {
+        match self {
+            SegmenterSpec::ClipSeg { weights, .. } => vec![weights.clone()],
+            SegmenterSpec::Folder(dir) => vec![dir.clone()],
+            SegmenterSpec::Custom(..) => Vec::new(),
+        }
+    }
+}
+
+/// The download command of CLIPSeg into `dir`.
+fn clipseg_hint(dir: &Path) -> String {
+    transsplat_models::clipseg::download_hint(dir)
+}
+
+/// The segmenter a [`SegmenterSpec`] describes, loaded and ready, and its phrase.
+fn build_segmenter<'a>(
+    spec: SegmenterSpec<'a>,
+    gaussians: &Gaussians,
+) -> Result<(Box<dyn Segmenter + 'a>, String), SessionError> {
+    Ok(match spec {
+        SegmenterSpec::ClipSeg { weights, phrase } => {
+            use transsplat_models::clipseg::ClipSegSegmenter;
+            let model = |e: transsplat_models::Error| SessionError::Model(e.to_string());
+            let mut s =
+                ClipSegSegmenter::load(&weights, &transsplat_models::default_device()).map_err(model)?;
+            // A phrase the model cannot take is refused before the editor runs.
+            s.prepare(&phrase).map_err(|e| {
+                SessionError::Model(format!("{}: CLIPSeg cannot take {phrase:?}: {e}", weights.display()))
+            })?;
+            (Box::new(s), phrase)
+        }
+        SegmenterSpec::Folder(dir) => {
+            let folder = MaskFolder::new(dir).for_scene(transsplat_scene::fingerprint::scene(gaussians));
+            (Box::new(folder), String::new())
+        }
+        SegmenterSpec::Custom(s, phrase) => (s, phrase),
+    })
 }
 
 /// Where the semantic features E of the renders and edited views come from.
@@ -106,6 +185,8 @@ pub struct EditRequest<'a> {
     pub cameras: &'a [Camera],
     pub prompt: &'a str,
     pub editor: EditorSpec<'a>,
+    /// Where the target masks come from; `None` keeps the editor's own (if any).
+    pub segmenter: Option<SegmenterSpec<'a>>,
     pub features: Features,
     /// Which edit views the editor edits ([`crate::views`]).
     pub views: ViewChoice,
@@ -139,6 +220,7 @@ pub fn run(
         cameras,
         prompt,
         editor,
+        segmenter,
         features,
         views,
         config,
@@ -157,9 +239,13 @@ pub fn run(
     if views != ViewChoice::All {
         tracing::info!("the editor edits {} views: {:?}", edit_views.len(), edit_views);
     }
+    if let Some(s) = &segmenter {
+        s.check()?;
+    }
     let staged = match &output {
         Some(o) => {
-            let inputs: Vec<&Path> = o.inputs.iter().map(PathBuf::as_path).collect();
+            let segmenter_inputs = segmenter.as_ref().map(SegmenterSpec::inputs).unwrap_or_default();
+            let inputs: Vec<&Path> = o.inputs.iter().chain(&segmenter_inputs).map(PathBuf::as_path).collect();
             Some(Output::begin(&o.path, &inputs, MARKER)?)
         }
         None => None,
@@ -178,8 +264,14 @@ pub fn run(
         }
         Features::Builtin => None,
     };
+    let segmenter = segmenter.map(|s| build_segmenter(s, gaussians)).transpose()?;
+    let segmenter_name = segmenter.as_ref().map(|(s, phrase)| (s.name().to_string(), phrase.clone()));
     let editor_name = editor.name();
-    let mut editor = build_editor(editor, gaussians, staged.as_ref(), &config, cancel)?;
+    let editor = build_editor(editor, gaussians, staged.as_ref(), &config, cancel)?;
+    let mut editor: Box<dyn Editor + '_> = match segmenter {
+        Some((segmenter, phrase)) => Box::new(Segmented::new(editor, segmenter, phrase)),
+        None => editor,
+    };
     // The one semantic model of the job, for source renders and edited images alike.
     let semantic = move |img: &[f32], w: usize, h: usize| match &dino {
         Some(m) => m.features_projected(img, w, h, DINO_CHANNELS).map_err(|e| format!("DINOv2: {e}")),
@@ -222,6 +314,7 @@ pub fn run(
                 background,
                 prompt,
                 editor: &editor_name,
+                segmenter: segmenter_name.as_ref().map(|(n, p)| (n.as_str(), p.as_str())),
                 config: &config,
                 target: target.as_deref(),
                 formats: &o.formats,

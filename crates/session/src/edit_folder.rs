@@ -21,6 +21,8 @@ pub const MARKER: &str = "transport.json";
 pub struct EditSummary<'a> {
     pub prompt: &'a str,
     pub editor: &'a str,
+    /// Where the masks came from, when a segmenter was attached to the editor.
+    pub segmenter: Option<SegmenterSummary<'a>>,
     pub method: &'a str,
     pub rounds: &'a [RoundStats],
     pub losses: &'a [StepLosses],
@@ -33,6 +35,15 @@ pub struct EditSummary<'a> {
     pub mean_gate: Option<f64>,
 }
 
+/// The segmenter of an edit in `transport.json`.
+#[derive(Debug, serde::Serialize)]
+pub struct SegmenterSummary<'a> {
+    /// `clipseg`, `masks` (a folder of masks) or a Python segmenter's name.
+    pub name: &'a str,
+    /// What it was asked to segment (empty for a folder of masks).
+    pub phrase: &'a str,
+}
+
 /// Everything `write` needs.
 pub struct EditOutput<'a> {
     pub source: &'a Gaussians,
@@ -43,6 +54,8 @@ pub struct EditOutput<'a> {
     pub background: [f32; 3],
     pub prompt: &'a str,
     pub editor: &'a str,
+    /// The segmenter's name and phrase, when one made the masks.
+    pub segmenter: Option<(&'a str, &'a str)>,
     pub config: &'a EditConfig,
     /// Ground truth: which source Gaussians belong to the edit's target, where known.
     pub target: Option<&'a [bool]>,
@@ -94,7 +107,7 @@ pub fn write(dir: &Path, o: &EditOutput) -> Result<(), transsplat_scene::Error> 
         }
         grid.push((stem, cells));
     }
-    // The editor's 2D edits of a few views, for inspection.
+    // The editor's 2D edits of a few views, with their attention and mask, for inspection.
     let mut edits = Vec::new();
     for (k, (e, &v)) in r.edited.iter().zip(o.edit_views).enumerate() {
         let Some(e) = e else { continue };
@@ -106,17 +119,21 @@ pub fn write(dir: &Path, o: &EditOutput) -> Result<(), transsplat_scene::Error> 
         let amax = e.attention.iter().fold(0.0f32, |m, &a| m.max(a)).max(1e-12);
         let att: Vec<f32> = e.attention.iter().flat_map(|&a| [a / amax; 3]).collect();
         image::write_png(&rd.join(format!("attention_{stem}.png")), e.width, e.height, &att)?;
-        edits.push((
-            stem.clone(),
-            vec![
-                ("2D edit".to_string(), format!("renders/edited2d_{stem}.png")),
-                ("attention".to_string(), format!("renders/attention_{stem}.png")),
-            ],
-        ));
+        let mut cells = vec![
+            ("2D edit".to_string(), format!("renders/edited2d_{stem}.png")),
+            ("attention".to_string(), format!("renders/attention_{stem}.png")),
+        ];
+        if let Some(mask) = &e.mask {
+            let grey: Vec<f32> = mask.iter().flat_map(|&m| [m; 3]).collect();
+            image::write_png(&rd.join(format!("mask_{stem}.png")), e.width, e.height, &grey)?;
+            cells.push(("mask".to_string(), format!("renders/mask_{stem}.png")));
+        }
+        edits.push((stem.clone(), cells));
     }
     let stats = EditSummary {
         prompt: o.prompt,
         editor: o.editor,
+        segmenter: o.segmenter.map(|(name, phrase)| SegmenterSummary { name, phrase }),
         method: o.config.method.name(),
         rounds: &r.rounds,
         losses: &r.losses,
@@ -136,11 +153,17 @@ pub fn write(dir: &Path, o: &EditOutput) -> Result<(), transsplat_scene::Error> 
         r.timing.transport,
         r.timing.optimise
     ));
+    if let Some((name, phrase)) = o.segmenter {
+        let what = if phrase.is_empty() { String::new() } else { format!(" of \"{phrase}\"") };
+        p.paragraph(&format!(
+            "Masks{what} from the segmenter ({name}): each edited view's support is its attention inside its mask."
+        ));
+    }
     p.heading("The edit in 3D");
     p.raw(&viewer_section(o)?);
     p.heading("Test views: before, after, gate");
     p.image_grid(&grid);
-    p.heading("The editor's 2D edits and attention (every 4th edit view)");
+    p.heading("The editor's 2D edits, attention and mask (every 4th edit view)");
     p.image_grid(&edits);
     p.heading("Losses and transport statistics");
     let pts = |f: &dyn Fn(usize) -> (f64, f64), n: usize| (0..n).map(f).collect::<Vec<_>>();

@@ -10,7 +10,7 @@ use transsplat_edit::{EditConfig, Progress};
 use transsplat_scene::formats::{self, SceneFormat};
 use transsplat_scene::spz;
 use transsplat_session as session;
-use transsplat_session::edit::{EditRequest, EditorSpec, Features, OutputRequest};
+use transsplat_session::edit::{EditRequest, EditorSpec, Features, OutputRequest, SegmenterSpec};
 use transsplat_session::views::ViewChoice;
 
 /// Which 2D editor produces the edits.
@@ -68,6 +68,19 @@ pub struct EditArgs {
     /// view (the built-in fallback features otherwise).
     #[arg(long, value_name = "DIR")]
     pub dino_weights: Option<PathBuf>,
+    /// Restrict each edited view to a CLIPSeg mask of what PHRASE names ("the ball"): its
+    /// support becomes its attention inside the mask (replacing any mask the editor gave).
+    /// Needs --segment-weights.
+    #[arg(long, value_name = "PHRASE", requires = "segment_weights")]
+    pub segment: Option<String>,
+    /// CLIPSeg folder for --segment, as written by
+    /// `hf download CIDAS/clipseg-rd64-refined --local-dir DIR`.
+    #[arg(long, value_name = "DIR", requires = "segment")]
+    pub segment_weights: Option<PathBuf>,
+    /// Restrict each edited view to a mask made elsewhere: DIR/<stem>.png, grey (inside
+    /// where > 0.5), one per edited view at its size (replacing any mask the editor gave).
+    #[arg(long, value_name = "DIR", conflicts_with = "segment")]
+    pub masks: Option<PathBuf>,
     /// Which views the 2D editor edits: all (every camera but each 8th) or K of them,
     /// spread over the capture (the editor then runs K times; the transport, fusion and
     /// image loss work from those K views).
@@ -145,11 +158,31 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
     }
     let mut inputs = vec![args.scene.scene.clone(), scene_path.clone(), cam_path];
     inputs.extend(
-        [&args.edits, &args.config, &args.ip2p_weights, &args.dino_weights].into_iter().flatten().cloned(),
+        [
+            &args.edits,
+            &args.config,
+            &args.ip2p_weights,
+            &args.dino_weights,
+            &args.segment_weights,
+            &args.masks,
+        ]
+        .into_iter()
+        .flatten()
+        .cloned(),
     );
     let features = args.dino_weights.clone().map_or(Features::Builtin, Features::Dinov2);
-    // A missing model folder is refused before the editor is built.
+    let segmenter = match (&args.segment, &args.segment_weights, &args.masks) {
+        (Some(phrase), Some(weights), _) => {
+            Some(SegmenterSpec::ClipSeg { weights: weights.clone(), phrase: phrase.clone() })
+        }
+        (_, _, Some(dir)) => Some(SegmenterSpec::Folder(dir.clone())),
+        _ => None,
+    };
+    // A missing model or mask folder is refused before the editor is built.
     features.check()?;
+    if let Some(s) = &segmenter {
+        s.check()?;
+    }
     let (editor, target) = editor_spec(args, &scene_path, &g, &config)?;
     let output = OutputRequest {
         path: args.out.clone(),
@@ -167,6 +200,7 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         cameras: &cams,
         prompt: &args.prompt,
         editor,
+        segmenter,
         features,
         views: args.views,
         background: args.background,

@@ -88,6 +88,8 @@ def edit(
     inputs: List[str],
     progress: Optional[Callable[[str, int, int, float], None]],
     views: str,
+    segmenter: Optional[Callable[[List[tuple], str], List[Any]]] = None,
+    segment: Optional[str] = None,
 ) -> Dict[str, Any]: ...
 def check_config(
     config_toml: Optional[str], overrides: List[str], method: Optional[str], steps: Optional[int]

@@ -100,6 +100,30 @@ def call_editor(editor: Callable, raw: List[tuple], prompt: str) -> List[Any]:
     return [_output(v, item) for v, item in zip(views, out)]
 
 
+def call_segmenter(segmenter: Callable, raw: List[tuple], phrase: str) -> List[Optional[np.ndarray]]:
+    """Calls the user's segmenter on the views and checks the shape and type of what it
+    returns (used by the compiled edit; values are checked in Rust; exceptions raised by
+    the segmenter propagate unchanged)."""
+    views = [View(i, n, img, vm, k, w, h) for (i, n, img, vm, k, w, h) in raw]
+    for v in views:
+        v.image.setflags(write=False)
+    out = segmenter(views, phrase)
+    if out is None or isinstance(out, (str, bytes, np.ndarray)) or not hasattr(out, "__len__"):
+        raise ValueError(f"the segmenter must return a list with one mask per view, got {type(out).__name__}")
+    out = list(out)
+    if len(out) != len(views):
+        raise ValueError(f"the segmenter returned {len(out)} masks for {len(views)} views")
+    masks = []
+    for v, m in zip(views, out):
+        if m is not None and np.ndim(m) == 0:
+            raise ValueError(
+                f"view {v.index} ({v.name!r}): the segmenter's mask is a {type(m).__name__}, expected an "
+                f"(H, W) array in [0, 1] or None"
+            )
+        masks.append(_plane(v, "the segmenter's mask", m, None))
+    return masks
+
+
 class _Progress:
     """tqdm when it is installed (``tqdm.auto``: a widget in notebooks), else a line on
     stderr every few seconds."""
@@ -164,6 +188,8 @@ def edit(
     background: Sequence[float] = (0.0, 0.0, 0.0),
     progress: Union[bool, Callable[[str, int, int, float], None]] = True,
     views: Union[str, int] = "all",
+    segmenter: Optional[Callable[[List[View], str], Sequence[Any]]] = None,
+    segment: Optional[str] = None,
 ) -> Dict[str, Any]:
     """Edits a scene with a 2D editor and lifts the edits onto the Gaussians by
     unbalanced semantic transport (the TransSplat method; the baselines and ablations
@@ -196,6 +222,17 @@ def edit(
             ``progress(kind, a, b, x)`` (kind "edited", "step" or "round").
         views: which edit views the editor edits: ``"all"``, a count ``K`` or ``"1/N"``,
             spread over the capture as ``transsplat edit --views`` chooses them.
+        segmenter: ``segmenter(views, phrase)`` with ``views`` the :class:`View` list of
+            the views the editor edited (their renders before the edit); returns one
+            entry per view: an (H, W) mask in [0, 1] (float, bool or uint8; inside
+            where > 0.5) or None where the target was not found (e.g. Grounded-SAM or
+            LangSAM on your GPU). Each edited view's support becomes its attention
+            inside the mask, replacing any mask the editor returned: the same door as
+            ``transsplat edit --segment`` / ``--masks``. A view with no mask counts as
+            a miss (it adds no support; a warning names it); a miss in every view
+            raises ``ValueError``.
+        segment: the phrase the segmenter is given (``"the ball"``); without it, the
+            whole instruction ``prompt``.
 
     Returns:
         A dict: ``gaussians`` (the edited scene, as :func:`load_ply` returns it, with
@@ -229,6 +266,13 @@ def edit(
         raise ValueError("prompt: the instruction is empty; give one such as \"make the ball blue\"")
     if not callable(editor):
         raise ValueError(f"editor: expected a callable, got {type(editor).__name__}")
+    if segmenter is not None and not callable(segmenter):
+        raise ValueError(f"segmenter: expected a callable, got {type(segmenter).__name__}")
+    if segment is not None:
+        if segmenter is None:
+            raise ValueError("segment: needs segmenter=, a callable from views to masks")
+        if not isinstance(segment, str) or not segment.strip():
+            raise ValueError("segment: the phrase is empty; name the target, e.g. \"the ball\"")
     toml_text = None
     overrides: List[str] = []
     if isinstance(config, Mapping):
@@ -260,6 +304,12 @@ def edit(
     def adapter(raw, text):
         return call_editor(editor, raw, text)
 
+    segmenter_adapter = None
+    if segmenter is not None:
+
+        def segmenter_adapter(raw, phrase):
+            return call_segmenter(segmenter, raw, phrase)
+
     try:
         r = _core.edit(
             *scene_args,
@@ -279,6 +329,8 @@ def edit(
             inputs,
             bar,
             str(views),
+            segmenter_adapter,
+            segment,
         )
     finally:
         if isinstance(bar, _Progress):
