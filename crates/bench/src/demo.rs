@@ -6,8 +6,10 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
+use transsplat_builtin::SimulatedSegmenter;
 use transsplat_builtin::{build, labels_from_extra, LabelRender, Scene, SceneConfig, SimulatedEditor};
 use transsplat_edit::{semantic, EditConfig, EditError, EditJob, EditResult, Method, Progress};
+use transsplat_editors::segment::Segmented;
 use transsplat_editors::{Editor, SourceView};
 use transsplat_eval::ground_truth::{GtMetrics, Reference, PSNR_CAP};
 use transsplat_eval::metrics::{auroc, psnr_from_mse, squared_error};
@@ -39,6 +41,9 @@ pub struct DemoOptions {
     pub retrain_truth: bool,
     /// Which training views the simulated editor edits (`--views`).
     pub views: ViewChoice,
+    /// Masks from the simulated segmenter at this severity with every edit
+    /// (`transsplat_builtin::segmenter`); `None`: the editor's own (none).
+    pub segmenter: Option<f32>,
 }
 
 impl Default for DemoOptions {
@@ -55,6 +60,7 @@ impl Default for DemoOptions {
             trained: 0,
             retrain_truth: false,
             views: ViewChoice::All,
+            segmenter: None,
         }
     }
 }
@@ -284,7 +290,15 @@ fn run_into(
         truth_of: &truth_of,
         trained,
     };
-    let (scores, evidence) = run_case(&dir, opts, &case, &sim, cancel, on_progress)?;
+    let (scores, evidence) = match opts.segmenter {
+        None => run_case(&dir, opts, &case, &sim, cancel, on_progress)?,
+        Some(severity) => {
+            let segmenter =
+                SimulatedSegmenter::new(&scene, &target_labels, sim.distractor(), severity, opts.seed);
+            let editor = Segmented::new(sim.clone(), segmenter, opts.prompt.clone());
+            run_case(&dir, opts, &case, &editor, cancel, on_progress)?
+        }
+    };
     Ok((scores, trained, evidence))
 }
 

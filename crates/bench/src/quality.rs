@@ -146,6 +146,8 @@ pub struct SuiteOptions {
     pub views: ViewChoice,
     /// The captures of the capture cases (`--captures`).
     pub captures: Vec<Capture>,
+    /// The simulated segmenter's severity on the built-in cases (`--segmenter`).
+    pub segmenter: Option<f32>,
 }
 
 /// One case's outcome.
@@ -210,6 +212,7 @@ pub fn run(
             // Perfect edits: how close can an edit of this trained scene come?
             retrain_truth: c.trained > 0 && c.severity == 0.0 && c.capture.is_none(),
             views: opts.views,
+            segmenter: opts.segmenter,
         };
         let outcome = match &c.capture {
             None => demo::run(&demo_opts, cancel, &mut |m, p| on_progress(&c.name, m, p)),

@@ -25,6 +25,7 @@ pub mod edit;
 pub mod masks;
 pub mod rig;
 mod rng;
+pub mod segmenter;
 pub mod simulated;
 pub mod texture;
 
@@ -35,6 +36,7 @@ pub use dataset::{write_dataset, DatasetSummary, Labels, WriteOptions};
 pub use edit::{recolor, restyle, retexture, Material, Style};
 pub use masks::{one_hot, render_labels, LabelRender};
 pub use rig::{is_test, Rig};
+pub use segmenter::SimulatedSegmenter;
 pub use simulated::{Corruption, SimulatedEditor};
 
 use std::path::PathBuf;

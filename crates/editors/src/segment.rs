@@ -49,6 +49,7 @@ impl<S: Segmenter + ?Sized> Segmenter for Box<S> {
 }
 
 /// An editor whose edited views get their masks from a segmenter (see the module doc).
+#[derive(Clone)]
 pub struct Segmented<E, S> {
     editor: E,
     segmenter: S,

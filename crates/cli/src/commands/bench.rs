@@ -249,6 +249,11 @@ pub struct QualityArgs {
     /// variants' severities.
     #[arg(long, value_delimiter = ',')]
     pub captures: Vec<PathBuf>,
+    /// Hand every built-in case's edits masks from the simulated segmenter at this
+    /// severity (0: the true target mask; failure modes in crates/builtin/src/segmenter.rs).
+    /// Without it the simulated editor gives no mask.
+    #[arg(long, value_parser = super::common::finite_f32)]
+    pub segmenter: Option<f32>,
     /// Methods to run (comma-separated; default all).
     #[arg(long, value_delimiter = ',')]
     pub methods: Option<Vec<String>>,
@@ -293,6 +298,7 @@ pub fn quality(args: &QualityArgs, cancel: &AtomicBool) -> anyhow::Result<()> {
         seed: args.seed,
         views: args.views,
         captures,
+        segmenter: args.segmenter,
     };
     let total = opts.cases.len();
     let mut current = String::new();

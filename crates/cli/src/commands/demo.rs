@@ -49,6 +49,10 @@ pub struct DemoArgs {
     /// Which training views the simulated editor edits: all, K or 1/N (as `edit --views`).
     #[arg(long, value_parser = transsplat_session::views::ViewChoice::parse, default_value = "all")]
     pub views: transsplat_session::views::ViewChoice,
+    /// Hand the edits masks from the simulated segmenter at this severity (0: the true
+    /// target mask; failure modes in crates/builtin/src/segmenter.rs).
+    #[arg(long, value_parser = super::common::finite_f32)]
+    pub segmenter: Option<f32>,
 }
 
 /// The methods named on the command line (all of them when none are).
@@ -90,6 +94,7 @@ pub fn run(args: &DemoArgs, cancel: &AtomicBool) -> Result<()> {
         trained: args.trained,
         retrain_truth: args.retrain_truth,
         views: args.views,
+        segmenter: args.segmenter,
     };
     let mut bar: Option<(String, indicatif::ProgressBar)> = None;
     let demo::DemoOutcome { out, scores, .. } = demo::run(&opts, Some(cancel), &mut |name, p| {
