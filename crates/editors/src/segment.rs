@@ -20,10 +20,11 @@
 //!   each edited view's `mask` to it, **replacing any mask the editor gave**.
 //!
 //! A view where the segmenter finds nothing (it returns `None`, or a mask with no value
-//! above 0.5) is a miss: its mask is the empty mask, so under the hard intersection the
-//! view adds no support (no prototypes); its edited image is still a target of the
-//! image loss. Misses in some views are logged with a warning naming them; a miss in
-//! every view is an error.
+//! above 0.5) is a miss: the view gets no mask (the editor's is dropped too), so its
+//! support is its attention alone, as without a segmenter. A miss is not evidence that
+//! the target is absent; an empty mask would take away support the other views give
+//! (docs/results.md, "Segmentation masks", measured both ways). Misses in some views are
+//! logged with a warning naming them; a miss in every view is an error.
 
 use crate::folder::{content_name, read_grey};
 use crate::{EditedView, Editor, Error, SourceView};
@@ -86,7 +87,8 @@ impl<E: Editor, S: Segmenter> Editor for Segmented<E, S> {
         let masks = check_masks(self.segmenter.name(), &sources, masks, &self.phrase)?;
         for (k, mask) in done.into_iter().zip(masks) {
             if let Some(e) = edited[k].as_mut() {
-                e.mask = Some(mask);
+                // a miss constrains nothing: the view's attention alone decides its support
+                e.mask = mask.iter().any(|&m| m > 0.5).then_some(mask);
             }
         }
         Ok(edited)
@@ -156,7 +158,7 @@ pub fn check_masks(
             String::new()
         };
         tracing::warn!(
-            "the segmenter ({segmenter}) found nothing{what} in {} of {} views ({}{more}); they add no support",
+            "the segmenter ({segmenter}) found nothing{what} in {} of {} views ({}{more}); their attention alone decides their support",
             misses.len(),
             views.len(),
             shown.join(", ")
@@ -321,8 +323,8 @@ mod tests {
         assert_eq!(e.segmenter.phrase, "the ball");
         assert_eq!(out[0].as_ref().unwrap().mask.as_deref(), Some(&[1.0, 0.0, 0.25, 0.75][..]));
         assert!(out[1].is_none());
-        // a miss: the empty mask replaces the editor's mask of ones
-        assert_eq!(out[2].as_ref().unwrap().mask.as_deref(), Some(&[0.0; 4][..]));
+        // a miss: no mask, not even the editor's mask of ones
+        assert_eq!(out[2].as_ref().unwrap().mask, None);
         // the attention is the editor's
         assert_eq!(out[2].as_ref().unwrap().attention, vec![1.0; 4]);
     }

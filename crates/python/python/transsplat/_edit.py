@@ -229,7 +229,7 @@ def edit(
             LangSAM on your GPU). Each edited view's support becomes its attention
             inside the mask, replacing any mask the editor returned: the same door as
             ``transsplat edit --segment`` / ``--masks``. A view with no mask counts as
-            a miss (it adds no support; a warning names it); a miss in every view
+            a miss (its attention alone decides its support; a warning names it); a miss in every view
             raises ``ValueError``.
         segment: the phrase the segmenter is given (``"the ball"``); without it, the
             whole instruction ``prompt``.
