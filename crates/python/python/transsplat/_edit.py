@@ -88,29 +88,29 @@ def _output(view: View, item: Any):
 def call_editor(editor: Callable, raw: List[tuple], prompt: str) -> List[Any]:
     """Calls the user's editor on the views and checks what it returns (used by the
     compiled edit; exceptions raised by the editor propagate unchanged)."""
-    views = [View(i, n, img, vm, k, w, h) for (i, n, img, vm, k, w, h) in raw]
-    for v in views:
-        v.image.setflags(write=False)
-    out = editor(views, prompt)
-    if out is None or isinstance(out, (str, bytes, np.ndarray)) or not hasattr(out, "__len__"):
-        raise ValueError(f"the editor must return a list with one entry per view, got {type(out).__name__}")
-    out = list(out)
+    views, out = _call_on_views(editor, raw, prompt, "editor", "entry")
     if len(out) != len(views):
         raise ValueError(f"the editor returned {len(out)} views for {len(views)} inputs")
     return [_output(v, item) for v, item in zip(views, out)]
+
+
+def _call_on_views(fn: Callable, raw: List[tuple], text: str, role: str, item: str):
+    """The views (read-only images) and `fn(views, text)` as a list; a result that is not
+    a list of entries is a ValueError naming `role`."""
+    views = [View(i, n, img, vm, k, w, h) for (i, n, img, vm, k, w, h) in raw]
+    for v in views:
+        v.image.setflags(write=False)
+    out = fn(views, text)
+    if out is None or isinstance(out, (str, bytes, np.ndarray)) or not hasattr(out, "__len__"):
+        raise ValueError(f"the {role} must return a list with one {item} per view, got {type(out).__name__}")
+    return views, list(out)
 
 
 def call_segmenter(segmenter: Callable, raw: List[tuple], phrase: str) -> List[Optional[np.ndarray]]:
     """Calls the user's segmenter on the views and checks the shape and type of what it
     returns (used by the compiled edit; values are checked in Rust; exceptions raised by
     the segmenter propagate unchanged)."""
-    views = [View(i, n, img, vm, k, w, h) for (i, n, img, vm, k, w, h) in raw]
-    for v in views:
-        v.image.setflags(write=False)
-    out = segmenter(views, phrase)
-    if out is None or isinstance(out, (str, bytes, np.ndarray)) or not hasattr(out, "__len__"):
-        raise ValueError(f"the segmenter must return a list with one mask per view, got {type(out).__name__}")
-    out = list(out)
+    views, out = _call_on_views(segmenter, raw, phrase, "segmenter", "mask")
     if len(out) != len(views):
         raise ValueError(f"the segmenter returned {len(out)} masks for {len(views)} views")
     masks = []
