@@ -410,4 +410,30 @@ mod tests {
         let e = Capture::load(&dir).unwrap_err().to_string();
         assert!(e.contains("labels") && e.contains("2 times"), "{e}");
     }
+
+    #[test]
+    fn the_suite_never_writes_inside_a_capture() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("tabletop");
+        capture_of_tabletop(&dir);
+        let capture = Capture::load(&dir).unwrap();
+        let before: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+        for out in [dir.join("suite"), dir.clone()] {
+            let opts = crate::quality::SuiteOptions {
+                out: out.clone(),
+                cases: Vec::new(),
+                quick: true,
+                methods: vec![transsplat_edit::Method::Transsplat],
+                config: Default::default(),
+                seed: 0,
+                views: transsplat_session::views::ViewChoice::All,
+                captures: vec![capture.clone()],
+                segmenter: None,
+            };
+            let err = crate::quality::run(&opts, None, &mut |_, _, _| {}).unwrap_err().to_string();
+            assert!(err.contains(&dir.display().to_string()), "{err}");
+        }
+        let after: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(before, after, "nothing written into the capture");
+    }
 }

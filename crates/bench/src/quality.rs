@@ -190,7 +190,9 @@ pub fn run(
     cancel: Option<&AtomicBool>,
     on_progress: &mut dyn FnMut(&str, &str, Progress),
 ) -> Result<(PathBuf, Vec<CaseResult>), DemoError> {
-    let staged = Output::begin(&opts.out, &[], MARKER)?;
+    // The captures are inputs: the suite never writes into or over one.
+    let inputs: Vec<&Path> = opts.captures.iter().map(|c| c.dir.as_path()).collect();
+    let staged = Output::begin(&opts.out, &inputs, MARKER)?;
     let dir = staged.dir().to_path_buf();
     let mut results = Vec::new();
     // Each capture is trained once for all its cases.
