@@ -185,61 +185,63 @@ impl VaeMidBlock {
     }
 }
 
-/// diffusers `DownEncoderBlock2D`: resnets, then a [`Downsample`] (padding 0) unless last.
+/// diffusers `DownEncoderBlock2D` ([`VaeBlock::down`]: resnets, then a [`Downsample`] with
+/// padding 0 unless last) and `UpDecoderBlock2D` ([`VaeBlock::up`]: resnets, then an
+/// [`Upsample`] unless last).
 #[derive(Debug)]
-pub struct EncoderDownBlock {
+pub struct VaeBlock {
     resnets: Vec<ResnetBlock>,
-    downsample: Option<Downsample>,
+    resample: Option<Resample>,
 }
 
-impl EncoderDownBlock {
-    pub fn new(
-        vb: VarBuilder,
+/// What follows a [`VaeBlock`]'s resnets.
+#[derive(Debug)]
+enum Resample {
+    Down(Downsample),
+    Up(Upsample),
+}
+
+impl VaeBlock {
+    /// `layers` resnets from `cin` to `cout` channels (`resnets.{i}`).
+    fn resnets(
+        vb: &VarBuilder,
         (cin, cout): (usize, usize),
+        layers: usize,
+        cfg: ResnetConfig,
+    ) -> candle_core::Result<Vec<ResnetBlock>> {
+        (0..layers)
+            .map(|i| ResnetBlock::new(vb.pp("resnets").pp(i), if i == 0 { cin } else { cout }, cout, cfg))
+            .collect()
+    }
+
+    /// An encoder block; `downsample` unless it is the last.
+    pub fn down(
+        vb: VarBuilder,
+        channels: (usize, usize),
         layers: usize,
         downsample: bool,
         cfg: ResnetConfig,
     ) -> candle_core::Result<Self> {
-        let resnets = (0..layers)
-            .map(|i| ResnetBlock::new(vb.pp("resnets").pp(i), if i == 0 { cin } else { cout }, cout, cfg))
-            .collect::<candle_core::Result<_>>()?;
-        let downsample =
-            downsample.then(|| Downsample::new(vb.pp("downsamplers").pp(0), cout, 0)).transpose()?;
-        Ok(EncoderDownBlock { resnets, downsample })
+        let resnets = Self::resnets(&vb, channels, layers, cfg)?;
+        let resample = downsample
+            .then(|| Downsample::new(vb.pp("downsamplers").pp(0), channels.1, 0).map(Resample::Down))
+            .transpose()?;
+        Ok(VaeBlock { resnets, resample })
     }
 
-    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
-        let mut h = x.clone();
-        for r in &self.resnets {
-            h = r.forward(&h, None)?;
-        }
-        match &self.downsample {
-            Some(d) => d.forward(&h),
-            None => Ok(h),
-        }
-    }
-}
-
-/// diffusers `UpDecoderBlock2D`: resnets, then an [`Upsample`] unless last.
-#[derive(Debug)]
-pub struct DecoderUpBlock {
-    resnets: Vec<ResnetBlock>,
-    upsample: Option<Upsample>,
-}
-
-impl DecoderUpBlock {
-    pub fn new(
+    /// A decoder block; `upsample` unless it is the last.
+    pub fn up(
         vb: VarBuilder,
-        (cin, cout): (usize, usize),
+        channels: (usize, usize),
         layers: usize,
         upsample: bool,
         cfg: ResnetConfig,
     ) -> candle_core::Result<Self> {
-        let resnets = (0..layers)
-            .map(|i| ResnetBlock::new(vb.pp("resnets").pp(i), if i == 0 { cin } else { cout }, cout, cfg))
-            .collect::<candle_core::Result<_>>()?;
-        let upsample = upsample.then(|| Upsample::new(vb.pp("upsamplers").pp(0), cout)).transpose()?;
-        Ok(DecoderUpBlock { resnets, upsample })
+        let resnets = Self::resnets(&vb, channels, layers, cfg)?;
+        let resample = upsample
+            .then(|| Upsample::new(vb.pp("upsamplers").pp(0), channels.1).map(Resample::Up))
+            .transpose()?;
+        Ok(VaeBlock { resnets, resample })
     }
 
     pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
@@ -247,8 +249,9 @@ impl DecoderUpBlock {
         for r in &self.resnets {
             h = r.forward(&h, None)?;
         }
-        match &self.upsample {
-            Some(u) => u.forward(&h),
+        match &self.resample {
+            Some(Resample::Down(d)) => d.forward(&h),
+            Some(Resample::Up(u)) => u.forward(&h),
             None => Ok(h),
         }
     }

@@ -6,7 +6,7 @@
 use candle_core::{Module, Tensor};
 use candle_nn::{Conv2dConfig, VarBuilder};
 
-use super::blocks::{DecoderUpBlock, EncoderDownBlock, ResnetConfig, VaeMidBlock};
+use super::blocks::{ResnetConfig, VaeBlock, VaeMidBlock};
 use crate::conv::{conv2d, Conv2d};
 use crate::norm::{group_norm, GroupNorm};
 use serde::Deserialize;
@@ -96,7 +96,7 @@ impl VaeConfig {
 pub struct Vae {
     pub config: VaeConfig,
     enc_conv_in: Conv2d,
-    enc_down: Vec<EncoderDownBlock>,
+    enc_down: Vec<VaeBlock>,
     enc_mid: VaeMidBlock,
     enc_norm_out: GroupNorm,
     enc_conv_out: Conv2d,
@@ -104,7 +104,7 @@ pub struct Vae {
     post_quant_conv: Option<Conv2d>,
     dec_conv_in: Conv2d,
     dec_mid: VaeMidBlock,
-    dec_up: Vec<DecoderUpBlock>,
+    dec_up: Vec<VaeBlock>,
     dec_norm_out: GroupNorm,
     dec_conv_out: Conv2d,
 }
@@ -130,7 +130,7 @@ impl Vae {
         for i in 0..n {
             let cin = if i == 0 { chans[0] } else { chans[i - 1] };
             let vb = enc.pp("down_blocks").pp(i);
-            enc_down.push(EncoderDownBlock::new(vb, (cin, chans[i]), c.layers_per_block, i + 1 < n, rc)?);
+            enc_down.push(VaeBlock::down(vb, (cin, chans[i]), c.layers_per_block, i + 1 < n, rc)?);
         }
         let enc_mid = VaeMidBlock::new(enc.pp("mid_block"), last, rc)?;
         let enc_norm_out = group_norm(c.norm_num_groups, last, 1e-6, enc.pp("conv_norm_out"))?;
@@ -156,7 +156,7 @@ impl Vae {
         for i in 0..n {
             let cin = if i == 0 { rev[0] } else { rev[i - 1] };
             let vb = dec.pp("up_blocks").pp(i);
-            dec_up.push(DecoderUpBlock::new(vb, (cin, rev[i]), c.layers_per_block + 1, i + 1 < n, rc)?);
+            dec_up.push(VaeBlock::up(vb, (cin, rev[i]), c.layers_per_block + 1, i + 1 < n, rc)?);
         }
         let dec_norm_out = group_norm(c.norm_num_groups, chans[0], 1e-6, dec.pp("conv_norm_out"))?;
         let dec_conv_out = conv3(dec.pp("conv_out"), chans[0], c.out_channels)?;
