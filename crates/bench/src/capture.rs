@@ -280,7 +280,8 @@ fn run_into(
     on_progress: &mut dyn FnMut(&str, Progress),
 ) -> Result<CaseScores, DemoError> {
     let cameras = &capture.dataset.cameras;
-    let (test, train_views) = split_views(cameras.len());
+    let (test, edit_views) =
+        transsplat_session::views::split(cameras, opts.views).map_err(|e| DemoError::Views(e.to_string()))?;
     let background = LoadOptions::default().background;
     let target = [capture.target()];
     let truths: Vec<LabelRender> = test.iter().map(|&v| capture.truth(v)).collect();
@@ -294,8 +295,6 @@ fn run_into(
     );
     let reference = reference.with_source(cameras, source);
     let fidelity = Fidelity { test_psnr: *psnr as f64, target_psnr, background_psnr, retrained: None };
-    let edit_views = transsplat_session::views::choose(cameras, &train_views, opts.views)
-        .map_err(|e| DemoError::Views(e.to_string()))?;
     let editor = CaptureEditor::new(capture, opts.severity, opts.seed);
     let description =
         format!("{} of the capture {}, severity {}", capture.prompt(), capture.name, opts.severity);

@@ -15,10 +15,11 @@ use transsplat_eval::ground_truth::{GtMetrics, Reference, PSNR_CAP};
 use transsplat_eval::metrics::{auroc, psnr_from_mse, squared_error};
 use transsplat_raster::{render, RenderOptions, Splats};
 use transsplat_scene::{image, Camera, Gaussians};
+use transsplat_session::edit::{EditRequest, EditorSpec, Features, OutputRequest};
 use transsplat_session::edit_folder::{self, EditOutput};
 use transsplat_session::report::Page;
 use transsplat_session::views::ViewChoice;
-use transsplat_session::Output;
+use transsplat_session::{Output, SessionError};
 
 /// Settings of a demo run.
 #[derive(Clone, Debug)]
@@ -124,6 +125,23 @@ pub enum DemoError {
     /// A capture case whose capture was not loaded.
     #[error("{0}")]
     Capture(String),
+    /// A method's edit job (the session layer) refused or failed.
+    #[error(transparent)]
+    Session(SessionError),
+}
+
+impl From<SessionError> for DemoError {
+    /// The session's errors as the demo's own where it has one, so a stop is still
+    /// [`EditError::Interrupted`] and a failed write is still [`DemoError::Io`] (whose path
+    /// [`staged`] gives back as the user's).
+    fn from(e: SessionError) -> Self {
+        match e {
+            SessionError::Io(e) => DemoError::Io(e),
+            SessionError::Edit(e) => DemoError::Edit(e),
+            SessionError::Interrupted { step, .. } => DemoError::Edit(EditError::Interrupted(step as usize)),
+            e => DemoError::Session(e),
+        }
+    }
 }
 
 /// `metrics.json`, the marker of a finished demo folder: the case and each method's
@@ -264,7 +282,7 @@ fn run_into(
     } else {
         (scene.gaussians_with_labels(), None)
     };
-    let edit_views = transsplat_session::views::choose(&scene.cameras, &scene.train_views(), opts.views)
+    let (test, edit_views) = transsplat_session::views::split(&scene.cameras, opts.views)
         .map_err(|e| DemoError::Views(e.to_string()))?;
     // Gaussian labels exist for the built-in Gaussians only (not for a trained scene).
     let built_labels = (opts.trained == 0).then(|| scene.labels.clone());
@@ -282,7 +300,7 @@ fn run_into(
         cameras: &scene.cameras,
         source: &source,
         edit_views,
-        test: scene.test_views(),
+        test,
         background: scene.background,
         reference: &reference,
         target_labels: &target_labels,
@@ -356,7 +374,7 @@ fn evidence_psnr<E: Editor + Clone>(case: &CaseRun, editor: &E, prompt: &str) ->
 /// Runs every method of `opts` on `case` with (a fresh copy of) `editor`, scores each
 /// against the case's reference and writes the method folders, `metrics.json` and
 /// `report.html` into `dir`; returns the scores and the 2D evidence's own target PSNR.
-pub(crate) fn run_case<E: Editor + Clone>(
+pub(crate) fn run_case<E: Editor + Clone + Send>(
     dir: &Path,
     opts: &DemoOptions,
     case: &CaseRun,
@@ -384,18 +402,38 @@ pub(crate) fn run_case<E: Editor + Clone>(
     let mut results: Vec<(Method, EditResult)> = Vec::new();
     // The top report's 3D viewer: the first method's edit.
     let mut viewer: Option<(String, String)> = None;
+    let target = (case.target_of)(case.source);
     for &m in &opts.methods {
+        let name = m.name();
         let cfg = config.for_method(m);
-        let job = EditJob {
+        // Each method is one edit job of the session layer, as `transsplat edit` runs it,
+        // written into its own folder of the demo's staged output.
+        let request = EditRequest {
             gaussians: case.source,
             cameras: case.cameras,
-            edit_views: case.edit_views.clone(),
-            background: case.background,
             prompt: &opts.prompt,
-            semantic: &semantic::builtin,
+            editor: EditorSpec::Custom(Box::new(editor.clone())),
+            segmenter: None,
+            features: Features::Builtin,
+            views: opts.views,
+            config: cfg.clone(),
+            background: case.background,
+            output: Some(OutputRequest {
+                path: dir.join(name),
+                inputs: Vec::new(),
+                formats: Vec::new(),
+                write_options: Default::default(),
+                checkpoints: None,
+            }),
+            target: Some(target.clone()),
         };
-        let mut editor = editor.clone();
-        let res = transsplat_edit::run(&job, &mut editor, &cfg, cancel, &mut |p| on_progress(m.name(), p))?;
+        let outcome = transsplat_session::edit::run(request, cancel, &mut |p| on_progress(name, p))?;
+        debug_assert_eq!(
+            (&outcome.test_views, &outcome.edit_views),
+            (test, &case.edit_views),
+            "one view split"
+        );
+        let res = outcome.result;
         let metrics = reference.score(case.cameras, &res.gaussians);
         let is_target = (case.target_of)(&res.gaussians);
         let gate_auroc =
@@ -406,31 +444,24 @@ pub(crate) fn run_case<E: Editor + Clone>(
                     g.iter().zip(&is_target).filter(|(_, &t)| t == want).map(|(&x, _)| x).collect();
                 v.iter().sum::<f32>() / v.len().max(1) as f32
             };
-            tracing::info!(
-                "{}: mean gate on the target {:.3}, elsewhere {:.3}",
-                m.name(),
-                mean(true),
-                mean(false)
-            );
+            tracing::info!("{name}: mean gate on the target {:.3}, elsewhere {:.3}", mean(true), mean(false));
         }
-        let name = m.name();
-        let output = EditOutput {
-            source: case.source,
-            result: &res,
-            cameras: case.cameras,
-            test_views: test,
-            edit_views: &job.edit_views,
-            background: case.background,
-            prompt: &opts.prompt,
-            editor: "simulated",
-            segmenter: None,
-            config: &cfg,
-            target: Some(&is_target),
-            formats: &[],
-            write_options: Default::default(),
-        };
-        edit_folder::write(&dir.join(name), &output)?;
         if viewer.is_none() {
+            let output = EditOutput {
+                source: case.source,
+                result: &res,
+                cameras: case.cameras,
+                test_views: test,
+                edit_views: &outcome.edit_views,
+                background: case.background,
+                prompt: &opts.prompt,
+                editor: editor.name(),
+                segmenter: None,
+                config: &cfg,
+                target: Some(&target),
+                formats: &[],
+                write_options: Default::default(),
+            };
             viewer = Some((name.to_string(), edit_folder::viewer_section(&output)?));
         }
         tracing::info!(

@@ -4,7 +4,7 @@
 //!
 //! The order is fixed so every front keeps the same guarantees: the output rule and
 //! staging come before anything slow (a model load, the editor); the view split is
-//! [`transsplat_scene::cameras::split_views`] (every 8th camera held out); a stop or a
+//! [`crate::views::split`] (every 8th camera held out); a stop or a
 //! failure leaves the output as it was and says where the checkpoint is.
 
 use crate::checkpoints::{self, Checkpoints};
@@ -18,7 +18,6 @@ use std::time::Duration;
 use transsplat_edit::checkpoint::STATE_FILE;
 use transsplat_edit::{semantic, EditConfig, EditError, EditJob, EditResult, Progress};
 use transsplat_editors::{CommandEditor, Editor, FolderEditor, MaskFolder, Segmented, Segmenter};
-use transsplat_scene::cameras::split_views;
 use transsplat_scene::formats::{self, SceneFormat};
 use transsplat_scene::{Camera, Gaussians};
 
@@ -234,8 +233,7 @@ pub fn run(
     if background.iter().any(|v| !v.is_finite()) {
         return Err(SessionError::Input(format!("background: non-finite value in {background:?}")));
     }
-    let (test_views, edit_views) = split_views(cameras.len());
-    let edit_views = crate::views::choose(cameras, &edit_views, views)?;
+    let (test_views, edit_views) = crate::views::split(cameras, views)?;
     if views != ViewChoice::All {
         tracing::info!("the editor edits {} views: {:?}", edit_views.len(), edit_views);
     }

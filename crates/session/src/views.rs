@@ -16,6 +16,7 @@
 //! grid over its plane. Ties go to the lower index; the choice is deterministic.
 
 use crate::SessionError;
+use transsplat_scene::cameras::split_views;
 use transsplat_scene::Camera;
 
 /// How many of the edit views the editor edits.
@@ -47,6 +48,13 @@ impl ViewChoice {
             },
         }
     }
+}
+
+/// The held-out test views and the views the editor edits, as camera indices in order:
+/// [`split_views`] (every 8th camera held out), then `choice` among its edit views.
+pub fn split(cameras: &[Camera], choice: ViewChoice) -> Result<(Vec<usize>, Vec<usize>), SessionError> {
+    let (test_views, edit_views) = split_views(cameras.len());
+    Ok((test_views, choose(cameras, &edit_views, choice)?))
 }
 
 /// The views to edit among `edit_views` (camera indices, in order).
