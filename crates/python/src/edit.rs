@@ -277,17 +277,11 @@ pub fn edit<'py>(
         extra_names,
         extra.as_ref(),
     )?;
-    if g.is_empty() {
-        return Err(value_error("scene: the scene has no Gaussians"));
-    }
     if widths.len() != heights.len() {
         return Err(value_error("cameras: widths and heights differ in length"));
     }
     let sizes: Vec<(u32, u32)> = widths.into_iter().zip(heights).collect();
     let cams: Vec<Camera> = cameras_from_arrays(&viewmats, &ks, &sizes, Some(names))?;
-    if background.iter().any(|v| !v.is_finite()) {
-        return Err(value_error(format!("background: non-finite value in {background:?}")));
-    }
     let cfg = config(config_toml.as_deref(), &overrides, method.as_deref(), steps)?;
     let output = out.map(|path| OutputRequest {
         path,
@@ -318,60 +312,78 @@ pub fn edit<'py>(
     let cancel = AtomicBool::new(false);
     let interrupt: Mutex<Option<PyErr>> = Mutex::new(None);
     let outcome = py.allow_threads(|| {
-        let mut report = |p: Progress| {
-            Python::with_gil(|py| {
-                if let Err(e) = py.check_signals() {
-                    *interrupt.lock().unwrap_or_else(|p| p.into_inner()) = Some(e);
-                    cancel.store(true, Ordering::SeqCst);
-                    return;
-                }
-                let Some(cb) = &progress else { return };
-                let call = match p {
-                    Progress::Step { step, steps, loss } => cb.call1(py, ("step", step, steps, loss)),
-                    Progress::Edited { views, seconds } => cb.call1(py, ("edited", views, 0usize, seconds)),
-                    Progress::Round(r) => cb.call1(py, ("round", r.round, r.step, r.mean_gate)),
-                };
-                if let Err(e) = call {
-                    *interrupt.lock().unwrap_or_else(|p| p.into_inner()) = Some(e);
-                    cancel.store(true, Ordering::SeqCst);
-                }
-            })
-        };
+        let mut report = |p: Progress| report_progress(p, progress.as_ref(), &cancel, &interrupt);
         session::edit::run(request, Some(&cancel), &mut report)
     });
     // The exception that asked for the stop; one raised in the last step's report
     // comes after the loop's last check, so it is looked at on success too.
     let stop = interrupt.into_inner().unwrap_or_else(|p| p.into_inner());
-    let outcome = match (outcome, stop) {
-        (Ok(r), None) => r,
-        (Ok(_), Some(stop)) => return Err(stop),
-        (Err(e), stop) => {
-            if let Some(raised) = raised.lock().unwrap_or_else(|p| p.into_inner()).take() {
-                return Err(raised);
-            }
-            return Err(match e {
-                SessionError::Edit(EditError::Interrupted(step)) => stop.unwrap_or_else(|| {
-                    PyKeyboardInterrupt::new_err(format!("edit interrupted at step {step}"))
-                }),
-                SessionError::Interrupted { message, .. } => {
-                    stop.unwrap_or_else(|| PyKeyboardInterrupt::new_err(message))
-                }
-                SessionError::Edit(EditError::Input(m)) | SessionError::Input(m) => value_error(m),
-                SessionError::Edit(e @ EditError::NoEvidence) => value_error(e.to_string()),
-                SessionError::Edit(EditError::Editor(transsplat_editors::Error::Invalid(m))) => {
-                    value_error(m)
-                }
-                SessionError::Io(e) => scene_error(e),
-                e => PyRuntimeError::new_err(e.to_string()),
-            });
+    match (outcome, stop) {
+        (Ok(outcome), None) => result_dict(py, outcome),
+        (Ok(_), Some(stop)) => Err(stop),
+        (Err(e), stop) => match raised.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            Some(raised) => Err(raised),
+            None => Err(session_error(e, stop)),
+        },
+    }
+}
+
+/// Hands one step, round or editor call to the Python callback `progress` (with the
+/// GIL); Ctrl-C in Python, or an exception in the callback, is kept in `interrupt` and
+/// asks the loop to stop.
+fn report_progress(
+    p: Progress,
+    progress: Option<&Py<PyAny>>,
+    cancel: &AtomicBool,
+    interrupt: &Mutex<Option<PyErr>>,
+) {
+    Python::with_gil(|py| {
+        if let Err(e) = py.check_signals() {
+            *interrupt.lock().unwrap_or_else(|p| p.into_inner()) = Some(e);
+            cancel.store(true, Ordering::SeqCst);
+            return;
         }
-    };
+        let Some(cb) = progress else { return };
+        let call = match p {
+            Progress::Step { step, steps, loss } => cb.call1(py, ("step", step, steps, loss)),
+            Progress::Edited { views, seconds } => cb.call1(py, ("edited", views, 0usize, seconds)),
+            Progress::Round(r) => cb.call1(py, ("round", r.round, r.step, r.mean_gate)),
+        };
+        if let Err(e) = call {
+            *interrupt.lock().unwrap_or_else(|p| p.into_inner()) = Some(e);
+            cancel.store(true, Ordering::SeqCst);
+        }
+    })
+}
+
+/// The Python exception for a failed edit job: the stop's own exception (Ctrl-C, the
+/// callback's) for an interruption, `ValueError` for a bad input, the scene error for a
+/// file, `RuntimeError` otherwise.
+fn session_error(e: SessionError, stop: Option<PyErr>) -> PyErr {
+    match e {
+        SessionError::Edit(EditError::Interrupted(step)) => {
+            stop.unwrap_or_else(|| PyKeyboardInterrupt::new_err(format!("edit interrupted at step {step}")))
+        }
+        SessionError::Interrupted { message, .. } => {
+            stop.unwrap_or_else(|| PyKeyboardInterrupt::new_err(message))
+        }
+        SessionError::Edit(EditError::Input(m)) | SessionError::Input(m) => value_error(m),
+        SessionError::Edit(e @ EditError::NoEvidence) => value_error(e.to_string()),
+        SessionError::Edit(EditError::Editor(transsplat_editors::Error::Invalid(m))) => value_error(m),
+        SessionError::Io(e) => scene_error(e),
+        e => PyRuntimeError::new_err(e.to_string()),
+    }
+}
+
+/// What `edit` returns to Python: the edited scene, the gate, per-round and per-step
+/// statistics (as JSON text), the edited views and the output folder.
+fn result_dict(py: Python<'_>, outcome: session::edit::EditOutcome) -> PyResult<Bound<'_, PyDict>> {
     let session::edit::EditOutcome { result, out: written, edit_views, .. } = outcome;
     let d = PyDict::new(py);
-    let json = |v: serde_json::Value| v.to_string();
-    d.set_item("rounds_json", json(serde_json::json!(result.rounds)))?;
-    d.set_item("losses_json", json(serde_json::json!(result.losses)))?;
-    d.set_item("timing_json", json(serde_json::json!(result.timing)))?;
+    let json = |e: serde_json::Result<String>| e.expect("edit statistics serialise");
+    d.set_item("rounds_json", json(serde_json::to_string(&result.rounds)))?;
+    d.set_item("losses_json", json(serde_json::to_string(&result.losses)))?;
+    d.set_item("timing_json", json(serde_json::to_string(&result.timing)))?;
     d.set_item("prototypes", result.prototypes.clone())?;
     d.set_item("edit_views", edit_views)?;
     match &result.gate {

@@ -15,6 +15,7 @@
 //!   `report.html`), also written per method by the demo.
 //! - [`checkpoints`]: the checkpoint folder beside an output, resume and the message
 //!   after a stop.
+//! - [`inputs`]: a job's scene and cameras, read and checked.
 //! - [`views`]: which views the 2D editor edits (`--views`).
 //! - [`output`]: the output rule and staging of a job's folder.
 //! - [`report`], [`heatmap`]: the HTML report page and per-Gaussian heat maps.
@@ -23,6 +24,7 @@ pub mod checkpoints;
 pub mod edit;
 pub mod edit_folder;
 pub mod heatmap;
+pub mod inputs;
 pub mod output;
 pub mod report;
 pub mod train;

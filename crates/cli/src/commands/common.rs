@@ -1,10 +1,10 @@
 //! Loading inputs and preparing outputs, shared by the commands.
 
-use anyhow::{bail, Context, Result};
+use anyhow::Result;
 use std::path::{Path, PathBuf};
 
-use transsplat_scene::{cameras, formats, scene_paths, spz, Camera, Gaussians};
-use transsplat_session::{Checkpoints, Output};
+use transsplat_scene::{formats, spz, Camera, Gaussians};
+use transsplat_session::{inputs, Checkpoints, Output};
 
 /// Options shared by every command that reads a scene.
 #[derive(clap::Args, Debug, Clone)]
@@ -31,43 +31,17 @@ pub struct SpzWriteArgs {
     pub spz_version: u32,
 }
 
-/// Reads and checks the scene; returns it with the PLY path it came from.
+/// Reads and checks the scene (the session layer's [`inputs::load_scene`]); returns it
+/// with the file it came from.
 pub fn load_scene(args: &SceneArgs) -> Result<(Gaussians, PathBuf)> {
-    let path = scene_paths::resolve_scene(&args.scene)?;
     let options = formats::ReadOptions { drop_invalid: args.drop_invalid, spz_axes: args.spz_axes };
-    let (g, dropped) = formats::read_with(&path, &options)?;
-    if dropped > 0 {
-        tracing::warn!("{}: dropped {dropped} Gaussians with NaN or infinite parameters", path.display());
-    }
-    if g.is_empty() {
-        bail!("{}: the scene has no Gaussians", path.display());
-    }
-    tracing::info!("{}: {} Gaussians, SH degree {}", path.display(), g.len(), g.sh_degree);
-    Ok((g, path))
+    Ok(inputs::load_scene(&args.scene, &options)?)
 }
 
-/// Loads cameras from `--cameras`, or from beside the scene when it is an INRIA folder.
+/// Loads cameras from `--cameras`, or from beside the scene when it is an INRIA folder
+/// (the session layer's [`inputs::load_cameras`]).
 pub fn load_cameras(cameras_arg: Option<&Path>, scene: &Path) -> Result<(Vec<Camera>, PathBuf)> {
-    let path = match cameras_arg {
-        Some(p) => p.to_path_buf(),
-        None => scene_paths::resolve_cameras_for(scene)
-            .context("no --cameras given and none found beside the scene")?,
-    };
-    let cams = cameras::load(&path)?;
-    if cams.is_empty() {
-        bail!("{}: no cameras", path.display());
-    }
-    let mut stems = std::collections::HashSet::new();
-    for c in &cams {
-        if !stems.insert(c.stem()) {
-            bail!(
-                "{}: two cameras share the image name {:?}; outputs would overwrite each other",
-                path.display(),
-                c.stem()
-            );
-        }
-    }
-    Ok((cams, path))
+    Ok(inputs::load_cameras(cameras_arg, scene)?)
 }
 
 pub use transsplat_scene::atomic::check_output;

@@ -73,6 +73,24 @@ pub fn parse_methods(names: Option<&[String]>) -> Result<Vec<Method>> {
 
 /// Runs `transsplat demo`.
 pub fn run(args: &DemoArgs, cancel: &AtomicBool) -> Result<()> {
+    let opts = demo_options(args)?;
+    let mut bars = MethodBars::default();
+    let outcome = demo::run(&opts, Some(cancel), &mut |name, p| bars.show(name, p));
+    bars.finish();
+    let demo::DemoOutcome { out, scores, .. } = outcome.map_err(|e| match e {
+        demo::DemoError::Edit(transsplat_edit::EditError::Interrupted(s)) => {
+            anyhow::anyhow!("interrupted at step {s}; nothing was written to {}", args.out.display())
+        }
+        e => e.into(),
+    })?;
+    print_scores(&scores);
+    println!("wrote {}/metrics.json and {}/report.html", out.display(), out.display());
+    Ok(())
+}
+
+/// The demo's settings from its flags: the edit settings (`--config`, the quick
+/// schedule, then `--set`, so an explicit setting wins) and the case.
+fn demo_options(args: &DemoArgs) -> Result<DemoOptions> {
     let mut config = match &args.config {
         Some(p) => EditConfig::from_toml_file(p).map_err(anyhow::Error::msg)?,
         None => EditConfig::default(),
@@ -81,52 +99,57 @@ pub fn run(args: &DemoArgs, cancel: &AtomicBool) -> Result<()> {
         transsplat_bench::demo::quick_schedule(&mut config);
     }
     let config = config.with_overrides(&args.set).map_err(anyhow::Error::msg)?;
-    let methods = parse_methods(args.methods.as_deref())?;
-    let opts = DemoOptions {
+    Ok(DemoOptions {
         out: args.out.clone(),
         scene: args.scene.clone(),
         prompt: args.prompt.clone(),
         severity: args.severity,
         quick: args.quick,
-        methods,
+        methods: parse_methods(args.methods.as_deref())?,
         config,
         seed: args.seed,
         trained: args.trained,
         retrain_truth: args.retrain_truth,
         views: args.views,
         segmenter: args.segmenter,
-    };
-    let mut bar: Option<(String, indicatif::ProgressBar)> = None;
-    let demo::DemoOutcome { out, scores, .. } = demo::run(&opts, Some(cancel), &mut |name, p| {
-        if let Progress::Step { step, steps, loss } = p {
-            if bar.as_ref().is_none_or(|(n, _)| n != name) {
-                if let Some((_, b)) = bar.take() {
-                    b.finish_and_clear();
-                }
-                bar = Some((name.to_string(), progress(steps as u64, name)));
-            }
-            if let Some((_, b)) = &bar {
-                b.set_position(step as u64);
-                if step % 10 == 0 {
-                    b.set_message(format!("{name} {loss:.4}"));
-                }
-            }
-        }
     })
-    .map_err(|e| match e {
-        demo::DemoError::Edit(transsplat_edit::EditError::Interrupted(s)) => {
-            anyhow::anyhow!("interrupted at step {s}; nothing was written to {}", args.out.display())
+}
+
+/// One progress bar per method, each replacing the last when its method starts.
+#[derive(Default)]
+struct MethodBars {
+    current: Option<(String, indicatif::ProgressBar)>,
+}
+
+impl MethodBars {
+    fn show(&mut self, name: &str, p: Progress) {
+        let Progress::Step { step, steps, loss } = p else { return };
+        if self.current.as_ref().is_none_or(|(n, _)| n != name) {
+            self.finish();
+            self.current = Some((name.to_string(), progress(steps as u64, name)));
         }
-        e => e.into(),
-    })?;
-    if let Some((_, b)) = bar {
-        b.finish_and_clear();
+        if let Some((_, bar)) = &self.current {
+            bar.set_position(step as u64);
+            if step % 10 == 0 {
+                bar.set_message(format!("{name} {loss:.4}"));
+            }
+        }
     }
+
+    fn finish(&mut self) {
+        if let Some((_, bar)) = self.current.take() {
+            bar.finish_and_clear();
+        }
+    }
+}
+
+/// The scores table on stdout.
+fn print_scores(scores: &[demo::MethodScore]) {
     println!(
         "{:<14} {:>12} {:>16} {:>8} {:>8} {:>11} {:>9}",
         "method", "target PSNR", "background PSNR", "PSNR", "SSIM", "gate AUROC", "seconds"
     );
-    for s in &scores {
+    for s in scores {
         println!(
             "{:<14} {:>12.3} {:>16.3} {:>8.3} {:>8.4} {:>11} {:>9.1}",
             s.name,
@@ -138,6 +161,4 @@ pub fn run(args: &DemoArgs, cancel: &AtomicBool) -> Result<()> {
             s.seconds
         );
     }
-    println!("wrote {}/metrics.json and {}/report.html", out.display(), out.display());
-    Ok(())
 }

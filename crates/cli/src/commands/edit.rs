@@ -153,46 +153,14 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
     let config = base.assemble(args.method.as_deref(), &args.set, args.steps).map_err(anyhow::Error::msg)?;
     let (g, scene_path) = load_scene(&args.scene)?;
     let (cams, cam_path) = load_cameras(args.cameras.as_deref().or(args.data.as_deref()), &args.scene.scene)?;
-    for c in &cams {
-        c.validate().map_err(|e| anyhow::anyhow!("{}: {e}", cam_path.display()))?;
-    }
-    let mut inputs = vec![args.scene.scene.clone(), scene_path.clone(), cam_path];
-    inputs.extend(
-        [
-            &args.edits,
-            &args.config,
-            &args.ip2p_weights,
-            &args.dino_weights,
-            &args.segment_weights,
-            &args.masks,
-        ]
-        .into_iter()
-        .flatten()
-        .cloned(),
-    );
     let features = args.dino_weights.clone().map_or(Features::Builtin, Features::Dinov2);
-    let segmenter = match (&args.segment, &args.segment_weights, &args.masks) {
-        (Some(phrase), Some(weights), _) => {
-            Some(SegmenterSpec::ClipSeg { weights: weights.clone(), phrase: phrase.clone() })
-        }
-        (_, _, Some(dir)) => Some(SegmenterSpec::Folder(dir.clone())),
-        _ => None,
-    };
+    let segmenter = segmenter_spec(args);
     // A missing model or mask folder is refused before the editor is built.
     features.check()?;
     if let Some(s) = &segmenter {
         s.check()?;
     }
     let (editor, target) = editor_spec(args, &scene_path, &g, &config)?;
-    let output = OutputRequest {
-        path: args.out.clone(),
-        inputs,
-        formats: args.format.clone(),
-        write_options: formats::WriteOptions {
-            spz: spz::Options { version: args.spz.spz_version, axes: args.scene.spz_axes },
-        },
-        checkpoints: Some(args.checkpoints.spec()),
-    };
     let bar = progress(config.schedule.steps as u64, "edit");
     let editor_name = editor.name();
     let request = EditRequest {
@@ -204,7 +172,7 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         features,
         views: args.views,
         background: args.background,
-        output: Some(output),
+        output: Some(output_request(args, scene_path, cam_path)),
         target,
         config,
     };
@@ -220,6 +188,46 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         outcome.out.unwrap_or_default().display()
     );
     Ok(())
+}
+
+/// Where the target masks come from: CLIPSeg on `--segment` with `--segment-weights`,
+/// or the folder `--masks`; `None` keeps the editor's own.
+fn segmenter_spec(args: &EditArgs) -> Option<SegmenterSpec<'static>> {
+    match (&args.segment, &args.segment_weights, &args.masks) {
+        (Some(phrase), Some(weights), _) => {
+            Some(SegmenterSpec::ClipSeg { weights: weights.clone(), phrase: phrase.clone() })
+        }
+        (_, _, Some(dir)) => Some(SegmenterSpec::Folder(dir.clone())),
+        _ => None,
+    }
+}
+
+/// The output folder `--out`, with every input the flags name (as given and as
+/// resolved) for the output rule, the formats written beside the PLY and checkpoints.
+fn output_request(args: &EditArgs, scene_path: PathBuf, cam_path: PathBuf) -> OutputRequest {
+    let mut inputs = vec![args.scene.scene.clone(), scene_path, cam_path];
+    inputs.extend(
+        [
+            &args.edits,
+            &args.config,
+            &args.ip2p_weights,
+            &args.dino_weights,
+            &args.segment_weights,
+            &args.masks,
+        ]
+        .into_iter()
+        .flatten()
+        .cloned(),
+    );
+    OutputRequest {
+        path: args.out.clone(),
+        inputs,
+        formats: args.format.clone(),
+        write_options: formats::WriteOptions {
+            spz: spz::Options { version: args.spz.spz_version, axes: args.scene.spz_axes },
+        },
+        checkpoints: Some(args.checkpoints.spec()),
+    }
 }
 
 /// The editor `--editor` names, and the ground-truth target per Gaussian where it is

@@ -136,6 +136,28 @@ fn parse_adam(s: &str) -> Result<AdamRule, String> {
 
 /// Runs `transsplat train`.
 pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
+    let request = train_request(args)?;
+    let bar = progress(args.iters, "train");
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    let outcome = transsplat_session::train::run(&request, Some(cancel), &mut |p| {
+        if p.step % 10 == 0 || p.step == p.iterations {
+            let test = p.test.as_ref().map_or(String::from("-"), |e| format!("{:.2}", e.psnr));
+            bar.set_message(format!("loss {:.4} test PSNR {test} Gaussians {}", p.ema_loss, p.gaussians));
+            bar.set_position(p.step);
+        }
+    });
+    bar.finish_and_clear();
+    println!("{}", serde_json::to_string(&outcome?.summary).expect("a summary serialises"));
+    Ok(())
+}
+
+/// The training job the flags describe; the settings are checked before anything is
+/// read or written, each named by its flag.
+fn train_request(args: &TrainArgs) -> Result<TrainRequest> {
     if args.camera_reach < 0.0 {
         bail!("--camera-reach must be at least 0, got {}", args.camera_reach);
     }
@@ -173,14 +195,13 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
         random_points: args.random_points,
         eval_every: args.eval_every,
     };
-    // The settings are checked before anything is read or written, each named by its flag.
     opts.config.validate().map_err(|e| anyhow::anyhow!("{} {}", flag_of(e.key), e.problem))?;
     let masks = match (&args.masks, args.no_masks) {
         (Some(dir), _) => Masks::Folder(dir.clone()),
         (None, true) => Masks::Off,
         (None, false) => Masks::Declared,
     };
-    let request = TrainRequest {
+    Ok(TrainRequest {
         data: args.data.clone(),
         out: args.out.clone(),
         other_inputs: args.masks.iter().cloned().collect(),
@@ -192,23 +213,7 @@ pub fn run(args: &TrainArgs, cancel: &AtomicBool) -> Result<()> {
             ..Default::default()
         },
         checkpoints: args.checkpoints.spec(),
-    };
-    let bar = progress(args.iters, "train");
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta}")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    let outcome = transsplat_session::train::run(&request, Some(cancel), &mut |p| {
-        if p.step % 10 == 0 || p.step == p.iterations {
-            let test = p.test.as_ref().map_or(String::from("-"), |e| format!("{:.2}", e.psnr));
-            bar.set_message(format!("loss {:.4} test PSNR {test} Gaussians {}", p.ema_loss, p.gaussians));
-            bar.set_position(p.step);
-        }
-    });
-    bar.finish_and_clear();
-    println!("{}", serde_json::to_string(&outcome?.summary).expect("a summary serialises"));
-    Ok(())
+    })
 }
 
 fn flag_of(key: &str) -> &'static str {
