@@ -101,6 +101,12 @@ fn bad_segmenter_requests_exit_2_with_one_line_and_write_nothing() {
         &out,
         &[&fixture, "\"the ball\"", "outside vocab_size 500"],
     );
+    // a bare --segment segments the object the instruction ("make the ball blue") edits
+    refused(
+        &edit(&ds, &out, &["--segment-weights", &fixture, "--segment"]),
+        &out,
+        &[&fixture, "\"the ball\"", "outside vocab_size 500"],
+    );
     // masks: a missing file, a file of the wrong size, nothing found anywhere
     let masks = dir.path().join("masks");
     let stems = write_masks(&ds, &masks, "ball");

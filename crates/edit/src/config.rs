@@ -75,6 +75,7 @@ impl Method {
                 cfg.loss.colour_gate = 0.0;
                 cfg.semantic_init = SemanticInit::Source;
                 cfg.prototypes.close_radius = 0.0;
+                cfg.prototypes.outside_mask = 0.0;
                 // The colour lift is an initialisation of the optimisation, not part of
                 // the formulation: `paper` keeps it, so the row compares formulations
                 // (docs/method.md M9).
@@ -366,11 +367,12 @@ impl EditConfig {
     /// Checks ranges; the message names the offending key.
     pub fn validate(&self) -> Result<(), String> {
         let t = &self.transport;
-        let checks: [(&str, bool); 14] = [
+        let checks: [(&str, bool); 15] = [
             ("semantic_dim", self.semantic_dim > 0 && self.semantic_dim <= 256),
             ("prototypes.count", self.prototypes.count > 0),
             ("prototypes.threshold", (0.0..=1.0).contains(&self.prototypes.threshold)),
             ("prototypes.close_radius", (0.0..=0.1).contains(&self.prototypes.close_radius)),
+            ("prototypes.outside_mask", (0.0..=1.0).contains(&self.prototypes.outside_mask)),
             ("transport.eps", t.eps.is_finite() && t.eps > 0.0),
             ("transport.tau_s", t.tau_s > 0.0),
             ("transport.tau_t", t.tau_t > 0.0),

@@ -24,6 +24,11 @@ pub struct PrototypeConfig {
     pub close_radius: f32,
     /// Lloyd iterations after k-means++ seeding.
     pub lloyd_iters: usize,
+    /// How a target mask (the editor's or a segmenter's) restricts the support: the
+    /// weight of Ā outside the mask. 0 is the paper's hard intersection Ω = {Ā ≥ δ_a} ∩ M;
+    /// above 0 the mask is a prior on Ā (docs/method.md#e7-the-segmentation-constraint),
+    /// and 1 ignores it.
+    pub outside_mask: f32,
 }
 
 impl Default for PrototypeConfig {
@@ -34,6 +39,7 @@ impl Default for PrototypeConfig {
             min_area_fraction: 2e-4,
             close_radius: 0.01,
             lloyd_iters: 10,
+            outside_mask: 0.0,
         }
     }
 }
@@ -95,16 +101,38 @@ pub struct Support {
 /// mask, with connected components (4-neighbour) smaller than `min_area` removed.
 /// Ā is closed over a square of radius `close` pixels first ([`grey_closing`]; 0:
 /// not).
-pub fn support(ev: &ViewEvidence, threshold: f32, min_area: usize, close: usize) -> Support {
+///
+/// The mask: with `outside_mask` = 0 (the paper's M_sam constraint) a pixel outside it
+/// is outside Ω. Above 0 the mask is a prior on Ā instead, Ā(p) ← Ā(p) · `outside_mask`
+/// outside it (docs/method.md#e7-the-segmentation-constraint): the attention and the
+/// mask are two detectors of the target, and a pixel only one of them marks keeps the
+/// attention's evidence at that weight. Strong attention a mask missed (its boundary
+/// drawn inside the object, a thin part dropped) stays in Ω at a reduced weight, while
+/// an editor's weak spill outside the mask falls below δ_a.
+pub fn support(
+    ev: &ViewEvidence,
+    threshold: f32,
+    min_area: usize,
+    close: usize,
+    outside_mask: f32,
+) -> Support {
     let (w, h) = (ev.width, ev.height);
     let max = ev.attention.iter().fold(0.0f32, |m, &v| if v.is_finite() { m.max(v) } else { m });
     let abar: Vec<f32> =
         ev.attention.iter().map(|&v| if v.is_finite() && v > 0.0 { v / (max + 1e-8) } else { 0.0 }).collect();
-    let abar = if close > 0 { grey_closing(&abar, w, h, close) } else { abar };
+    let mut abar = if close > 0 { grey_closing(&abar, w, h, close) } else { abar };
+    let hard = outside_mask <= 0.0;
+    if let (Some(mask), false) = (ev.mask, hard) {
+        for (a, &m) in abar.iter_mut().zip(mask) {
+            if m <= 0.5 {
+                *a *= outside_mask;
+            }
+        }
+    }
     let mut omega: Vec<bool> = abar
         .iter()
         .enumerate()
-        .map(|(p, &a)| a >= threshold && a > 0.0 && ev.mask.is_none_or(|m| m[p] > 0.5))
+        .map(|(p, &a)| a >= threshold && a > 0.0 && (!hard || ev.mask.is_none_or(|m| m[p] > 0.5)))
         .collect();
     // Connected components by flood fill; small ones are removed.
     let mut seen = vec![false; w * h];
@@ -279,7 +307,7 @@ pub fn weighted_kmeans(pts: &[[f32; 2]], wts: &[f32], k: usize, iters: usize, se
 pub fn view_support(ev: &ViewEvidence, cfg: &PrototypeConfig) -> Support {
     let min_area = ((cfg.min_area_fraction * (ev.width * ev.height) as f32).ceil() as usize).max(1);
     let diag = ((ev.width * ev.width + ev.height * ev.height) as f32).sqrt();
-    support(ev, cfg.threshold, min_area, (cfg.close_radius * diag).round() as usize)
+    support(ev, cfg.threshold, min_area, (cfg.close_radius * diag).round() as usize, cfg.outside_mask)
 }
 
 /// The view's evidence per pixel, in [0, 1] (docs/method.md#m4-the-uot-solver): on the
@@ -416,6 +444,7 @@ mod tests {
             min_area_fraction: 0.0,
             close_radius: 0.0,
             lloyd_iters: 5,
+            outside_mask: 0.0,
         };
         let ev = evidence(w, h, &att, &sem, &app);
         let p = extract(&ev, &view_support(&ev, &cfg), &cfg, 3);
@@ -444,15 +473,40 @@ mod tests {
         let sem = vec![1.0f32; w * h * 2];
         let app = vec![1.0f32; w * h];
         let ev = evidence(w, h, &att, &sem, &app);
-        let omega = support(&ev, 0.5, 2, 0).omega;
+        let omega = support(&ev, 0.5, 2, 0, 0.0).omega;
         assert!(!omega[0], "isolated pixel kept");
         assert_eq!(omega.iter().filter(|&&o| o).count(), 16);
         let mut mask = vec![0.0f32; w * h];
         mask[4 * w + 4] = 1.0;
         mask[4 * w + 5] = 1.0;
         let ev = ViewEvidence { mask: Some(&mask), ..ev };
-        let omega = support(&ev, 0.5, 1, 0).omega;
+        let omega = support(&ev, 0.5, 1, 0, 0.0).omega;
         assert_eq!(omega.iter().filter(|&&o| o).count(), 2);
+    }
+
+    #[test]
+    fn a_soft_mask_keeps_strong_attention_outside_it_and_drops_weak_spill() {
+        // One row: the object (Ā = 1) at x = 0..4, of which the mask covers x = 0..2;
+        // the editor's spill (Ā = 0.4) at x = 4..6; nothing beyond.
+        let w = 8;
+        let att = [1.0, 1.0, 1.0, 1.0, 0.4, 0.4, 0.0, 0.0];
+        let mask = [1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        let (sem, app) = (vec![1.0f32; w * 2], vec![1.0f32; w]);
+        let ev = ViewEvidence { mask: Some(&mask), ..evidence(w, 1, &att, &sem, &app) };
+        // Hard (the paper): only the masked object pixels.
+        let hard = support(&ev, 0.3, 1, 0, 0.0);
+        assert_eq!(hard.omega, [true, true, false, false, false, false, false, false]);
+        // Soft at 1/2: the object outside the mask stays at Ā = 0.5 ≥ 0.3, the spill
+        // falls to 0.2 < 0.3.
+        let soft = support(&ev, 0.3, 1, 0, 0.5);
+        assert_eq!(soft.omega, [true, true, true, true, false, false, false, false]);
+        assert_eq!(&soft.abar[..6], &[1.0, 1.0, 0.5, 0.5, 0.2, 0.2]);
+        // Its evidence plane: relative to the median over Ω (the upper median of
+        // 1, 1, 0.5, 0.5 is 1), the object outside the mask counts half.
+        assert_eq!(&evidence_plane(&soft)[..5], &[1.0, 1.0, 0.5, 0.5, 0.0]);
+        // Without a mask, or at weight 1, the mask changes nothing.
+        let free = ViewEvidence { mask: None, ..ev };
+        assert_eq!(support(&ev, 0.3, 1, 0, 1.0), support(&free, 0.3, 1, 0, 0.5));
     }
 
     /// Attention (0, 0.25, 0.5, 1.0, 0.8, 0.1) over a 6 × 1 image: Ā = A / max, Ω = Ā ≥ 0.3
@@ -548,9 +602,9 @@ mod tests {
         let (sem, app) = (vec![0.0f32; 2 * w * h], vec![0.0f32; w * h]);
         let ev = evidence(w, h, &att, &sem, &app);
         let plateau = |p: usize| (2..10).contains(&(p % w)) && (2..10).contains(&(p / w));
-        let open = support(&ev, 0.3, 1, 0).omega;
+        let open = support(&ev, 0.3, 1, 0, 0.0).omega;
         assert!((0..w * h).any(|p| plateau(p) && !open[p]), "the test needs holes");
-        let closed = support(&ev, 0.3, 1, 1).omega;
+        let closed = support(&ev, 0.3, 1, 1, 0.0).omega;
         assert!((0..w * h).all(|p| closed[p] == plateau(p)));
     }
 

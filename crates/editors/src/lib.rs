@@ -19,6 +19,7 @@ pub mod child;
 pub mod command;
 pub mod features;
 pub mod folder;
+pub mod phrase;
 pub mod resize;
 pub mod segment;
 

@@ -7,6 +7,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 use transsplat_builtin::SimulatedEditor;
 use transsplat_edit::{EditConfig, Progress};
+use transsplat_editors::phrase::target_phrase;
 use transsplat_scene::formats::{self, SceneFormat};
 use transsplat_scene::spz;
 use transsplat_session as session;
@@ -70,8 +71,9 @@ pub struct EditArgs {
     pub dino_weights: Option<PathBuf>,
     /// Restrict each edited view to a CLIPSeg mask of what PHRASE names ("the ball"): its
     /// support becomes its attention inside the mask (replacing any mask the editor gave).
-    /// Needs --segment-weights.
-    #[arg(long, value_name = "PHRASE", requires = "segment_weights")]
+    /// Without PHRASE, the object the instruction edits ("make the ball blue": "the
+    /// ball"; the rules are in docs/cli.md). Needs --segment-weights.
+    #[arg(long, value_name = "PHRASE", num_args = 0..=1, default_missing_value = "", requires = "segment_weights")]
     pub segment: Option<String>,
     /// CLIPSeg folder for --segment, as written by
     /// `hf download CIDAS/clipseg-rd64-refined --local-dir DIR`.
@@ -154,7 +156,7 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
     let (g, scene_path) = load_scene(&args.scene)?;
     let (cams, cam_path) = load_cameras(args.cameras.as_deref().or(args.data.as_deref()), &args.scene.scene)?;
     let features = args.dino_weights.clone().map_or(Features::Builtin, Features::Dinov2);
-    let segmenter = segmenter_spec(args);
+    let segmenter = segmenter_spec(args)?;
     // A missing model or mask folder is refused before the editor is built.
     features.check()?;
     if let Some(s) = &segmenter {
@@ -190,16 +192,29 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
     Ok(())
 }
 
-/// Where the target masks come from: CLIPSeg on `--segment` with `--segment-weights`,
-/// or the folder `--masks`; `None` keeps the editor's own.
-fn segmenter_spec(args: &EditArgs) -> Option<SegmenterSpec<'static>> {
-    match (&args.segment, &args.segment_weights, &args.masks) {
+/// Where the target masks come from: CLIPSeg on `--segment` with `--segment-weights`
+/// (a bare `--segment`: the object the instruction edits), or the folder `--masks`;
+/// `None` keeps the editor's own.
+fn segmenter_spec(args: &EditArgs) -> Result<Option<SegmenterSpec<'static>>> {
+    Ok(match (&args.segment, &args.segment_weights, &args.masks) {
         (Some(phrase), Some(weights), _) => {
-            Some(SegmenterSpec::ClipSeg { weights: weights.clone(), phrase: phrase.clone() })
+            let phrase = match phrase.as_str() {
+                "" => target_phrase(&args.prompt).with_context(|| {
+                    format!(
+                        "--segment: no object to segment found in the instruction {:?}; name it: --segment \"the ball\"",
+                        args.prompt
+                    )
+                })?,
+                given => given.to_string(),
+            };
+            if args.segment.as_deref() == Some("") {
+                tracing::info!("--segment: segmenting {phrase:?}, the object the instruction edits");
+            }
+            Some(SegmenterSpec::ClipSeg { weights: weights.clone(), phrase })
         }
         (_, _, Some(dir)) => Some(SegmenterSpec::Folder(dir.clone())),
         _ => None,
-    }
+    })
 }
 
 /// The output folder `--out`, with every input the flags name (as given and as
