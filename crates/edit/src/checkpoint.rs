@@ -136,7 +136,7 @@ pub(crate) fn load_edited(ck: &Checkpointer) -> Result<(Vec<Option<EditedView>>,
 /// Writes the loop state with the trainer and the method's state.
 pub(crate) fn save_state(
     ck: &mut Checkpointer,
-    tr: &Trainer,
+    trainer: &Trainer,
     st: &LoopState,
     method: &dyn EditMethod,
     editor_sum: u64,
@@ -145,7 +145,7 @@ pub(crate) fn save_state(
     let mut w = Writer::new();
     id.put(&mut w);
     w.scalar("format", FORMAT).scalar("editor_checksum", editor_sum).scalar("step", st.step as u64);
-    put_trainer(&mut w, "tr", tr);
+    put_trainer(&mut w, "tr", trainer);
     let rounds: Vec<f64> = st
         .rounds
         .iter()
@@ -189,8 +189,8 @@ pub(crate) fn load_state(
     if a.scalar("editor_checksum").map_err(aerr)? != editor_sum {
         return Err(e(&format!("belongs with another {EDITOR_FILE} (checksums differ)")));
     }
-    let tr = get_trainer(&a, "tr", config).map_err(err)?;
-    method.load(&a, tr.model.len(), tr.model.num_features, views)?;
+    let trainer = get_trainer(&a, "tr", config).map_err(err)?;
+    method.load(&a, trainer.model.len(), trainer.model.num_features, views)?;
     let rounds = a.f64("rounds").map_err(aerr)?;
     let losses = a.f64("losses").map_err(aerr)?;
     let timing = a.f64("timing").map_err(aerr)?;
@@ -202,8 +202,8 @@ pub(crate) fn load_state(
         return Err(e("the saved view order refers to a view out of range"));
     }
     let step = a.scalar("step").map_err(aerr)? as usize;
-    if step as u64 != tr.step {
-        return Err(e(&format!("loop step {step} and trainer step {} differ", tr.step)));
+    if step as u64 != trainer.step {
+        return Err(e(&format!("loop step {step} and trainer step {} differ", trainer.step)));
     }
     let st = LoopState {
         step,
@@ -218,7 +218,7 @@ pub(crate) fn load_state(
         stages: Default::default(),
     };
     ck.last = Some(step as u64);
-    Ok((tr, st))
+    Ok((trainer, st))
 }
 
 /// A round record from its nine stored numbers.

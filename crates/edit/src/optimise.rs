@@ -116,7 +116,7 @@ pub struct StageTimes {
 /// With [`Renderer::Delta`] the views' blend weights of the covered Gaussians give it
 /// ([`Delta::lift`]); otherwise a splat-back of each view's residual.
 pub fn colour_lift(
-    tr: &mut Trainer,
+    trainer: &mut Trainer,
     renderer: &Renderer,
     cameras: &[Camera],
     views: &[ViewData],
@@ -126,15 +126,15 @@ pub fn colour_lift(
     let delta = match renderer {
         Renderer::Delta(d, _) => {
             let targets: Vec<&[f32]> = views.iter().map(|v| v.target.as_slice()).collect();
-            d.lift(&tr.splats(), &cams, &targets)
+            d.lift(&trainer.splats(), &cams, &targets)
         }
-        _ => lift::lift_each(&tr.model.gaussians, &cams, 3, |v| {
-            let (img, _) = tr.render(cams[v]);
+        _ => lift::lift_each(&trainer.model.gaussians, &cams, 3, |v| {
+            let (img, _) = trainer.render(cams[v]);
             Cow::Owned(views[v].target.iter().zip(&img.rgb).map(|(e, i)| e - i).collect())
         }),
     };
-    let k = tr.model.gaussians.sh_coeffs() * 3;
-    lift::shift_dc(&mut tr.model.gaussians.sh, k, &delta, mask);
+    let k = trainer.model.gaussians.sh_coeffs() * 3;
+    lift::shift_dc(&mut trainer.model.gaussians.sh, k, &delta, mask);
 }
 
 /// Seconds since `t`, restarting it.
@@ -172,7 +172,7 @@ impl Renderer {
     /// the covered set, or settles on full renders when there is no mask or it is
     /// too large ([`crate::delta::MAX_SHARE`]). `source` is the source scene and
     /// `cams` the usable views' cameras.
-    pub fn follow(&mut self, mask: Option<&[bool]>, tr: &Trainer, source: &Gaussians, cams: &[&Camera]) {
+    pub fn follow(&mut self, mask: Option<&[bool]>, trainer: &Trainer, source: &Gaussians, cams: &[&Camera]) {
         let Some(mask) = mask else {
             *self = Renderer::Full;
             return;
@@ -181,8 +181,8 @@ impl Renderer {
             Renderer::Full => {}
             Renderer::Pending(bases) => {
                 let bases = std::mem::take(bases);
-                *self = match Delta::new(source, &tr.model.gaussians.sh, mask, cams, bases) {
-                    Some(d) => Renderer::Delta(d, Box::new(tr.zero_grads())),
+                *self = match Delta::new(source, &trainer.model.gaussians.sh, mask, cams, bases) {
+                    Some(d) => Renderer::Delta(d, Box::new(trainer.zero_grads())),
                     None => Renderer::Full,
                 };
             }
@@ -201,7 +201,7 @@ impl Renderer {
     #[allow(clippy::too_many_arguments)]
     pub fn image_gradients(
         &mut self,
-        tr: &Trainer,
+        trainer: &Trainer,
         k: usize,
         cam: &Camera,
         target: &[f32],
@@ -211,26 +211,26 @@ impl Renderer {
     ) -> (Option<Frame>, Grads, f64) {
         let mut clock = Instant::now();
         if let Renderer::Delta(d, buf) = self {
-            let splats = tr.splats();
+            let splats = trainer.splats();
             let rgb = d.render(k, &splats, cam);
             times.tiles += lap(&mut clock);
             let (grad_rgb, loss) = image_term(&rgb, target, cam, cfg);
             times.image_loss += lap(&mut clock);
             let mut grads = std::mem::take(buf.as_mut());
             let mask = mask.expect("a delta render follows a colour mask");
-            d.backward(k, &splats, cam, &grad_rgb, mask, &mut grads.sh, tr.config.clamp_grad);
+            d.backward(k, &splats, cam, &grad_rgb, mask, &mut grads.sh, trainer.config.clamp_grad);
             times.backward += lap(&mut clock);
             return (None, grads, loss);
         }
-        let (img, frame) = tr.render(cam);
+        let (img, frame) = trainer.render(cam);
         times.binning += frame.binning_s;
         times.tiles += lap(&mut clock) - frame.binning_s;
         let (grad_rgb, loss) = image_term(&img.rgb, target, cam, cfg);
         times.image_loss += lap(&mut clock);
-        let mut grads = tr.zero_grads();
-        tr.backward(cam, &frame, &ImageGrads { rgb: &grad_rgb, ..Default::default() }, &mut grads);
+        let mut grads = trainer.zero_grads();
+        trainer.backward(cam, &frame, &ImageGrads { rgb: &grad_rgb, ..Default::default() }, &mut grads);
         if let Some(m) = mask {
-            mask_colour_gradients(&mut grads.sh, m, tr.model.gaussians.sh_coeffs() * 3);
+            mask_colour_gradients(&mut grads.sh, m, trainer.model.gaussians.sh_coeffs() * 3);
         }
         times.backward += lap(&mut clock);
         (Some(frame), grads, loss)
@@ -359,9 +359,9 @@ mod tests {
         let (g, cams) = (&scene.gaussians, &scene.cameras);
         let cfg = EditConfig::default();
         let latents = vec![0.0; g.len() * cfg.semantic_dim];
-        let mut tr = trainer(g, latents.clone(), &cfg, cams, [0.0; 3]).unwrap();
+        let mut edit_trainer = trainer(g, latents.clone(), &cfg, cams, [0.0; 3]).unwrap();
         let d = [0.1f32, -0.05, 0.2];
-        let before: Vec<_> = cams.iter().map(|c| tr.render(c).0).collect();
+        let before: Vec<_> = cams.iter().map(|c| edit_trainer.render(c).0).collect();
         let views: Vec<ViewData> = (0..cams.len())
             .map(|v| ViewData {
                 cam: v,
@@ -370,20 +370,20 @@ mod tests {
                 d_app: 0,
             })
             .collect();
-        colour_lift(&mut tr, &Renderer::Full, cams, &views, None);
+        colour_lift(&mut edit_trainer, &Renderer::Full, cams, &views, None);
         let mut worst = 0.0f32;
         for (c, b) in cams.iter().zip(&before) {
-            let after = tr.render(c).0;
+            let after = edit_trainer.render(c).0;
             for (j, (x, y)) in after.rgb.iter().zip(&b.rgb).enumerate() {
                 worst = worst.max((x - y - b.alpha[j / 3] * d[j % 3]).abs());
             }
         }
         assert!(worst < 1e-4, "largest error {worst}");
-        let mut tr = trainer(g, latents, &cfg, cams, [0.0; 3]).unwrap();
+        let mut edit_trainer = trainer(g, latents, &cfg, cams, [0.0; 3]).unwrap();
         let mask: Vec<bool> = (0..g.len()).map(|i| i % 2 == 0).collect();
-        colour_lift(&mut tr, &Renderer::Full, cams, &views, Some(&mask));
+        colour_lift(&mut edit_trainer, &Renderer::Full, cams, &views, Some(&mask));
         let k = g.sh_coeffs() * 3;
-        let moved = |i: usize| tr.model.gaussians.sh[i * k..i * k + 3] != g.sh[i * k..i * k + 3];
+        let moved = |i: usize| edit_trainer.model.gaussians.sh[i * k..i * k + 3] != g.sh[i * k..i * k + 3];
         assert!((0..g.len()).filter(|&i| i % 2 == 1).all(|i| !moved(i)));
         assert!((0..g.len()).filter(|&i| i % 2 == 0).filter(|&i| moved(i)).count() > g.len() / 4);
 

@@ -91,7 +91,7 @@ pub trait EditMethod {
 
     /// Adds the method's terms to the gradients of the step's view and records their
     /// losses (a term the method defers is recorded by [`EditMethod::sync`]).
-    fn add_gradients(&mut self, tr: &Trainer, view: &ViewData, grads: &mut Grads, rec: &mut StepLosses);
+    fn add_gradients(&mut self, trainer: &Trainer, view: &ViewData, grads: &mut Grads, rec: &mut StepLosses);
 
     /// Brings what the method defers into the model and into the loss records of the
     /// steps so far: TransSplat advances the semantic latents through the steps since

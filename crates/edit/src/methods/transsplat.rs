@@ -83,7 +83,7 @@ impl TransSplat {
     }
 
     /// Follows a change of γ: the gated region, and the rows L_leak must visit
-    /// (`tr`: the model now; `None` when it is not at hand, then every row).
+    /// (`trainer`: the model now; `None` when it is not at hand, then every row).
     ///
     /// The colour gate (docs/method.md#m7-losses): L_img recolours only the gated
     /// region, where the aggregated support 1 − r_i is at least `loss.colour_gate` (γ
@@ -95,11 +95,11 @@ impl TransSplat {
     /// conservative"; a Gaussian outside the gated region now does not respond to the
     /// edit at all. The default threshold, support ≥ 1/2, is a majority vote of the
     /// views that see the Gaussian (by source mass).
-    fn gate_changed(&mut self, tr: Option<&Trainer>) {
+    fn gate_changed(&mut self, trainer: Option<&Trainer>) {
         let Some(open) = self.cfg.colour_gate_gamma() else { return };
         self.open = self.transport.gamma.iter().map(|&g| g >= open).collect();
-        self.leak_rows = tr.map(|tr| {
-            let c = changeable(&tr.model.gaussians.sh, &self.sh0, &self.open, self.kc);
+        self.leak_rows = trainer.map(|trainer| {
+            let c = changeable(&trainer.model.gaussians.sh, &self.sh0, &self.open, self.kc);
             (0..c.len() as u32).filter(|&i| c[i as usize]).collect()
         });
     }
@@ -111,7 +111,7 @@ impl TransSplat {
 
     /// The transport round: source sides (recomputed unless the geometry is frozen),
     /// the view plans, fusion and the gate.
-    fn round(&mut self, tr: &Trainer, ctx: &Context) -> Result<RoundStats, EditError> {
+    fn round(&mut self, trainer: &Trainer, ctx: &Context) -> Result<RoundStats, EditError> {
         let views: Vec<RoundView> = ctx
             .views
             .iter()
@@ -126,18 +126,18 @@ impl TransSplat {
             .collect();
         let t = Instant::now();
         if !geometry_frozen(&self.cfg) || self.sources.len() != views.len() {
-            self.sources = round::view_sources(&tr.model.gaussians, &views);
+            self.sources = round::view_sources(&trainer.model.gaussians, &views);
         }
         let sources_s = t.elapsed().as_secs_f64();
         let cams: Vec<usize> = ctx.views.iter().map(|v| v.cam).collect();
-        let d = tr.model.num_features;
+        let d = trainer.model.num_features;
         // The last round's plans are not read by this one: free them first (a plan per
         // view and visible Gaussian; at a million Gaussians about a gigabyte).
         self.transport.cached = Vec::new();
         let plans =
-            round::solve_views(&tr.model.features, d, &views, &cams, &self.sources, &self.cfg.transport)?;
+            round::solve_views(&trainer.model.features, d, &views, &cams, &self.sources, &self.cfg.transport)?;
         let solve_s = t.elapsed().as_secs_f64() - sources_s;
-        let stats = self.transport.update(plans, &tr.model.features, d, &self.cfg);
+        let stats = self.transport.update(plans, &trainer.model.features, d, &self.cfg);
         tracing::debug!(
             "transport round: source sides {sources_s:.2} s, view plans {solve_s:.2} s, fusion and gate {:.2} s",
             t.elapsed().as_secs_f64() - sources_s - solve_s
@@ -176,7 +176,7 @@ impl EditMethod for TransSplat {
     fn before_step(
         &mut self,
         step: usize,
-        tr: &mut Trainer,
+        trainer: &mut Trainer,
         losses: &mut [StepLosses],
         ctx: &Context,
     ) -> Result<Option<RoundStats>, EditError> {
@@ -185,11 +185,11 @@ impl EditMethod for TransSplat {
         }
         // The round reads the latents and replaces what their steps used.
         let t = Instant::now();
-        self.sync(tr, losses)?;
+        self.sync(trainer, losses)?;
         tracing::debug!("semantic latents advanced in {:.2} s", t.elapsed().as_secs_f64());
         self.force_round = false;
-        let mut stats = self.round(tr, ctx)?;
-        self.gate_changed(Some(tr));
+        let mut stats = self.round(trainer, ctx)?;
+        self.gate_changed(Some(trainer));
         stats.step = step;
         stats.seconds = t.elapsed().as_secs_f64();
         Ok(Some(stats))
@@ -202,7 +202,7 @@ impl EditMethod for TransSplat {
     /// move only the semantic latents: the step is recorded and the latents advanced
     /// at the next [`EditMethod::sync`] ([`crate::latents`]). L_leak pulls the colours
     /// towards the source colours.
-    fn add_gradients(&mut self, tr: &Trainer, view: &ViewData, grads: &mut Grads, rec: &mut StepLosses) {
+    fn add_gradients(&mut self, trainer: &Trainer, view: &ViewData, grads: &mut Grads, rec: &mut StepLosses) {
         let (t, l) = (&self.transport, &self.cfg.loss);
         let n = t.gamma.len();
         let plan = t.cached.iter().position(|t| t.view == view.cam);
@@ -213,7 +213,7 @@ impl EditMethod for TransSplat {
         if l.leak > 0.0 {
             // With the colour gate, L_leak anchors only the Gaussians outside the gated region.
             let open = self.cfg.colour_gate_gamma().unwrap_or(f32::INFINITY);
-            let sh = &tr.model.gaussians.sh;
+            let sh = &trainer.model.gaussians.sh;
             let k = self.kc;
             rec.leak = match &self.leak_rows {
                 Some(r) => {
@@ -227,7 +227,7 @@ impl EditMethod for TransSplat {
 
     /// Advances the semantic latents through the recorded steps and fills in their
     /// λ L_sem; a latent that became NaN or infinite stops the edit naming the step.
-    fn sync(&mut self, tr: &mut Trainer, losses: &mut [StepLosses]) -> Result<(), EditError> {
+    fn sync(&mut self, trainer: &mut Trainer, losses: &mut [StepLosses]) -> Result<(), EditError> {
         if self.latents.pending() == 0 {
             return Ok(());
         }
@@ -240,8 +240,8 @@ impl EditMethod for TransSplat {
             l_uot: l.uot,
             cost_sem: self.cfg.transport.lambda_sem,
         };
-        let (d, adam) = (tr.model.num_features, (tr.adam.betas.0, tr.adam.betas.1, tr.adam.eps));
-        let sem = self.latents.advance(&mut tr.model.features, d, &terms, self.cfg.lr.semantic, adam);
+        let (d, adam) = (trainer.model.num_features, (trainer.adam.betas.0, trainer.adam.betas.1, trainer.adam.eps));
+        let sem = self.latents.advance(&mut trainer.model.features, d, &terms, self.cfg.lr.semantic, adam);
         let sem = sem.map_err(|step| {
             EditError::Train(format!(
                 "step {}: the features (semantic latents) became NaN or infinite; lower the learning rates or check the inputs",
