@@ -64,10 +64,8 @@
 //! are taken largest mean gradient first while they fit (a split costs `split_count − 1`
 //! rows, a clone one); the others wait for the next densification, and
 //! prunes make room again. INRIA has no cap: without one every candidate densifies.
-//! Measured on the 256² open capture at 14,000 (1.43× OpenSplat's count): 22.6 dB
-//! against OpenSplat's 26.6, as the cap is spent by step 900 on texture and parts of
-//! the sky stay uncovered; growing at most 5 % per densification (MCMC's rate) was
-//! worse, 17.2 dB (docs/results.md, "Against reference trainers").
+//! A tight cap is spent early on texture and can leave parts of the sky uncovered;
+//! the comparison at equal size is in docs/results.md, "Against reference trainers".
 //!
 //! Every function takes an optional per-Gaussian mask: only Gaussians with
 //! `mask[i] == true` may be cloned, split, pruned or reset (their new copies inherit
