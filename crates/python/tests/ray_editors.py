@@ -63,3 +63,19 @@ class Broken:
 
     def __call__(self, views, prompt):
         raise RuntimeError("the model weights are corrupt")
+
+
+class RedMask:
+    """A deterministic 'segmenter': the red-dominant pixels of each view (the ball
+    before the edit), None where there are none."""
+
+    def __init__(self, margin=0.1):
+        self.margin = margin
+
+    def __call__(self, views, phrase):
+        out = []
+        for v in views:
+            img = v.image
+            m = ((img[..., 0] > img[..., 2] + self.margin) & (img[..., 0] > img[..., 1] + self.margin))
+            out.append(m.astype(np.float32) if m.any() else None)
+        return out

@@ -89,6 +89,21 @@ def test_a_job_whose_editor_fails_is_reported_and_the_others_finish(cluster, tab
     assert not (tmp_path / "broken").exists()
 
 
+def test_a_jobs_segmenter_runs_in_its_lift_as_in_edit(cluster, tabletop, tmp_path):
+    jobs = [{"name": "masked", "scene": str(tabletop), "prompt": "make the ball blue", "out": str(tmp_path / "masked"),
+             "segmenter": "ray_editors:RedMask", "segmenter_args": {"margin": 0.1}, "segment": "the ball"}]
+    rows = tray.run(manifest(tmp_path, tabletop, jobs), progress=False)
+    assert rows[0]["status"] == "ok", rows
+    summary = json.loads((tmp_path / "masked" / "transport.json").read_text())
+    assert summary["segmenter"] == {"name": "python", "phrase": "the ball"}
+    # The same edit in this process, through edit(..., segmenter=...): the same scene.
+    import ray_editors
+
+    transsplat.edit(tabletop, None, "make the ball blue", ray_editors.Recolour(), steps=20, out=tmp_path / "direct",
+                    progress=False, segmenter=ray_editors.RedMask(0.1), segment="the ball")
+    assert ply(tmp_path / "masked") == ply(tmp_path / "direct")
+
+
 @pytest.mark.parametrize("edit,match", [
     (lambda j: j.update(scene="/nonexistent/scene"), "job 'a': scene /nonexistent/scene does not exist"),
     (lambda j: j.update(editor="ray_editors:Nope"), "job 'a': editor 'ray_editors:Nope': 'ray_editors' has no attribute"),
@@ -96,6 +111,9 @@ def test_a_job_whose_editor_fails_is_reported_and_the_others_finish(cluster, tab
     (lambda j: j.update(config={"loss.nope": 1}), "job 'a': .*unknown setting"),
     (lambda j: j.update(method="best"), "job 'a': .*unknown method"),
     (lambda j: j.update(colour="red"), r"job 'a': unknown settings \['colour'\]"),
+    (lambda j: j.update(segmenter="ray_editors:Nope"), "job 'a': segmenter 'ray_editors:Nope': 'ray_editors' has no attribute"),
+    (lambda j: j.update(segment="the ball"), "job 'a': segmenter_args and segment need a segmenter"),
+    (lambda j: j.update(segmenter="ray_editors:RedMask", segment=""), "job 'a': segment must be a phrase"),
     (lambda j: j.update(name="b"), "job 'b': two jobs are named 'b'"),
     (lambda j: j.update(out="OUT_B"), "job 'b': output .* is shared with job 'a'"),
     (lambda j: j.update(out=j["scene"] + "/edited"), "job 'a': output: .* lies inside the input folder"),

@@ -35,6 +35,9 @@ Manifest (TOML)::
     prompt = "turn the bear into a panda"
     out = "out/bear-panda"
     config = { "loss.leak" = 0.2 }  # or a TOML file; method, steps, background as in edit()
+    segmenter = "mypkg.seg:LangSAM"  # optional: module:attribute, views -> target masks,
+    segmenter_args = { device = "cuda" }  # run in the job's lift task (once per job)
+    segment = "the bear"            # its phrase (default: the whole instruction)
 
 Run it with ``transsplat-ray MANIFEST`` (or ``python -m transsplat.ray``), optionally
 ``--address`` of a running cluster. The CLI never needs Ray; this module needs
@@ -67,7 +70,7 @@ except ImportError:  # pragma: no cover
 
 JOB_KEYS = {
     "name", "scene", "cameras", "prompt", "out", "editor", "editor_args", "num_gpus", "num_cpus",
-    "config", "method", "steps", "background",
+    "config", "method", "steps", "background", "segmenter", "segmenter_args", "segment",
 }
 TOP_KEYS = {"job", "jobs", "defaults", "cache", "summary", "editor_workers", "shard_size", "lift_cpus"}
 
@@ -104,6 +107,9 @@ class Job:
     method: Optional[str] = None
     steps: Optional[int] = None
     background: Tuple[float, float, float] = (0.0, 0.0, 0.0)
+    segmenter: Optional[str] = None
+    segmenter_args: Dict[str, Any] = dataclasses.field(default_factory=dict)
+    segment: Optional[str] = None
 
     def editor_key(self) -> str:
         """Jobs with the same key share one pool of editor actors."""
@@ -121,21 +127,35 @@ class Manifest:
     lift_cpus: float = 1.0
 
 
-def resolve_editor(spec: str):
-    """The object a ``module:attribute`` editor spec names."""
+def resolve_editor(spec: str, what: str = "editor"):
+    """The object a ``module:attribute`` spec names (an editor's, or a segmenter's with
+    ``what="segmenter"``)."""
     mod, _, attr = spec.partition(":")
     if not mod or not attr:
-        raise ValueError(f"editor {spec!r}: expected module:attribute, e.g. mypkg.editors:MyEditor")
+        raise ValueError(f"{what} {spec!r}: expected module:attribute, e.g. mypkg.{what}s:My{what.title()}")
     try:
         obj = importlib.import_module(mod)
     except ImportError as e:
-        raise ValueError(f"editor {spec!r}: cannot import {mod!r} ({e})") from None
+        raise ValueError(f"{what} {spec!r}: cannot import {mod!r} ({e})") from None
     for part in attr.split("."):
         if not hasattr(obj, part):
-            raise ValueError(f"editor {spec!r}: {mod!r} has no attribute {attr!r}")
+            raise ValueError(f"{what} {spec!r}: {mod!r} has no attribute {attr!r}")
         obj = getattr(obj, part)
     if not callable(obj):
-        raise ValueError(f"editor {spec!r}: {attr!r} is not callable")
+        raise ValueError(f"{what} {spec!r}: {attr!r} is not callable")
+    return obj
+
+
+def instantiate(spec: str, kwargs: Dict[str, Any], what: str = "editor"):
+    """The callable a spec and its arguments describe: a class is instantiated with the
+    arguments, a function gets them bound."""
+    obj = resolve_editor(spec, what)
+    if isinstance(obj, type):
+        return obj(**kwargs)
+    if kwargs:
+        import functools
+
+        return functools.partial(obj, **kwargs)
     return obj
 
 
@@ -222,6 +242,18 @@ def load_manifest(path: "os.PathLike[str] | str") -> Manifest:
         args = spec.get("editor_args", {})
         if not isinstance(args, dict):
             fail(f"{label}: editor_args must be a table")
+        segmenter, segmenter_args, segment = spec.get("segmenter"), spec.get("segmenter_args", {}), spec.get("segment")
+        if segmenter is not None:
+            try:
+                resolve_editor(segmenter if isinstance(segmenter, str) else repr(segmenter), "segmenter")
+            except ValueError as e:
+                fail(f"{label}: {e}")
+        elif "segmenter_args" in spec or segment is not None:
+            fail(f"{label}: segmenter_args and segment need a segmenter")
+        if not isinstance(segmenter_args, dict):
+            fail(f"{label}: segmenter_args must be a table")
+        if segment is not None and (not isinstance(segment, str) or not segment.strip()):
+            fail(f"{label}: segment must be a phrase naming the target, e.g. \"the ball\"")
         config = spec.get("config")
         toml_text, overrides = None, []
         if isinstance(config, dict):
@@ -254,7 +286,7 @@ def load_manifest(path: "os.PathLike[str] | str") -> Manifest:
                 fail(f"{label}: {key} must be a number from 0 to 1024, got {v!r}")
             res[key] = float(v)
         jobs.append(Job(name, scene, cameras, spec["prompt"], out, spec["editor"], args, res["num_gpus"],
-                        res["num_cpus"], config, spec.get("method"), steps, bg))
+                        res["num_cpus"], config, spec.get("method"), steps, bg, segmenter, segmenter_args, segment))
     cache = pathlib.Path(rel(doc.get("cache", f".{p.stem}.cache")))
     summary = pathlib.Path(rel(doc.get("summary", f"{p.stem}.summary.json")))
     # The one output rule, before anything starts: no output may be, contain or lie
@@ -300,15 +332,7 @@ class EditorHost:
     The outputs are checked and converted where they are made (errors name the view)."""
 
     def __init__(self, spec: str, kwargs: Dict[str, Any]):
-        obj = resolve_editor(spec)
-        if isinstance(obj, type):
-            self.editor = obj(**kwargs)
-        elif kwargs:
-            import functools
-
-            self.editor = functools.partial(obj, **kwargs)
-        else:
-            self.editor = obj
+        self.editor = instantiate(spec, kwargs)
 
     def edit(self, views: List[View], prompt: str) -> List[Any]:
         out = list(self.editor(views, prompt))
@@ -389,9 +413,12 @@ def _lift(job: Job, actors, cache: str, shard_size: int) -> Dict[str, Any]:
     t0 = time.monotonic()
     g = load_ply(job.scene)
     disp = Dispatcher(actors, pathlib.Path(cache), scene_fingerprint(g), job.editor_key(), shard_size)
+    # The segmenter runs here, on the source renders of the edited views (the cached
+    # editor results do not depend on it).
+    segmenter = instantiate(job.segmenter, job.segmenter_args, "segmenter") if job.segmenter else None
     # Paths, not arrays, so the output rule sees the inputs (the scene is read twice).
     r = edit(job.scene, job.cameras, job.prompt, disp, config=job.config, method=job.method, steps=job.steps,
-             out=job.out, background=job.background, progress=False)
+             out=job.out, background=job.background, progress=False, segmenter=segmenter, segment=job.segment)
     gate = r["gate"]
     return {
         "gaussians": int(len(r["gaussians"]["means"])),
