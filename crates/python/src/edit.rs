@@ -5,7 +5,7 @@
 //! stops the loop before the next one; the Python exception is raised as it was.
 
 use crate::arrays::{scene_error, slice, to_numpy, value_error};
-use crate::io::{cameras_from_arrays, gaussians_from_arrays, gaussians_to_dict, intrinsics, viewmat};
+use crate::io::{cameras_from_lists, gaussians_from_arrays, gaussians_to_dict, intrinsics, viewmat};
 use numpy::{PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyKeyboardInterrupt, PyRuntimeError};
 use pyo3::prelude::*;
@@ -277,11 +277,7 @@ pub fn edit<'py>(
         extra_names,
         extra.as_ref(),
     )?;
-    if widths.len() != heights.len() {
-        return Err(value_error("cameras: widths and heights differ in length"));
-    }
-    let sizes: Vec<(u32, u32)> = widths.into_iter().zip(heights).collect();
-    let cams: Vec<Camera> = cameras_from_arrays(&viewmats, &ks, &sizes, Some(names))?;
+    let cams: Vec<Camera> = cameras_from_lists(&viewmats, &ks, widths, heights, names)?;
     let cfg = config(config_toml.as_deref(), &overrides, method.as_deref(), steps)?;
     let output = out.map(|path| OutputRequest {
         path,
@@ -309,10 +305,21 @@ pub fn edit<'py>(
         output,
         target: None,
     };
+    run_session(py, request, progress.as_ref(), &raised)
+}
+
+/// Runs the edit job without the GIL, reporting to `progress`; the error is the
+/// exception a Python callable raised (kept in `raised`), the stop's own, or the job's.
+fn run_session<'py>(
+    py: Python<'py>,
+    request: EditRequest,
+    progress: Option<&Py<PyAny>>,
+    raised: &Mutex<Option<PyErr>>,
+) -> PyResult<Bound<'py, PyDict>> {
     let cancel = AtomicBool::new(false);
     let interrupt: Mutex<Option<PyErr>> = Mutex::new(None);
     let outcome = py.allow_threads(|| {
-        let mut report = |p: Progress| report_progress(p, progress.as_ref(), &cancel, &interrupt);
+        let mut report = |p: Progress| report_progress(p, progress, &cancel, &interrupt);
         session::edit::run(request, Some(&cancel), &mut report)
     });
     // The exception that asked for the stop; one raised in the last step's report

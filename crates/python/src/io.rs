@@ -151,6 +151,22 @@ pub fn cameras_to_dict<'py>(py: Python<'py>, cams: &[Camera]) -> PyResult<Bound<
     Ok(d)
 }
 
+/// [`cameras_from_arrays`] with the image sizes as two lists (widths, heights) of the
+/// same length, and the image names.
+pub fn cameras_from_lists(
+    viewmats: &PyReadonlyArrayDyn<'_, f32>,
+    ks: &PyReadonlyArrayDyn<'_, f32>,
+    widths: Vec<u32>,
+    heights: Vec<u32>,
+    names: Vec<String>,
+) -> PyResult<Vec<Camera>> {
+    if widths.len() != heights.len() {
+        return Err(value_error("cameras: widths and heights differ in length"));
+    }
+    let sizes: Vec<(u32, u32)> = widths.into_iter().zip(heights).collect();
+    cameras_from_arrays(viewmats, ks, &sizes, Some(names))
+}
+
 /// Cameras from gsplat's arrays: `viewmats` (C, 4, 4) world-to-camera, `Ks` (C, 3, 3),
 /// image sizes, optional names (default `00000` ...). They are checked as a camera
 /// file is ([`cameras::validated`]: a proper rotation, positive focal lengths, the

@@ -271,6 +271,39 @@ pub struct QualityArgs {
 /// Runs `transsplat bench quality`: the ground-truth suite, its table on stdout.
 pub fn quality(args: &QualityArgs, cancel: &AtomicBool) -> anyhow::Result<()> {
     use transsplat_bench::quality;
+    let opts = suite_options(args)?;
+    // One bar over the cases, with an ETA; each case's methods in the log.
+    let bar = progress(opts.cases.len() as u64, "cases");
+    let mut current = String::new();
+    let outcome = quality::run(&opts, Some(cancel), &mut |case, method, p| {
+        if case != current {
+            if !current.is_empty() {
+                bar.inc(1);
+            }
+            current = case.to_string();
+            bar.set_message(case.to_string());
+            tracing::info!("case {}/{}: {case}", bar.position() + 1, bar.length().unwrap_or(0));
+        }
+        if let Progress::Step { step, steps, .. } = p {
+            tracing::debug!("{case} {method}: step {step}/{steps}");
+        }
+    });
+    bar.finish_and_clear();
+    let (out, results) = outcome.map_err(|e| match e {
+        transsplat_bench::demo::DemoError::Edit(transsplat_edit::EditError::Interrupted(_)) => {
+            anyhow::anyhow!("interrupted; nothing was written to {}", args.out.display())
+        }
+        e => e.into(),
+    })?;
+    print!("{}", quality::table(&results, &quality::averages(&results)));
+    println!("wrote {}/quality.json, quality.md and report.html", out.display());
+    Ok(())
+}
+
+/// The suite's settings from its flags: the captures (loaded and checked), the cases,
+/// the edit settings (the quick schedule unless `--full`, then `--set`).
+fn suite_options(args: &QualityArgs) -> anyhow::Result<transsplat_bench::quality::SuiteOptions> {
+    use transsplat_bench::quality;
     if !args.captures.is_empty() && args.trained == 0 {
         anyhow::bail!("--captures needs trained variants (--trained above 0)");
     }
@@ -289,7 +322,7 @@ pub fn quality(args: &QualityArgs, cancel: &AtomicBool) -> anyhow::Result<()> {
         transsplat_bench::demo::quick_schedule(&mut config);
     }
     let config = config.with_overrides(&args.set).map_err(anyhow::Error::msg)?;
-    let opts = quality::SuiteOptions {
+    Ok(quality::SuiteOptions {
         out: args.out.clone(),
         cases,
         quick,
@@ -299,27 +332,5 @@ pub fn quality(args: &QualityArgs, cancel: &AtomicBool) -> anyhow::Result<()> {
         views: args.views,
         captures,
         segmenter: args.segmenter,
-    };
-    let total = opts.cases.len();
-    let mut current = String::new();
-    let mut done = 0usize;
-    let (out, results) = quality::run(&opts, Some(cancel), &mut |case, method, p| {
-        if case != current {
-            current = case.to_string();
-            done += 1;
-            tracing::info!("case {done}/{total}: {case}");
-        }
-        if let Progress::Step { step, steps, .. } = p {
-            tracing::debug!("{case} {method}: step {step}/{steps}");
-        }
     })
-    .map_err(|e| match e {
-        transsplat_bench::demo::DemoError::Edit(transsplat_edit::EditError::Interrupted(_)) => {
-            anyhow::anyhow!("interrupted; nothing was written to {}", args.out.display())
-        }
-        e => e.into(),
-    })?;
-    print!("{}", quality::table(&results, &quality::averages(&results)));
-    println!("wrote {}/quality.json, quality.md and report.html", out.display());
-    Ok(())
 }
