@@ -72,6 +72,7 @@ impl Method {
                 cfg.transport.evidence_mass = false;
                 cfg.fusion.agreement = crate::gate::Agreement::Transport;
                 cfg.fusion.coverage = false;
+                cfg.fusion.view_weight = crate::gate::ViewWeight::Mass;
                 cfg.loss.colour_gate = 0.0;
                 cfg.semantic_init = SemanticInit::Source;
                 cfg.prototypes.close_radius = 0.0;
@@ -120,6 +121,9 @@ pub struct FusionConfig {
     /// the view's evidence: min(σ, ω) ([`crate::view::ViewTransport::view_support`]); off:
     /// the plan's relative support σ alone.
     pub coverage: bool,
+    /// How much say each view has in the visibility agreement
+    /// ([`crate::gate::ViewWeight`]).
+    pub view_weight: crate::gate::ViewWeight,
 }
 
 impl Default for FusionConfig {
@@ -131,6 +135,7 @@ impl Default for FusionConfig {
             tau_r: 0.25,
             agreement: Default::default(),
             coverage: true,
+            view_weight: Default::default(),
         }
     }
 }

@@ -36,29 +36,53 @@ pub enum Agreement {
     Transport,
 }
 
+/// How much say a view has in [`Agreement::Visibility`] (`fusion.view_weight`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ViewWeight {
+    /// The Gaussian's source mass a_i^v in the view (its visibility × opacity as a
+    /// share of the view's).
+    #[default]
+    Mass,
+    /// The Gaussian's blend weight in the view, Σ_p T_i(p) α_i(p) over its pixels: the
+    /// weight the image loss gives the view when it recolours the Gaussian.
+    Blend,
+}
+
 /// How the residual is aggregated: the fusion settings it reads (`fusion.agreement`,
-/// `fusion.coverage`, `fusion.min_support`).
+/// `fusion.coverage`, `fusion.min_support`, `fusion.view_weight`).
 #[derive(Clone, Copy, Debug)]
 pub struct Aggregation {
     pub agreement: Agreement,
     pub coverage: bool,
     pub min_support: f32,
+    pub view_weight: ViewWeight,
 }
 
 /// Per-Gaussian aggregated relative residual r_i ∈ [0, 1].
 pub fn residuals(n: usize, views: &[ViewTransport], how: Aggregation) -> Vec<f32> {
     match how.agreement {
-        Agreement::Visibility => visibility_residuals(n, views, how.coverage),
+        Agreement::Visibility => visibility_residuals(n, views, how.coverage, how.view_weight),
         Agreement::Transport => transport_residuals(n, views, how.min_support),
     }
 }
 
-/// r_i = [1 − Σ_v σ̃_i^v a_i^v / Σ_v a_i^v]_+ over the views that see i (σ̃ the view's
-/// support, bounded by coverage when `coverage`); 1 if none does.
-pub fn visibility_residuals(n: usize, views: &[ViewTransport], coverage: bool) -> Vec<f32> {
+/// r_i = [1 − Σ_v σ̃_i^v ϖ_i^v / Σ_v ϖ_i^v]_+ over the views that see i (σ̃ the view's
+/// support, bounded by coverage when `coverage`; ϖ the view's say, [`ViewWeight`]: the
+/// source mass a, or the blend weight where every view knows it); 1 if none does.
+pub fn visibility_residuals(
+    n: usize,
+    views: &[ViewTransport],
+    coverage: bool,
+    weight: ViewWeight,
+) -> Vec<f32> {
     let (mut w, mut a) = (vec![0.0f64; n], vec![0.0f64; n]);
+    // Blend weights only where every view knows them (a plan from an older checkpoint
+    // does not), so the views' says stay in one unit.
+    let blend = weight == ViewWeight::Blend && views.iter().all(|v| v.blend.len() == v.a.len());
     for v in views {
-        for ((&i, &sk), &ak) in v.idx.iter().zip(&v.view_support(coverage)).zip(&v.a) {
+        let say: &[f32] = if blend { &v.blend } else { &v.a };
+        for ((&i, &sk), &ak) in v.idx.iter().zip(&v.view_support(coverage)).zip(say) {
             if (i as usize) < n {
                 w[i as usize] += (sk * ak) as f64;
                 a[i as usize] += ak as f64;
@@ -118,6 +142,33 @@ mod tests {
     }
 
     #[test]
+    fn a_view_has_its_say_by_mass_or_by_blend_weight() {
+        // Gaussian 0: view A supports it (σ = 1: the only source, ρ = 1 = t) where its
+        // mass is 0.1 and its blend weight 9; view B leaves it unsupported (σ = 0: source
+        // 1 alone holds B's evidence mass) where its mass is 0.45 and its blend weight 1.
+        let mut va = view(vec![0], vec![0.1], vec![0.1]);
+        va.blend = vec![9.0].into();
+        let mut vb = view(vec![0, 1], vec![0.45, 0.45], vec![0.0, 0.45]);
+        vb.blend = vec![1.0, 4.0].into();
+        let how = |view_weight| Aggregation {
+            agreement: Agreement::Visibility,
+            coverage: false,
+            min_support: 1e-3,
+            view_weight,
+        };
+        // By mass: r = 1 − 0.1 / 0.55; by blend weight: r = 1 − 9 / 10.
+        let r = residuals(2, &[va.clone(), vb.clone()], how(ViewWeight::Mass));
+        assert!((r[0] - (1.0 - 0.1 / 0.55)).abs() < 1e-6, "{r:?}");
+        let r = residuals(2, &[va.clone(), vb.clone()], how(ViewWeight::Blend));
+        assert!((r[0] - 0.1).abs() < 1e-6 && r[1].abs() < 1e-6, "{r:?}");
+        // A view that does not know its blend weights (an older checkpoint's plan): every
+        // view has its say by mass.
+        vb.blend = Default::default();
+        let r = residuals(2, &[va, vb], how(ViewWeight::Blend));
+        assert!((r[0] - (1.0 - 0.1 / 0.55)).abs() < 1e-6, "{r:?}");
+    }
+
+    #[test]
     fn residual_by_hand() {
         // Gaussian 0: two views, both supported: w/a = 1 (r 0, w 0.2) and 0.5 (r 0.5, w 0.1)
         //   → r = (0.2·0 + 0.1·0.5)/0.3 = 1/6.
@@ -126,7 +177,12 @@ mod tests {
         // Gaussian 2: never visible → 1. Gaussian 3: visible, never supported → 1.
         let v1 = view(vec![0, 1, 3, 4], vec![0.2, 0.1, 0.3, 0.3], vec![0.2, 0.3, 0.0, 0.4]);
         let v2 = view(vec![0, 1, 4], vec![0.2, 0.1, 0.1], vec![0.1, 0.0, 0.0]);
-        let fusion = |agreement, coverage| Aggregation { agreement, coverage, min_support: 1e-3 };
+        let fusion = |agreement, coverage| Aggregation {
+            agreement,
+            coverage,
+            min_support: 1e-3,
+            view_weight: ViewWeight::Mass,
+        };
         let r = residuals(5, &[v1.clone(), v2.clone()], fusion(Agreement::Transport, true));
         // Gaussian 4: supported (r = 0) where its mass is 0.3, unsupported where 0.1 → r = 0.25.
         let want = [1.0 / 6.0, 0.5, 1.0, 1.0, 0.25];

@@ -48,6 +48,8 @@ pub struct ViewSources {
     pub m2d: Vec<[f32; 2]>,
     pub phi: Vec<f32>,
     pub omega: std::sync::Arc<[f32]>,
+    /// Each source's blend weight in the view, Σ_p T_i(p) α_i(p).
+    pub blend: std::sync::Arc<[f32]>,
 }
 
 /// The appearance plane with the evidence plane appended as one more channel, so one splat-back
@@ -93,7 +95,8 @@ pub fn view_sources(g: &Gaussians, views: &[RoundView]) -> Vec<ViewSources> {
                     omega.push(row[v.d_app]);
                 }
             }
-            ViewSources { idx, a, m2d, phi, omega: omega.into() }
+            let blend: Vec<f32> = idx.iter().map(|&i| st.weight_sum[i as usize]).collect();
+            ViewSources { idx, a, m2d, phi, omega: omega.into(), blend: blend.into() }
         })
         .collect()
 }
@@ -135,6 +138,7 @@ pub fn solve_views(
             )?;
             t.view = cam;
             t.coverage = std::sync::Arc::clone(&src.omega);
+            t.blend = std::sync::Arc::clone(&src.blend);
             Ok(t)
         })
         .collect()
@@ -160,8 +164,8 @@ impl TransportState {
     /// `Σ_v ŵ_i^v / Σ_v a_i^v` in [0, 1] (0 where no view saw it; ŵ the evidence
     /// shares, [`ViewTransport::evidence_shares`]): 1 − the visibility-weighted
     /// residual of [`gate`].
-    pub fn support(&self, coverage: bool) -> Vec<f32> {
-        let r = gate::visibility_residuals(self.gamma.len(), &self.cached, coverage);
+    pub fn support(&self, coverage: bool, weight: gate::ViewWeight) -> Vec<f32> {
+        let r = gate::visibility_residuals(self.gamma.len(), &self.cached, coverage, weight);
         r.iter().map(|r| 1.0 - r).collect()
     }
 
@@ -173,8 +177,12 @@ impl TransportState {
         let acc = accumulate(n, d, &plans, f.min_support);
         let z = canonical_targets(&acc, s, f.rho);
         self.zbar = Some(ema(self.zbar.as_deref(), &z, f.ema));
-        let how =
-            gate::Aggregation { agreement: f.agreement, coverage: f.coverage, min_support: f.min_support };
+        let how = gate::Aggregation {
+            agreement: f.agreement,
+            coverage: f.coverage,
+            min_support: f.min_support,
+            view_weight: f.view_weight,
+        };
         self.gamma = gate::gate(&gate::residuals(n, &plans, how), f.tau_r);
         self.cached = plans;
         let v = &self.cached;

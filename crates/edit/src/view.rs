@@ -231,6 +231,9 @@ pub struct ViewTransport {
     /// shared with the round's source side (the same values for every round while the
     /// geometry is frozen).
     pub coverage: std::sync::Arc<[f32]>,
+    /// Each source's blend weight in the view, Σ_p T_i(p) α_i(p) (empty when unknown;
+    /// `fusion.view_weight = "blend"`).
+    pub blend: std::sync::Arc<[f32]>,
 }
 
 impl ViewTransport {
@@ -388,6 +391,7 @@ pub fn transport(
         transported_mass: sol.stats.transported_mass,
         target_mass: b.iter().sum(),
         coverage: Default::default(),
+        blend: Default::default(),
     })
 }
 

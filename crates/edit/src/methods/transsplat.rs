@@ -134,8 +134,14 @@ impl TransSplat {
         // The last round's plans are not read by this one: free them first (a plan per
         // view and visible Gaussian; at a million Gaussians about a gigabyte).
         self.transport.cached = Vec::new();
-        let plans =
-            round::solve_views(&trainer.model.features, d, &views, &cams, &self.sources, &self.cfg.transport)?;
+        let plans = round::solve_views(
+            &trainer.model.features,
+            d,
+            &views,
+            &cams,
+            &self.sources,
+            &self.cfg.transport,
+        )?;
         let solve_s = t.elapsed().as_secs_f64() - sources_s;
         let stats = self.transport.update(plans, &trainer.model.features, d, &self.cfg);
         tracing::debug!(
@@ -240,7 +246,8 @@ impl EditMethod for TransSplat {
             l_uot: l.uot,
             cost_sem: self.cfg.transport.lambda_sem,
         };
-        let (d, adam) = (trainer.model.num_features, (trainer.adam.betas.0, trainer.adam.betas.1, trainer.adam.eps));
+        let (d, adam) =
+            (trainer.model.num_features, (trainer.adam.betas.0, trainer.adam.betas.1, trainer.adam.eps));
         let sem = self.latents.advance(&mut trainer.model.features, d, &terms, self.cfg.lr.semantic, adam);
         let sem = sem.map_err(|step| {
             EditError::Train(format!(
@@ -296,6 +303,7 @@ impl EditMethod for TransSplat {
                 .f32(format!("cached.{k}.w"), &v.w[..])
                 .f32(format!("cached.{k}.y"), &v.y[..])
                 .f32(format!("cached.{k}.coverage"), &v.coverage[..])
+                .f32(format!("cached.{k}.blend"), &v.blend[..])
                 .f64(
                     format!("cached.{k}.stats"),
                     vec![v.objective, v.dual, v.gap, v.transported_mass, v.target_mass as f64],
@@ -327,7 +335,7 @@ impl EditMethod for TransSplat {
     }
 
     fn support(&self) -> Option<Vec<f32>> {
-        Some(self.transport.support(self.cfg.fusion.coverage))
+        Some(self.transport.support(self.cfg.fusion.coverage, self.cfg.fusion.view_weight))
     }
 
     fn colour_mask(&self) -> Option<&[bool]> {
@@ -374,6 +382,10 @@ fn load_plan(a: &Archive, k: usize, n: usize, d: usize, delta: f32) -> Result<Vi
     if !(coverage.is_empty() || coverage.len() == m) {
         return Err(e(format!("cached view plan {k}: {} coverage values for {m} sources", coverage.len())));
     }
+    let blend: std::sync::Arc<[f32]> = a.f32(&p("blend")).map_err(archive_error)?.into();
+    if !(blend.is_empty() || blend.len() == m) {
+        return Err(e(format!("cached view plan {k}: {} blend weights for {m} sources", blend.len())));
+    }
     Ok(ViewTransport {
         view: a.scalar(&p("view")).map_err(archive_error)? as usize,
         a: f(&p("a"), m)?,
@@ -387,6 +399,7 @@ fn load_plan(a: &Archive, k: usize, n: usize, d: usize, delta: f32) -> Result<Vi
         transported_mass,
         target_mass: target_mass as f32,
         coverage,
+        blend,
     })
 }
 
