@@ -48,7 +48,8 @@ pub struct ViewSources {
     pub m2d: Vec<[f32; 2]>,
     pub phi: Vec<f32>,
     pub omega: std::sync::Arc<[f32]>,
-    /// Each source's blend weight in the view, Σ_p T_i(p) α_i(p).
+    /// Each source's blend weight in the view, Σ_p T_i(p) α_i(p); kept only when
+    /// `fusion.view_weight = "blend"` reads it (empty otherwise).
     pub blend: std::sync::Arc<[f32]>,
 }
 
@@ -64,8 +65,9 @@ fn with_support(appearance: &[f32], d_app: usize, support: &[f32]) -> Vec<f32> {
 }
 
 /// The source side of every view (empty for views without prototypes), from one
-/// splat-back pass per view (docs/method.md#m1-visibility-and-source-masses).
-pub fn view_sources(g: &Gaussians, views: &[RoundView]) -> Vec<ViewSources> {
+/// splat-back pass per view (docs/method.md#m1-visibility-and-source-masses); each
+/// source's blend weight is kept with `keep_blend`.
+pub fn view_sources(g: &Gaussians, views: &[RoundView], keep_blend: bool) -> Vec<ViewSources> {
     let opacity: Vec<f32> = g.opacity_logits.iter().map(|&o| sigmoid(o)).collect();
     let splats = Splats::new(g);
     views
@@ -95,7 +97,11 @@ pub fn view_sources(g: &Gaussians, views: &[RoundView]) -> Vec<ViewSources> {
                     omega.push(row[v.d_app]);
                 }
             }
-            let blend: Vec<f32> = idx.iter().map(|&i| st.weight_sum[i as usize]).collect();
+            let blend: Vec<f32> = if keep_blend {
+                idx.iter().map(|&i| st.weight_sum[i as usize]).collect()
+            } else {
+                Vec::new()
+            };
             ViewSources { idx, a, m2d, phi, omega: omega.into(), blend: blend.into() }
         })
         .collect()

@@ -10,6 +10,7 @@
 use transsplat_builtin::SimulatedEditor;
 use transsplat_builtin::{build, Scene, SceneConfig};
 use transsplat_edit::checkpoint::{EDITOR_FILE, STATE_FILE};
+use transsplat_edit::gate::ViewWeight;
 use transsplat_edit::{run_with, semantic, EditConfig, EditError, EditJob, EditResult, Method};
 use transsplat_editors::{EditedView, Editor, SourceView};
 use transsplat_train::{Checkpointer, Control};
@@ -84,6 +85,7 @@ fn assert_same(a: &EditResult, b: &EditResult) {
     assert_eq!(x.extra.names, y.extra.names);
     assert_eq!(bits(&x.extra.values), bits(&y.extra.values), "semantic latents and labels");
     assert_eq!(a.gate.as_deref().map(bits), b.gate.as_deref().map(bits));
+    assert_eq!(a.support.as_deref().map(bits), b.support.as_deref().map(bits), "transported support");
     assert_eq!(a.losses, b.losses);
     assert_eq!(a.rounds.len(), b.rounds.len());
     for (r, s) in a.rounds.iter().zip(&b.rounds) {
@@ -163,20 +165,26 @@ fn with_frozen_geometry_rendering_the_colour_change_alone_gives_the_full_render_
 fn a_resumed_edit_with_frozen_geometry_is_bit_identical() {
     let scene = scene();
     let dir = tempfile::tempdir().unwrap();
-    let cfg = frozen(Method::Transsplat);
-    let calls = std::cell::Cell::new(0);
-    let whole = edit(&scene, &cfg, PROMPT, &mut Control::default(), &calls).unwrap();
-    let ckdir = dir.path().join("frozen");
-    let mut control = Control {
-        checkpoint: Some(Checkpointer::new(&ckdir, 10)),
-        stop_after: Some(23),
-        ..Default::default()
-    };
-    edit(&scene, &cfg, PROMPT, &mut control, &calls).unwrap_err();
-    let mut control =
-        Control { checkpoint: Some(Checkpointer::new(&ckdir, 10)), resume: true, ..Default::default() };
-    let resumed = edit(&scene, &cfg, PROMPT, &mut control, &calls).unwrap();
-    assert_same(&whole, &resumed);
+    // Each view's say by source mass (the default) and by blend weight. Stopped at 35,
+    // after the last transport round (rounds every 10 of 40 steps), the reported support
+    // comes from the checkpointed plans, so they must carry their blend weights.
+    for (view_weight, stop) in [(ViewWeight::Mass, 23), (ViewWeight::Blend, 35)] {
+        let mut cfg = frozen(Method::Transsplat);
+        cfg.fusion.view_weight = view_weight;
+        let calls = std::cell::Cell::new(0);
+        let whole = edit(&scene, &cfg, PROMPT, &mut Control::default(), &calls).unwrap();
+        let ckdir = dir.path().join(format!("frozen-{view_weight:?}"));
+        let mut control = Control {
+            checkpoint: Some(Checkpointer::new(&ckdir, 10)),
+            stop_after: Some(stop),
+            ..Default::default()
+        };
+        edit(&scene, &cfg, PROMPT, &mut control, &calls).unwrap_err();
+        let mut control =
+            Control { checkpoint: Some(Checkpointer::new(&ckdir, 10)), resume: true, ..Default::default() };
+        let resumed = edit(&scene, &cfg, PROMPT, &mut control, &calls).unwrap();
+        assert_same(&whole, &resumed);
+    }
 }
 
 #[test]

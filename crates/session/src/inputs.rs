@@ -9,7 +9,6 @@
 //! Every error names the file it is about.
 
 use crate::SessionError;
-use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 use transsplat_scene::{cameras, formats, scene_paths, Camera, Gaussians};
 
@@ -37,20 +36,11 @@ pub fn load_cameras(path: Option<&Path>, scene: &Path) -> Result<(Vec<Camera>, P
             SessionError::Input(format!("no --cameras given and none found beside the scene: {e}"))
         })?,
     };
+    // The loaders check every camera and that no two share an image name
+    // (`cameras::validated`).
     let list = cameras::load(&file)?;
     if list.is_empty() {
         return Err(SessionError::Input(format!("{}: no cameras", file.display())));
-    }
-    let mut stems = HashSet::new();
-    for camera in &list {
-        camera.validate().map_err(|e| SessionError::Input(format!("{}: {e}", file.display())))?;
-        if !stems.insert(camera.stem()) {
-            return Err(SessionError::Input(format!(
-                "{}: two cameras share the image name {:?}; outputs would overwrite each other",
-                file.display(),
-                camera.stem()
-            )));
-        }
     }
     Ok((list, file))
 }

@@ -199,17 +199,18 @@ fn segmenter_spec(args: &EditArgs) -> Result<Option<SegmenterSpec<'static>>> {
     Ok(match (&args.segment, &args.segment_weights, &args.masks) {
         (Some(phrase), Some(weights), _) => {
             let phrase = match phrase.as_str() {
-                "" => target_phrase(&args.prompt).with_context(|| {
-                    format!(
-                        "--segment: no object to segment found in the instruction {:?}; name it: --segment \"the ball\"",
-                        args.prompt
-                    )
-                })?,
+                "" => {
+                    let derived = target_phrase(&args.prompt).with_context(|| {
+                        format!(
+                            "--segment: no object to segment found in the instruction {:?}; name it: --segment \"the ball\"",
+                            args.prompt
+                        )
+                    })?;
+                    tracing::info!("--segment: segmenting {derived:?}, the object the instruction edits");
+                    derived
+                }
                 given => given.to_string(),
             };
-            if args.segment.as_deref() == Some("") {
-                tracing::info!("--segment: segmenting {phrase:?}, the object the instruction edits");
-            }
             Some(SegmenterSpec::ClipSeg { weights: weights.clone(), phrase })
         }
         (_, _, Some(dir)) => Some(SegmenterSpec::Folder(dir.clone())),

@@ -126,7 +126,8 @@ impl TransSplat {
             .collect();
         let t = Instant::now();
         if !geometry_frozen(&self.cfg) || self.sources.len() != views.len() {
-            self.sources = round::view_sources(&trainer.model.gaussians, &views);
+            let keep_blend = self.cfg.fusion.view_weight == crate::gate::ViewWeight::Blend;
+            self.sources = round::view_sources(&trainer.model.gaussians, &views, keep_blend);
         }
         let sources_s = t.elapsed().as_secs_f64();
         let cams: Vec<usize> = ctx.views.iter().map(|v| v.cam).collect();
@@ -303,11 +304,13 @@ impl EditMethod for TransSplat {
                 .f32(format!("cached.{k}.w"), &v.w[..])
                 .f32(format!("cached.{k}.y"), &v.y[..])
                 .f32(format!("cached.{k}.coverage"), &v.coverage[..])
-                .f32(format!("cached.{k}.blend"), &v.blend[..])
                 .f64(
                     format!("cached.{k}.stats"),
                     vec![v.objective, v.dual, v.gap, v.transported_mass, v.target_mass as f64],
                 );
+            if !v.blend.is_empty() {
+                w.f32(format!("cached.{k}.blend"), &v.blend[..]);
+            }
         }
     }
 
@@ -382,7 +385,11 @@ fn load_plan(a: &Archive, k: usize, n: usize, d: usize, delta: f32) -> Result<Vi
     if !(coverage.is_empty() || coverage.len() == m) {
         return Err(e(format!("cached view plan {k}: {} coverage values for {m} sources", coverage.len())));
     }
-    let blend: std::sync::Arc<[f32]> = a.f32(&p("blend")).map_err(archive_error)?.into();
+    // Present only when the run weighed views by blend weight.
+    let blend: std::sync::Arc<[f32]> = match a.has(&p("blend")) {
+        true => a.f32(&p("blend")).map_err(archive_error)?.into(),
+        false => Default::default(),
+    };
     if !(blend.is_empty() || blend.len() == m) {
         return Err(e(format!("cached view plan {k}: {} blend weights for {m} sources", blend.len())));
     }
