@@ -23,6 +23,11 @@ own peak memory is read from the child's rusage); PyTorch runs in this process w
     python3 tools/bench_ip2p_cpu.py [--threads 2] [--repeats 2] [--sizes 256 512]
         [--transsplat target/release/transsplat] [--out bench_ip2p_cpu.json]
 
+With `--device cuda` both sides run on the GPU instead (issue #40's item 6): PyTorch
+on CUDA, and the candle side a binary built with `--features cuda`, which runs its
+models on CUDA device 0 when one is present. Every timed call waits for the device;
+the memory rows add PyTorch's peak GPU allocation.
+
 Needs torch, diffusers (not dependencies of the project or CI).
 """
 import argparse
@@ -37,22 +42,25 @@ import time
 STEPS = 20
 
 
-def torch_models(torch):
-    """The UNet and the VAE of `bench_ip2p_gpu.py` (the same SD 1.5 configuration), f32 on the CPU."""
+def torch_models(torch, device):
+    """The UNet and the VAE of `bench_ip2p_gpu.py` (the same SD 1.5 configuration), f32."""
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from bench_ip2p_gpu import models
 
-    unet, vae, _ = models(torch.float32, "cpu")
+    unet, vae, _ = models(torch.float32, device)
     return unet, vae
 
 
-def best_of(repeats, f, warm_up=True):
+def best_of_synced(repeats, f, warm_up=True, sync=lambda: None):
+    """Best seconds of `repeats` calls of `f`, each waited for with `sync`."""
     if warm_up:
         f()
+        sync()
     best = float("inf")
     for _ in range(repeats):
         t = time.perf_counter()
         f()
+        sync()
         best = min(best, time.perf_counter() - t)
     return best
 
@@ -62,32 +70,38 @@ def torch_rows(args):
 
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
-    unet, vae = torch_models(torch)
-    text = torch.randn(3, 77, 768)
+    dev = args.device
+    unet, vae = torch_models(torch, dev)
+    text = torch.randn(3, 77, 768, device=dev)
+    sync = torch.cuda.synchronize if dev == "cuda" else (lambda: None)
+
+    def best_of(repeats, f, warm_up=True):
+        return best_of_synced(repeats, f, warm_up, sync)
+
     rows = {}
     with torch.no_grad():
         for size in args.sizes:
             lat = size // 8
-            x = torch.randn(3, 8, lat, lat)
-            t = torch.tensor(500)
+            x = torch.randn(3, 8, lat, lat, device=dev)
+            t = torch.tensor(500, device=dev)
             rows[f"unet step (batch 3) {size}"] = best_of(
                 args.repeats, lambda: unet(x, t, encoder_hidden_states=text).sample)
             if size == 256:
                 for views in (2, 4):
-                    xv = torch.randn(3 * views, 8, lat, lat)
+                    xv = torch.randn(3 * views, 8, lat, lat, device=dev)
                     tv = text.repeat(views, 1, 1)
                     rows[f"unet step (batch 3x{views}) {size}"] = best_of(
                         args.repeats, lambda: unet(xv, t, encoder_hidden_states=tv).sample)
-            img = torch.rand(1, 3, size, size) * 2 - 1
+            img = torch.rand(1, 3, size, size, device=dev) * 2 - 1
             rows[f"vae encode {size}"] = best_of(args.repeats, lambda: vae.encode(img).latent_dist.mode())
-            z = torch.randn(1, 4, lat, lat)
+            z = torch.randn(1, 4, lat, lat, device=dev)
             rows[f"vae decode {size}"] = best_of(args.repeats, lambda: vae.decode(z).sample)
 
         def whole_view():
-            img = torch.rand(1, 3, 256, 256) * 2 - 1
+            img = torch.rand(1, 3, 256, 256, device=dev) * 2 - 1
             image_latents = vae.encode(img).latent_dist.mode()
             latents = torch.randn_like(image_latents)
-            for step in torch.linspace(999, 0, STEPS).long():
+            for step in torch.linspace(999, 0, STEPS, device=dev).long():
                 x = torch.cat([torch.cat([latents] * 3),
                                torch.cat([image_latents, image_latents, torch.zeros_like(image_latents)])], dim=1)
                 eps = unet(x, step, encoder_hidden_states=text).sample
@@ -99,13 +113,18 @@ def torch_rows(args):
             # Its parts are warm by now: one timed run.
             rows["whole view 256 (measured)"] = best_of(1, whole_view, warm_up=False)
     rows["peak memory GiB"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    if dev == "cuda":
+        rows["peak GPU memory GiB (PyTorch's allocator)"] = torch.cuda.max_memory_allocated() / 2**30
     return rows
 
 
 def candle_rows(args):
     env = dict(os.environ, RAYON_NUM_THREADS=str(args.threads), OMP_NUM_THREADS=str(args.threads))
-    out = subprocess.run([args.transsplat, "bench", "models", "--only", "ip2p"], env=env,
-                         capture_output=True, text=True, check=True).stdout
+    run = subprocess.run([args.transsplat, "bench", "models", "--only", "ip2p"], env=env,
+                         capture_output=True, text=True)
+    if run.returncode != 0:
+        sys.exit(f"{args.transsplat} bench models failed (exit {run.returncode}):\n{run.stderr[-4000:]}")
+    out = run.stdout
     rows = {}
     for line in out.splitlines():
         m = re.match(r"ip2p (unet step \(batch 3(?:x\d+)?\)|vae encode|vae decode) (\d+)x\d+\s+([\d.]+)", line)
@@ -125,13 +144,15 @@ def main():
     ap.add_argument("--sizes", type=int, nargs="+", default=[256, 512])
     ap.add_argument("--transsplat", default="target/release/transsplat")
     ap.add_argument("--out", help="also write the table as JSON here")
+    ap.add_argument("--device", choices=["cpu", "cuda"], default="cpu",
+                    help="where both sides run (cuda: the candle binary built with --features cuda)")
     args = ap.parse_args()
     if not os.access(args.transsplat, os.X_OK):
         sys.exit(f"{args.transsplat}: not an executable (build it: cargo build --release -p transsplat)")
     # candle first, in a child, so its peak memory is its own.
     candle = candle_rows(args)
     torch = torch_rows(args)
-    keys = [k for k in torch if k != "peak memory GiB"] + ["peak memory GiB"]
+    keys = [k for k in torch if "memory" not in k] + [k for k in torch if "memory" in k]
     print(f"{'row':<32} {'candle s':>10} {'PyTorch s':>10} {'PyTorch / candle':>17}")
     table = []
     for k in keys:
@@ -142,7 +163,8 @@ def main():
         table.append({"row": k, "candle": ck, "pytorch": tk})
     if args.out:
         with open(args.out + ".partial", "w") as f:
-            json.dump({"threads": args.threads, "repeats": args.repeats, "rows": table}, f, indent=1)
+            json.dump({"device": args.device, "threads": args.threads, "repeats": args.repeats, "rows": table},
+                      f, indent=1)
         os.rename(args.out + ".partial", args.out)
 
 

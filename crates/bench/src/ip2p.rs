@@ -87,7 +87,8 @@ impl Case {
         format!("{what} {size}x{size}")
     }
 
-    /// Runs the case once on `size × size` images (random inputs).
+    /// Runs the case once on `size × size` images (random inputs), waiting for the
+    /// device to finish (a GPU runs the kernels asynchronously).
     pub fn run(self, m: &Sd15, size: usize, device: &Device) -> candle_core::Result<()> {
         let l = size / m.vae.config.downscale();
         match self {
@@ -106,6 +107,6 @@ impl Case {
                 m.vae.decode(&z)?;
             }
         }
-        Ok(())
+        device.synchronize()
     }
 }
