@@ -172,3 +172,55 @@ fn views_k_edits_only_k_views() {
     assert!(log.contains("editor simulated edited 3 views"), "{log}");
     assert!(out.join("transport.json").is_file());
 }
+
+/// `--views auto`: the editor edits a quarter of the views as seeds, then any view the
+/// target needs; the edit lands and says how many it chose.
+#[test]
+fn views_auto_edits_seeds_and_what_the_target_needs() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = quick_scene(dir.path());
+    let out = dir.path().join("edit");
+    let o = bin()
+        .args(["edit", "--scene"])
+        .arg(&ds)
+        .args(["--prompt", "make the ball blue", "--editor", "simulated", "--steps", "30", "--views", "auto"])
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    ok(&o);
+    let log = String::from_utf8_lossy(&o.stderr);
+    let line = log.lines().find(|l| l.contains("--views auto:")).unwrap_or_else(|| panic!("{log}"));
+    let number = |after: &str| -> usize {
+        let rest = &line[line.find(after).unwrap() + after.len()..];
+        rest.split_whitespace().next().unwrap().parse().unwrap()
+    };
+    let cams = transsplat_scene::cameras::load(&ds.join("cameras.json")).unwrap();
+    let edit_views = transsplat_scene::cameras::split_views(cams.len()).1.len();
+    assert_eq!(number("--views auto: "), edit_views.div_ceil(4), "{line}");
+    assert!(out.join("transport.json").is_file());
+}
+
+/// `--views auto` when the editor changed nothing (the exported renders handed back
+/// unedited): exit 2 saying so, nothing written.
+#[test]
+fn views_auto_refuses_an_edit_that_marks_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = quick_scene(dir.path());
+    let views = dir.path().join("views");
+    ok(&bin().args(["views", "export", "--scene"]).arg(&ds).arg("--out").arg(&views).output().unwrap());
+    let out = dir.path().join("edit");
+    let o = bin()
+        .args(["edit", "--scene"])
+        .arg(&ds)
+        .args(["--prompt", "make the ball blue", "--editor", "folder", "--edits"])
+        .arg(&views)
+        .args(["--steps", "30", "--views", "auto", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--views auto: the editor marked no target"), "{err}");
+    assert!(!out.exists(), "nothing written");
+}

@@ -234,7 +234,7 @@ pub fn run(
         return Err(SessionError::Input(format!("background: non-finite value in {background:?}")));
     }
     let (test_views, edit_views) = crate::views::split(cameras, views)?;
-    if views != ViewChoice::All {
+    if !matches!(views, ViewChoice::All | ViewChoice::Auto) {
         tracing::info!("the editor edits {} views: {:?}", edit_views.len(), edit_views);
     }
     if let Some(s) = &segmenter {
@@ -269,6 +269,24 @@ pub fn run(
     let mut editor: Box<dyn Editor + '_> = match segmenter {
         Some((segmenter, phrase)) => Box::new(Segmented::new(editor, segmenter, phrase)),
         None => editor,
+    };
+    // `auto` edits its seeds and the views the target needs now; the engine then takes
+    // those outputs as the edits of the chosen views.
+    let edit_views = match views {
+        ViewChoice::Auto => {
+            let scene = crate::views::AutoScene {
+                gaussians,
+                cameras,
+                edit_views: &edit_views,
+                background,
+                prompt,
+                prototypes: &config.prototypes,
+            };
+            let choice = crate::views::auto(&scene, editor.as_mut())?;
+            editor = Box::new(crate::views::Prepared::new(editor.name(), &choice.views, choice.edited));
+            choice.views
+        }
+        _ => edit_views,
     };
     // The one semantic model of the job, for source renders and edited images alike.
     let semantic = move |img: &[f32], w: usize, h: usize| match &dino {

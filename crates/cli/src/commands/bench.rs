@@ -260,8 +260,8 @@ pub struct QualityArgs {
     /// Override any edit setting, as in `edit --set`.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
-    /// Which training views the simulated editor edits in every case: all, K or 1/N
-    /// (as `edit --views`).
+    /// Which training views the simulated editor edits in every case: all, auto, K or
+    /// 1/N (as `edit --views`).
     #[arg(long, value_parser = transsplat_session::views::ViewChoice::parse, default_value = "all")]
     pub views: transsplat_session::views::ViewChoice,
     #[arg(long, default_value_t = 0)]

@@ -46,7 +46,8 @@ pub struct DemoArgs {
     /// report its target PSNR (what an edit of the trained scene could reach at best).
     #[arg(long, requires = "trained")]
     pub retrain_truth: bool,
-    /// Which training views the simulated editor edits: all, K or 1/N (as `edit --views`).
+    /// Which training views the simulated editor edits: all, auto, K or 1/N (as `edit
+    /// --views`).
     #[arg(long, value_parser = transsplat_session::views::ViewChoice::parse, default_value = "all")]
     pub views: transsplat_session::views::ViewChoice,
     /// Hand the edits masks from the simulated segmenter at this severity (0: the true

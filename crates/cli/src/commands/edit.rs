@@ -83,9 +83,10 @@ pub struct EditArgs {
     /// where > 0.5), one per edited view at its size (replacing any mask the editor gave).
     #[arg(long, value_name = "DIR", conflicts_with = "segment")]
     pub masks: Option<PathBuf>,
-    /// Which views the 2D editor edits: all (every camera but each 8th) or K of them,
-    /// spread over the capture (the editor then runs K times; the transport, fusion and
-    /// image loss work from those K views).
+    /// Which views the 2D editor edits: all (every camera but each 8th), K of them or
+    /// 1/N, spread over the capture (the editor then runs K times; the transport, fusion
+    /// and image loss work from those K views), or auto: a quarter of them as seeds,
+    /// then the views their edits' target needs to be seen well twice.
     #[arg(long, value_parser = ViewChoice::parse, default_value = "all")]
     pub views: ViewChoice,
     /// Simulated editor severity (0 = perfect edits).

@@ -220,8 +220,8 @@ def edit(
         background: colour behind the Gaussians.
         progress: True shows progress (tqdm if installed), False none, or a callable
             ``progress(kind, a, b, x)`` (kind "edited", "step" or "round").
-        views: which edit views the editor edits: ``"all"``, a count ``K`` or ``"1/N"``,
-            spread over the capture as ``transsplat edit --views`` chooses them.
+        views: which edit views the editor edits: ``"all"``, ``"auto"``, a count ``K``
+            or ``"1/N"``, chosen as ``transsplat edit --views`` chooses them.
         segmenter: ``segmenter(views, phrase)`` with ``views`` the :class:`View` list of
             the views the editor edited (their renders before the edit); returns one
             entry per view: an (H, W) mask in [0, 1] (float, bool or uint8; inside
