@@ -1,19 +1,27 @@
-//! `transsplat bench edit`: a whole edit timed at a stated real size, with the
-//! simulated editor (no weights) on a built-in scene, so every run is reproducible and
-//! scored against the ground truth (a speed-up must not cost quality).
+//! `transsplat bench edit`: a whole edit job timed at a stated real size on a built-in
+//! scene, run by the session layer as `transsplat edit` runs it. With the simulated
+//! editor (no weights) every run is reproducible and scored against the ground truth (a
+//! speed-up must not cost quality); with InstructPix2Pix at random weights
+//! ([`crate::ip2p::random_editor`]) the 2D editor does the real model's arithmetic, so
+//! the whole language-driven edit is timed, the editor and the lift apart.
 //!
 //! The sizes ([`SIZES`]) are those of the performance issue: (a) ~700k Gaussians, 42
-//! edit views at 256×256; (b) ~1M Gaussians, 40 edit views at 800×600; plus `quick`
-//! for tests. Every 8th camera is a test view, so 48 and 46 cameras.
+//! edit views at 256×256; (b) ~1M Gaussians, 40 edit views at 800×600; (c) the 48-view
+//! scene at 512×512; plus `quick` for tests. Every 8th camera is a test view, so 48 and
+//! 46 cameras.
 
-use crate::demo::{scene_job, DemoError};
+use crate::demo::DemoError;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 use transsplat_builtin::SimulatedEditor;
 use transsplat_builtin::{build, SceneConfig};
 use transsplat_edit::{EditConfig, Progress, Timing};
+use transsplat_editors::Editor;
 use transsplat_eval::ground_truth::{GtMetrics, Reference};
+use transsplat_session::edit::{EditRequest, EditorSpec, Features};
+use transsplat_session::views::ViewChoice;
+use transsplat_session::SessionError;
 
 /// One benchmark size.
 #[derive(Clone, Copy, Debug)]
@@ -29,9 +37,10 @@ pub struct BenchSize {
 }
 
 /// The sizes `bench edit` knows.
-pub const SIZES: [BenchSize; 3] = [
+pub const SIZES: [BenchSize; 4] = [
     BenchSize { name: "a", scene: "tabletop", detail: 15.2, width: 256, height: 256, views: 48 },
     BenchSize { name: "b", scene: "tabletop", detail: 21.7, width: 800, height: 600, views: 46 },
+    BenchSize { name: "c", scene: "tabletop", detail: 15.2, width: 512, height: 512, views: 48 },
     BenchSize { name: "quick", scene: "tabletop", detail: 0.12, width: 128, height: 96, views: 16 },
 ];
 
@@ -43,12 +52,44 @@ pub fn size(name: &str) -> Result<BenchSize, String> {
     })
 }
 
+/// The 2D editor of a timed edit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum BenchEditor {
+    /// The simulated editor at this severity (scored against the ground truth).
+    Simulated { severity: f32 },
+    /// InstructPix2Pix with random weights, this many views per UNet call.
+    Ip2p { batch: usize },
+}
+
+impl BenchEditor {
+    pub fn name(&self) -> &'static str {
+        match self {
+            BenchEditor::Simulated { .. } => "simulated",
+            BenchEditor::Ip2p { .. } => "ip2p",
+        }
+    }
+}
+
+/// What one timed edit is.
+#[derive(Clone, Debug)]
+pub struct EditBenchOptions<'a> {
+    pub size: BenchSize,
+    pub config: EditConfig,
+    pub prompt: &'a str,
+    pub editor: BenchEditor,
+    /// Which edit views the editor edits (`edit --views`).
+    pub views: ViewChoice,
+}
+
 /// What one timed edit measured.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct EditBench {
     pub size: &'static str,
+    pub editor: &'static str,
     pub gaussians: usize,
+    /// The views the editor edited (of `candidate_views`).
     pub edit_views: usize,
+    pub candidate_views: usize,
     pub width: u32,
     pub height: u32,
     pub steps: usize,
@@ -60,21 +101,20 @@ pub struct EditBench {
     pub write_s: f64,
     /// Optimisation seconds per step (`timing.optimise / steps`).
     pub per_step_s: f64,
-    /// Ground-truth scores of the result on the test views.
+    /// Ground-truth scores of the result on the test views (the simulated editor's truth:
+    /// meaningless for InstructPix2Pix at random weights).
     pub metrics: GtMetrics,
 }
 
-/// Builds the size's scene and edits it with `prompt` at `severity` under `config`,
-/// writing the result into `work` (a scratch folder); `on_progress` sees the steps.
+/// Builds the size's scene and edits it as `opts` says, writing the result into `work` (a
+/// scratch folder); `on_progress` sees the steps.
 pub fn run(
-    size: &BenchSize,
-    config: &EditConfig,
-    prompt: &str,
-    severity: f32,
+    opts: &EditBenchOptions,
     work: &Path,
     cancel: Option<&AtomicBool>,
     on_progress: &mut dyn FnMut(Progress),
 ) -> Result<EditBench, DemoError> {
+    let EditBenchOptions { size, config, prompt, editor: which, views } = opts;
     let clock = Instant::now();
     let cfg = SceneConfig {
         seed: config.seed,
@@ -85,22 +125,53 @@ pub fn run(
         open: false,
     };
     let scene = build(size.scene, &cfg)?;
-    let mut editor = SimulatedEditor::new(&scene, severity, config.seed);
-    editor.instruct(prompt)?;
-    let reference = Reference::new(&scene, editor.ground_truth(), editor.target_labels());
+    let severity = match which {
+        BenchEditor::Simulated { severity } => *severity,
+        BenchEditor::Ip2p { .. } => 0.0,
+    };
+    let mut simulated = SimulatedEditor::new(&scene, severity, config.seed);
+    simulated.instruct(prompt)?;
+    let reference = Reference::new(&scene, simulated.ground_truth(), simulated.target_labels());
+    let editor: Box<dyn Editor + Send + '_> = match which {
+        BenchEditor::Simulated { .. } => Box::new(simulated),
+        BenchEditor::Ip2p { batch } => {
+            let device = transsplat_models::default_device();
+            let mut e = crate::ip2p::random_editor(&device, config.seed)
+                .map_err(|e| DemoError::Session(SessionError::Model(e)))?
+                .with_batch(*batch);
+            if let Some(flag) = cancel {
+                e = e.with_cancel(flag);
+            }
+            Box::new(e)
+        }
+    };
     let source = scene.gaussians_with_labels();
-    let job = scene_job(&scene, &source, prompt);
+    let candidates = scene.train_views().len();
     let setup_s = clock.elapsed().as_secs_f64();
     tracing::info!(
-        "bench edit {}: {} Gaussians, {} edit views of {}x{}, {} steps (setup {setup_s:.1} s)",
+        "bench edit {}: {} Gaussians, {candidates} edit views of {}x{}, {} editor, {} steps (setup {setup_s:.1} s)",
         size.name,
         source.len(),
-        job.edit_views.len(),
         size.width,
         size.height,
+        which.name(),
         config.schedule.steps
     );
-    let res = transsplat_edit::run(&job, &mut editor, config, cancel, on_progress)?;
+    let request = EditRequest {
+        gaussians: &source,
+        cameras: &scene.cameras,
+        prompt,
+        editor: EditorSpec::Custom(editor),
+        segmenter: None,
+        features: Features::Builtin,
+        views: *views,
+        config: config.clone(),
+        background: scene.background,
+        output: None,
+        target: None,
+    };
+    let outcome = transsplat_session::edit::run(request, cancel, on_progress)?;
+    let res = outcome.result;
     let clock = Instant::now();
     let out = work.join("point_cloud.ply");
     transsplat_scene::ply::write(&out, &res.gaussians)?;
@@ -109,8 +180,10 @@ pub fn run(
     let steps = config.schedule.steps;
     Ok(EditBench {
         size: size.name,
+        editor: which.name(),
         gaussians: source.len(),
-        edit_views: job.edit_views.len(),
+        edit_views: outcome.edit_views.len(),
+        candidate_views: candidates,
         width: size.width,
         height: size.height,
         steps,
@@ -135,7 +208,14 @@ mod tests {
         let mut full = config.clone();
         full.schedule.delta_render = false;
         let bench = |c: &EditConfig| {
-            run(&size("quick").unwrap(), c, "make the ball blue", 0.0, dir.path(), None, &mut |_| {}).unwrap()
+            let opts = EditBenchOptions {
+                size: size("quick").unwrap(),
+                config: c.clone(),
+                prompt: "make the ball blue",
+                editor: BenchEditor::Simulated { severity: 0.0 },
+                views: ViewChoice::All,
+            };
+            run(&opts, dir.path(), None, &mut |_| {}).unwrap()
         };
         // Full renders bin every step; rendering the colour change alone builds blend
         // weights instead and never bins in a step.
@@ -170,6 +250,6 @@ mod tests {
             assert!(r.metrics.target_psnr.is_finite() && r.metrics.background_psnr.is_finite());
         }
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "the scratch PLY is removed");
-        assert!(size("huge").unwrap_err().contains("a, b, quick"));
+        assert!(size("huge").unwrap_err().contains("a, b, c, quick"));
     }
 }

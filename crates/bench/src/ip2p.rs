@@ -8,8 +8,10 @@
 
 use candle_core::{Device, Tensor};
 
+use transsplat_models::clip::ClipTextModel;
 use transsplat_models::ip2p::unet::{UNet, UNetConfig};
 use transsplat_models::ip2p::vae::{Vae, VaeConfig};
+use transsplat_models::ip2p::{Ddim, DdimConfig, Ip2p, Ip2pEditor, Settings};
 
 /// The `unet/config.json` of `timbrooks/instruct-pix2pix` (SD 1.5 with 8 input channels).
 pub const SD15_UNET: &str = r#"{
@@ -109,4 +111,23 @@ impl Case {
         }
         device.synchronize()
     }
+}
+
+/// The InstructPix2Pix editor with random weights at the real sizes (SD 1.5 UNet and VAE,
+/// CLIP ViT-L/14's text tower, the InstructPix2Pix DDIM schedule and the default
+/// settings): it edits views with the arithmetic of the real model, for timing whole
+/// edits (`transsplat bench edit --editor ip2p`). Its images are noise-like.
+pub fn random_editor<'c>(device: &Device, seed: u64) -> Result<Ip2pEditor<'c>, String> {
+    let err = |e: &dyn std::fmt::Display| format!("random InstructPix2Pix: {e}");
+    let Sd15 { unet, vae } = sd15_models(device).map_err(|e| err(&e))?;
+    let ddim = Ddim::new(DdimConfig::instruct_pix2pix()).map_err(|e| err(&e))?;
+    let pipeline = Ip2p { unet, vae, ddim, device: device.clone() };
+    let config = crate::models::vit_l14().text_config;
+    let path = std::path::Path::new("(benchmark config)");
+    let vb = transsplat_models::weights::random_weights(device, |vb| {
+        ClipTextModel::new(vb, config.clone(), path).map(|_| ())
+    })
+    .map_err(|e| err(&e))?;
+    let text = ClipTextModel::new(vb, config, path).map_err(|e| err(&e))?;
+    Ip2pEditor::from_parts(pipeline, text, Settings::default(), seed)
 }

@@ -66,7 +66,7 @@ fn time<T>(f: impl FnMut() -> Result<T, Error>) -> Result<f64, Error> {
 }
 
 /// `openai/clip-vit-large-patch14`.
-fn vit_l14() -> ClipConfig {
+pub(crate) fn vit_l14() -> ClipConfig {
     ClipConfig {
         text_config: ClipTextConfig {
             vocab_size: 49408,

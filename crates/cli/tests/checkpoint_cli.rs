@@ -193,3 +193,43 @@ fn nan_stops_train_and_edit_naming_step_and_group_and_writes_no_scene() {
     );
     assert!(!dir.path().join("e").exists());
 }
+
+/// `--views auto` stopped and resumed: the resumed edit takes the chosen views and their
+/// edits from the checkpoint (the editor is not called again) and ends as the
+/// uninterrupted edit does.
+#[test]
+fn stopped_auto_edit_resumes_without_the_editor() {
+    let dir = tempfile::tempdir().unwrap();
+    quick_scene_in(dir.path(), "data");
+    let run = |out: &'static str| {
+        [
+            "edit",
+            "--scene",
+            "data",
+            "--prompt",
+            "make the ball blue",
+            "--editor",
+            "simulated",
+            "--views",
+            "auto",
+            "--steps",
+            "30",
+            "--checkpoint-every",
+            "10",
+            "--out",
+            out,
+        ]
+    };
+    ok(&bin().current_dir(dir.path()).args(run("a")).output().unwrap());
+    let o = bin().current_dir(dir.path()).args(run("b")).args(["--stop-after", "13"]).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(err.contains("--views auto:") && o.status.code() == Some(2), "{err}");
+    let cmd = err.split("continue with: ").nth(1).expect("the message gives the command").trim();
+    let resumed = Command::new("sh").current_dir(dir.path()).args(["-c", cmd]).output().unwrap();
+    ok(&resumed);
+    let log = String::from_utf8_lossy(&resumed.stderr);
+    assert!(!log.contains("--views auto:"), "the resumed edit chose its views again: {log}");
+    let ply = "point_cloud/iteration_30/point_cloud.ply";
+    let read = |out: &str| std::fs::read(dir.path().join(out).join(ply)).unwrap();
+    assert!(read("a") == read("b"), "resumed auto edit differs from the uninterrupted edit");
+}

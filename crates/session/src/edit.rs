@@ -271,9 +271,13 @@ pub fn run(
         None => editor,
     };
     // `auto` edits its seeds and the views the target needs now; the engine then takes
-    // those outputs as the edits of the chosen views.
-    let edit_views = match views {
-        ViewChoice::Auto => {
+    // those outputs as the edits of the chosen views (their time is the editor's).
+    let auto_clock = std::time::Instant::now();
+    let resume_dir = control.checkpoint.as_ref().filter(|_| control.resume).map(|c| c.dir.clone());
+    let edit_views = match (views, resume_dir) {
+        // A resumed `auto` edit takes its views from the checkpoint, its edits too.
+        (ViewChoice::Auto, Some(dir)) => crate::views::read_auto_choice(&dir)?,
+        (ViewChoice::Auto, None) => {
             let scene = crate::views::AutoScene {
                 gaussians,
                 cameras,
@@ -283,11 +287,15 @@ pub fn run(
                 prototypes: &config.prototypes,
             };
             let choice = crate::views::auto(&scene, editor.as_mut())?;
+            if let Some(checkpoint) = &control.checkpoint {
+                crate::views::write_auto_choice(&checkpoint.dir, &choice.views)?;
+            }
             editor = Box::new(crate::views::Prepared::new(editor.name(), &choice.views, choice.edited));
             choice.views
         }
         _ => edit_views,
     };
+    let auto_s = if views == ViewChoice::Auto { auto_clock.elapsed().as_secs_f64() } else { 0.0 };
     // The one semantic model of the job, for source renders and edited images alike.
     let semantic = move |img: &[f32], w: usize, h: usize| match &dino {
         Some(m) => m.features_projected(img, w, h, DINO_CHANNELS).map_err(|e| format!("DINOv2: {e}")),
@@ -302,7 +310,7 @@ pub fn run(
         semantic: &semantic,
     };
     let result = transsplat_edit::run_with(&job, editor.as_mut(), &config, &mut control, progress);
-    let result = match (result, &output) {
+    let mut result = match (result, &output) {
         (Ok(r), _) => r,
         (Err(EditError::Interrupted(step)), Some(o)) => {
             return Err(checkpoints::interrupted(step as u64, &control, &o.path))
@@ -310,6 +318,8 @@ pub fn run(
         (Err(e @ EditError::Train(_)), Some(o)) => return Err(checkpoints::failed(e, &control, &o.path)),
         (Err(e), _) => return Err(e.into()),
     };
+    result.timing.editor += auto_s;
+    result.timing.total += auto_s;
     // A stop asked for during the last step (after the loop's last check) still stops:
     // nothing is written.
     if cancel.is_some_and(|c| c.load(std::sync::atomic::Ordering::SeqCst)) {

@@ -284,6 +284,36 @@ fn cover(mass: &[f64], seen: &[Vec<bool>], chosen: &[usize]) -> Vec<usize> {
     }
 }
 
+/// The file in the checkpoint folder that keeps the views `auto` chose, so a resumed
+/// edit takes the same views (and their edits from the checkpoint) without the editor.
+pub const AUTO_FILE: &str = "auto_views.json";
+
+/// Writes `views` as the `auto` choice into the checkpoint folder `dir`.
+pub fn write_auto_choice(dir: &std::path::Path, views: &[usize]) -> Result<(), SessionError> {
+    std::fs::create_dir_all(dir).map_err(|e| transsplat_scene::Error::io(dir, e))?;
+    let json = serde_json::to_vec(&serde_json::json!({ "views": views })).expect("a list of numbers");
+    Ok(transsplat_scene::atomic::write_bytes(&dir.join(AUTO_FILE), &json)?)
+}
+
+/// The `auto` choice kept in the checkpoint folder `dir` (an error naming the file when
+/// it is missing or not a list of views).
+pub fn read_auto_choice(dir: &std::path::Path) -> Result<Vec<usize>, SessionError> {
+    let path = dir.join(AUTO_FILE);
+    let bad = |why: String| SessionError::Input(format!("{}: {why}", path.display()));
+    let bytes =
+        std::fs::read(&path).map_err(|e| bad(format!("cannot read the views --views auto chose ({e})")))?;
+    #[derive(serde::Deserialize)]
+    struct Choice {
+        views: Vec<usize>,
+    }
+    let choice: Choice =
+        serde_json::from_slice(&bytes).map_err(|e| bad(format!("not a list of views: {e}")))?;
+    if choice.views.is_empty() {
+        return Err(bad("no views".into()));
+    }
+    Ok(choice.views)
+}
+
 /// An editor that hands back outputs made earlier (by [`auto`]), under the name of the
 /// editor that made them, so the engine edits nothing twice.
 pub struct Prepared {

@@ -2,7 +2,7 @@
 //! reproducible synthetic scene of `transsplat_raster::synthetic`; `transsplat bench
 //! edit`: a whole edit at a stated real size (`transsplat_bench::edit`).
 
-use super::common::{load_cameras, load_scene, progress, SceneArgs};
+use super::common::{load_cameras, load_scene, progress, show_steps, steps_bar, SceneArgs};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use transsplat_bench::edit as bench_edit;
@@ -137,9 +137,19 @@ pub fn models(args: &ModelsArgs) -> anyhow::Result<()> {
 #[derive(clap::Args, Debug)]
 pub struct EditArgs {
     /// Sizes to run: a (~700k Gaussians, 42 views of 256x256), b (~1M, 40 views of
-    /// 800x600), quick (~5k, 14 views of 128x96); comma-separated.
+    /// 800x600), c (a's scene at 512x512), quick (~5k, 14 views of 128x96); comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "a")]
     pub size: Vec<String>,
+    /// The 2D editor: simulated (scored against the ground truth) or ip2p
+    /// (InstructPix2Pix at random weights: the real model's arithmetic, timed).
+    #[arg(long, value_parser = ["simulated", "ip2p"], default_value = "simulated")]
+    pub editor: String,
+    /// Views per InstructPix2Pix UNet call (as `edit --ip2p-batch`).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=64))]
+    pub ip2p_batch: u64,
+    /// Which views the editor edits: all, auto, K or 1/N (as `edit --views`).
+    #[arg(long, value_parser = transsplat_session::views::ViewChoice::parse, default_value = "all")]
+    pub views: transsplat_session::views::ViewChoice,
     /// Optimisation steps (the default edit's 600 unless given).
     #[arg(long)]
     pub steps: Option<usize>,
@@ -166,29 +176,34 @@ pub fn edit(args: &EditArgs, cancel: &AtomicBool) -> anyhow::Result<()> {
         .assemble(args.method.as_deref(), &args.set, args.steps)
         .map_err(anyhow::Error::msg)?;
     let work = tempfile::tempdir()?;
+    let editor = match args.editor.as_str() {
+        "ip2p" => bench_edit::BenchEditor::Ip2p { batch: args.ip2p_batch as usize },
+        _ => bench_edit::BenchEditor::Simulated { severity: args.severity },
+    };
     for size in &sizes {
-        let pb = progress(config.schedule.steps as u64, "edit");
-        let r = bench_edit::run(
-            size,
-            &config,
-            "make the ball blue",
-            args.severity,
-            work.path(),
-            Some(cancel),
-            &mut |p| {
-                if let Progress::Step { step, .. } = p {
-                    pb.set_position(step as u64);
-                }
-            },
-        )?;
+        let opts = bench_edit::EditBenchOptions {
+            size: *size,
+            config: config.clone(),
+            prompt: "make the ball blue",
+            editor,
+            views: args.views,
+        };
+        let pb = steps_bar(config.schedule.steps as u64);
+        let r = bench_edit::run(&opts, work.path(), Some(cancel), &mut |p| match p {
+            Progress::Edited { .. } => show_steps(&pb),
+            Progress::Step { step, .. } => pb.set_position(step as u64),
+            _ => {}
+        })?;
         pb.finish_and_clear();
         let t = &r.timing;
         let st = &t.stages;
         println!(
-            "size {}: {} Gaussians, {} edit views of {}x{}, {} steps, {} threads",
+            "size {}: {} Gaussians, {} editor on {} of {} edit views of {}x{}, {} steps, {} threads",
             r.size,
             r.gaussians,
+            r.editor,
             r.edit_views,
+            r.candidate_views,
             r.width,
             r.height,
             r.steps,
@@ -197,6 +212,7 @@ pub fn edit(args: &EditArgs, cancel: &AtomicBool) -> anyhow::Result<()> {
         let rows = [
             ("edit (total)", t.total),
             ("  editor + source renders", t.editor),
+            ("  the lift (all but the editor)", t.total - t.editor),
             ("  transport rounds", t.transport),
             ("  optimisation", t.optimise),
             ("    binning", st.binning),

@@ -85,6 +85,21 @@ pub fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
 }
 
 /// A progress bar on stderr (hidden when stderr is not a terminal).
+/// The bar of an edit's steps, hidden until [`show_steps`]: the 2D editor draws its own
+/// bar before the steps begin.
+pub fn steps_bar(len: u64) -> indicatif::ProgressBar {
+    let pb = progress(len, "edit");
+    pb.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    pb
+}
+
+/// Shows a [`steps_bar`] once the editor is done, its clock and ETA from now.
+pub fn show_steps(pb: &indicatif::ProgressBar) {
+    pb.reset_elapsed();
+    pb.reset_eta();
+    pb.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+}
+
 pub fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
     let pb = indicatif::ProgressBar::new(len);
     pb.set_style(

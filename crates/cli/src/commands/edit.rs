@@ -1,6 +1,8 @@
 //! `transsplat edit`: language-driven editing of a scene with any 2D editor.
 
-use super::common::{load_cameras, load_scene, parse_rgb, progress, CheckpointArgs, SceneArgs, SpzWriteArgs};
+use super::common::{
+    load_cameras, load_scene, parse_rgb, show_steps, steps_bar, CheckpointArgs, SceneArgs, SpzWriteArgs,
+};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -164,7 +166,7 @@ pub fn run(args: &EditArgs, cancel: &AtomicBool) -> Result<()> {
         s.check()?;
     }
     let (editor, target) = editor_spec(args, &scene_path, &g, &config)?;
-    let bar = progress(config.schedule.steps as u64, "edit");
+    let bar = steps_bar(config.schedule.steps as u64);
     let editor_name = editor.name();
     let request = EditRequest {
         gaussians: &g,
@@ -296,7 +298,8 @@ fn show_progress(bar: &indicatif::ProgressBar, editor: &str, p: Progress) {
             r.mean_gate
         ),
         Progress::Edited { views, seconds } => {
-            tracing::info!("editor {editor} edited {views} views in {seconds:.1} s")
+            tracing::info!("editor {editor} edited {views} views in {seconds:.1} s");
+            show_steps(bar);
         }
     }
 }

@@ -2,7 +2,8 @@
 //!
 //! Views are edited in batches of up to [`Ip2pEditor::with_batch`] views of the same
 //! model size: the UNet then runs 3 × views per step (the guidance's three branches for
-//! each view, each view at its own timestep), with a progress bar per batch. Per view, a
+//! each view, each view at its own timestep), on one progress bar over every view's DDIM
+//! steps (views done, the step, the editor stage's ETA). Per view, a
 //! SplitMix64 generator seeded from the editor's seed and the view index draws the start
 //! span T ∈ [t_min, t_max] × 1000 and the initial noise, so an edit is reproducible and
 //! does not depend on the batch a view falls in (the pipeline keeps the images apart:
@@ -51,15 +52,26 @@ impl<'c> Ip2pEditor<'c> {
         let text_dir = root.component("text_encoder", "InstructPix2Pix text encoder")?;
         let text = ClipTextModel::load(&text_dir, device)?;
         let pipeline = Ip2p::load(&root, device)?;
+        Self::from_parts(pipeline, text, settings, seed)
+            .map_err(|msg| Error::Corrupt { path: text_dir.path.join("config.json"), msg })
+    }
+
+    /// The editor over a pipeline and text encoder built elsewhere (random weights in
+    /// `transsplat bench edit --editor ip2p`); errors when the text encoder's width is not
+    /// the UNet's cross-attention width.
+    pub fn from_parts(
+        pipeline: Ip2p,
+        text: ClipTextModel,
+        settings: Settings,
+        seed: u64,
+    ) -> Result<Self, String> {
+        settings.check()?;
         if text.config().hidden_size != pipeline.unet.config.cross_attention_dim {
-            return Err(Error::Corrupt {
-                path: text_dir.path.join("config.json"),
-                msg: format!(
-                    "hidden_size {} does not match the UNet's cross_attention_dim {}",
-                    text.config().hidden_size,
-                    pipeline.unet.config.cross_attention_dim
-                ),
-            });
+            return Err(format!(
+                "hidden_size {} does not match the UNet's cross_attention_dim {}",
+                text.config().hidden_size,
+                pipeline.unet.config.cross_attention_dim
+            ));
         }
         Ok(Self {
             pipeline,
@@ -132,6 +144,37 @@ impl<'c> Ip2pEditor<'c> {
         views: &[&SourceView],
         prompt: &PromptEmbeds,
     ) -> Result<Vec<EditedView>, EditError> {
+        let bar = self.bar(views.len());
+        let out = self.edit_batch(views, prompt, &bar, 0);
+        bar.finish_and_clear();
+        out
+    }
+
+    /// A bar over the DDIM steps of `views` views (hidden without progress): its ETA is
+    /// the editor stage's, its message the views done.
+    fn bar(&self, views: usize) -> indicatif::ProgressBar {
+        if !self.progress {
+            return indicatif::ProgressBar::hidden();
+        }
+        let bar = indicatif::ProgressBar::new((self.settings.steps * views) as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{msg} [{bar:30}] DDIM step {pos}/{len} {elapsed_precise} eta {eta}",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        bar.set_message(format!("ip2p: 0/{views} views done"));
+        bar
+    }
+
+    /// [`Self::edit_views`] on `bar`, whose first `done` views are finished.
+    fn edit_batch(
+        &self,
+        views: &[&SourceView],
+        prompt: &PromptEmbeds,
+        bar: &indicatif::ProgressBar,
+        done: usize,
+    ) -> Result<Vec<EditedView>, EditError> {
         let Some(first) = views.first() else { return Ok(Vec::new()) };
         for v in views {
             v.check()?;
@@ -163,27 +206,18 @@ impl<'c> Ip2pEditor<'c> {
             .map_err(|e| fail(&e))?;
         let noise = Tensor::from_vec(noise, (b, c, mh / f, mw / f), device).map_err(|e| fail(&e))?;
 
-        let bar = if self.progress {
-            let bar = indicatif::ProgressBar::new(self.settings.steps as u64);
-            bar.set_style(
-                indicatif::ProgressStyle::with_template(
-                    "{msg} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta}",
-                )
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-            );
-            bar.set_message(format!("ip2p view {}", names.join(", ")));
-            bar
-        } else {
-            indicatif::ProgressBar::hidden()
-        };
+        let total = bar.length().unwrap_or(0) / self.settings.steps.max(1) as u64;
+        bar.set_message(format!("ip2p: {done}/{total} views done, editing {}", names.join(", ")));
+        let start = (done * self.settings.steps) as u64;
         let cancel = self.cancel;
         let mut cancelled = false;
         let result = self.pipeline.edit(&image, prompt, &noise, &spans, &self.settings, &mut |i, _| {
-            bar.set_position(i as u64);
+            bar.set_position(start + i as u64);
             cancelled = cancel.is_some_and(|c| c.load(Ordering::SeqCst));
             !cancelled
         });
-        bar.finish_and_clear();
+        bar.set_position(start + self.settings.steps as u64);
+        bar.set_message(format!("ip2p: {}/{total} views done", done + b));
         if cancelled {
             return Err(EditError::Invalid("ip2p: interrupted".into()));
         }
@@ -220,7 +254,8 @@ impl Editor for Ip2pEditor<'_> {
             return Err(EditError::Instruction("ip2p: the edit instruction is empty".into()));
         }
         let embeds = self.encode_prompt(prompt).map_err(|e| EditError::Invalid(format!("ip2p: {e}")))?;
-        // consecutive views of one model size, up to `batch` at a time
+        // consecutive views of one model size, up to `batch` at a time, on one bar
+        let bar = self.bar(views.len());
         let mut out = Vec::with_capacity(views.len());
         let mut batch: Vec<&SourceView> = Vec::new();
         for v in views {
@@ -229,12 +264,15 @@ impl Editor for Ip2pEditor<'_> {
                 self.model_size(w, h)
             };
             if batch.len() == self.batch || batch.first().is_some_and(|f| size(f) != size(v)) {
-                out.extend(self.edit_views(&batch, &embeds)?.into_iter().map(Some));
+                let edited = self.edit_batch(&batch, &embeds, &bar, out.len());
+                out.extend(edited.inspect_err(|_| bar.abandon())?.into_iter().map(Some));
                 batch.clear();
             }
             batch.push(v);
         }
-        out.extend(self.edit_views(&batch, &embeds)?.into_iter().map(Some));
+        let edited = self.edit_batch(&batch, &embeds, &bar, out.len());
+        out.extend(edited.inspect_err(|_| bar.abandon())?.into_iter().map(Some));
+        bar.finish_and_clear();
         Ok(out)
     }
 }
