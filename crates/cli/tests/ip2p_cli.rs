@@ -72,3 +72,32 @@ fn tiny_ip2p_pipeline_edits_a_scene_end_to_end() {
     assert!(report["rounds"].as_array().is_some_and(|r| !r.is_empty()), "{report}");
     assert!(out.join("point_cloud/iteration_5/point_cloud.ply").is_file());
 }
+
+/// A stop during the 2D edits (the hidden `--stop-after-views`, as Ctrl-C between views)
+/// keeps the finished views; the printed command resumes without editing them again and
+/// ends as an uninterrupted edit does (each view's noise and timestep are its own).
+#[test]
+fn a_stop_during_the_edits_resumes_without_editing_finished_views() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = quick_scene(dir.path());
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/tests/fixtures/ip2p");
+    let weights =
+        ["--ip2p-weights", fixture.to_str().unwrap(), "--ip2p-batch", "2", "--checkpoint-every", "2"];
+    let whole = dir.path().join("whole");
+    let o = edit(&ds, &whole, &weights);
+    assert!(o.status.success(), "{}", text(&o));
+    let out = dir.path().join("edit");
+    let o = edit(&ds, &out, &[&weights[..], &["--stop-after-views", "4"]].concat());
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    let t = text(&o);
+    assert!(t.contains("interrupted during the 2D edits") && t.contains("4 edited views kept"), "{t}");
+    assert!(!out.exists(), "nothing written");
+    let cmd = t.split("continue with: ").nth(1).expect("the message gives the command").trim();
+    assert!(cmd.contains("--resume") && !cmd.contains("--stop-after-views"), "{cmd}");
+    let o = std::process::Command::new("sh").args(["-c", cmd]).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("4 of 14 views kept by the stopped run; 10 to edit"), "{}", text(&o));
+    let ply = "point_cloud/iteration_5/point_cloud.ply";
+    let read = |d: &Path| std::fs::read(d.join(ply)).unwrap();
+    assert!(read(&whole) == read(&out), "the resumed edit differs from the uninterrupted one");
+}

@@ -160,7 +160,10 @@ fn edited_views(
     sources: &[Vec<f32>],
     control: &Control,
 ) -> Result<(Vec<Option<EditedView>>, Option<u64>), EditError> {
-    if !control.resume {
+    // A run stopped during the 2D edits resumes by editing again (the session's editor
+    // then hands back the views it kept).
+    let edits_saved = control.checkpoint.as_ref().is_some_and(|c| c.dir.join(ckpt::EDITOR_FILE).is_file());
+    if !control.resume || !edits_saved {
         let edited = edits::edit_views(editor, job.cameras, &job.edit_views, sources, job.prompt)?;
         return Ok((edited, None));
     }

@@ -16,6 +16,9 @@ pub struct Checkpoints {
     pub resume: Option<PathBuf>,
     /// Stop as if interrupted once this many steps are done (deterministic tests).
     pub stop_after: Option<u64>,
+    /// Stop as if interrupted once the 2D editor has finished this many views
+    /// (deterministic tests of a stop during the edits).
+    pub stop_after_views: Option<usize>,
 }
 
 /// The checkpoint folder of an output folder: `OUT.checkpoint` beside it.
@@ -43,7 +46,8 @@ impl Checkpoints {
             Some(p) => p.clone(),
             None => checkpoint_dir(out),
         };
-        let has = dir.join(file).is_file();
+        // Views the 2D editor finished before a stop count as a checkpoint too.
+        let has = dir.join(file).is_file() || crate::editor_views::has_kept_views(&dir);
         match &self.resume {
             Some(_) if !has => {
                 return Err(SessionError::Input(format!(
@@ -91,14 +95,14 @@ pub fn failed(what: impl std::fmt::Display, control: &Control, out: &Path) -> Se
 }
 
 /// This process's command line with `--resume DIR` (replacing any earlier
-/// `--resume` and dropping `--stop-after`), quoted for a POSIX shell.
+/// `--resume` and dropping the test stops), quoted for a POSIX shell.
 pub fn resume_command(dir: &Path) -> String {
     let mut args: Vec<String> = Vec::new();
     let mut it = std::env::args();
     while let Some(a) = it.next() {
-        if a == "--resume" || a == "--stop-after" {
+        if ["--resume", "--stop-after", "--stop-after-views"].contains(&a.as_str()) {
             it.next();
-        } else if !(a.starts_with("--resume=") || a.starts_with("--stop-after=")) {
+        } else if !["--resume=", "--stop-after=", "--stop-after-views="].iter().any(|p| a.starts_with(p)) {
             args.push(a);
         }
     }

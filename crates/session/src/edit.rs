@@ -265,10 +265,45 @@ pub fn run(
     let segmenter = segmenter.map(|s| build_segmenter(s, gaussians)).transpose()?;
     let segmenter_name = segmenter.as_ref().map(|(s, phrase)| (s.name().to_string(), phrase.clone()));
     let editor_name = editor.name();
+    // Views per call of the editor while its finished views are kept (InstructPix2Pix
+    // edits its batch at a time; other editors take the whole shard at once).
+    let group = match &editor {
+        EditorSpec::Ip2p { batch, .. } => *batch,
+        _ => usize::MAX,
+    };
     let editor = build_editor(editor, gaussians, staged.as_ref(), &config, cancel)?;
     let mut editor: Box<dyn Editor + '_> = match segmenter {
         Some((segmenter, phrase)) => Box::new(Segmented::new(editor, segmenter, phrase)),
         None => editor,
+    };
+    if let Some(checkpoint) = &control.checkpoint {
+        let segmenter = segmenter_name.as_ref().map(|(n, p)| format!("{n} {p}")).unwrap_or_default();
+        let key = crate::editor_views::job_key(
+            &transsplat_scene::fingerprint::scene(gaussians),
+            prompt,
+            &format!("{} {segmenter}", editor.name()),
+            config.seed,
+        );
+        let kept = checkpoint.dir.join(crate::editor_views::VIEWS_DIR);
+        let mut kept_views = crate::editor_views::KeptViews::new(editor, kept, key, group, control.resume);
+        let stop_after =
+            output.as_ref().and_then(|o| o.checkpoints.as_ref()).and_then(|c| c.stop_after_views);
+        if let (Some(flag), Some(after)) = (cancel, stop_after) {
+            kept_views = kept_views.with_stop_after(flag, after);
+        }
+        editor = Box::new(kept_views);
+    }
+    // A stop during the 2D edits: the views finished so far are kept for a resume.
+    let kept_at =
+        control.checkpoint.as_ref().zip(output.as_ref()).map(|(c, o)| (c.dir.clone(), o.path.clone()));
+    let stopped_editing = |e: SessionError| -> SessionError {
+        let stopped = cancel.is_some_and(|c| c.load(std::sync::atomic::Ordering::SeqCst));
+        match &kept_at {
+            Some((dir, out)) if stopped && !matches!(e, SessionError::Interrupted { .. }) => {
+                crate::editor_views::stopped(dir, out)
+            }
+            _ => e,
+        }
     };
     // `auto` edits its seeds and the views the target needs now; the engine then takes
     // those outputs as the edits of the chosen views (their time is the editor's).
@@ -286,7 +321,7 @@ pub fn run(
                 prompt,
                 prototypes: &config.prototypes,
             };
-            let choice = crate::views::auto(&scene, editor.as_mut())?;
+            let choice = crate::views::auto(&scene, editor.as_mut()).map_err(&stopped_editing)?;
             if let Some(checkpoint) = &control.checkpoint {
                 crate::views::write_auto_choice(&checkpoint.dir, &choice.views)?;
             }
@@ -316,7 +351,7 @@ pub fn run(
             return Err(checkpoints::interrupted(step as u64, &control, &o.path))
         }
         (Err(e @ EditError::Train(_)), Some(o)) => return Err(checkpoints::failed(e, &control, &o.path)),
-        (Err(e), _) => return Err(e.into()),
+        (Err(e), _) => return Err(stopped_editing(e.into())),
     };
     result.timing.editor += auto_s;
     result.timing.total += auto_s;

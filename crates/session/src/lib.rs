@@ -23,6 +23,7 @@
 pub mod checkpoints;
 pub mod edit;
 pub mod edit_folder;
+pub mod editor_views;
 pub mod heatmap;
 pub mod inputs;
 pub mod output;

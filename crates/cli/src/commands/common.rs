@@ -127,11 +127,19 @@ pub struct CheckpointArgs {
     /// Stop as if interrupted once this many steps are done (deterministic tests).
     #[arg(long, hide = true)]
     pub stop_after: Option<u64>,
+    /// Stop as if interrupted once the 2D editor has finished this many views (tests).
+    #[arg(long, hide = true)]
+    pub stop_after_views: Option<usize>,
 }
 
 impl CheckpointArgs {
     /// The session layer's description of these flags.
     pub fn spec(&self) -> Checkpoints {
-        Checkpoints { every: self.checkpoint_every, resume: self.resume.clone(), stop_after: self.stop_after }
+        Checkpoints {
+            every: self.checkpoint_every,
+            resume: self.resume.clone(),
+            stop_after: self.stop_after,
+            stop_after_views: self.stop_after_views,
+        }
     }
 }
