@@ -15,21 +15,25 @@
 //! directions count alike, so an orbit spreads around the ring and a forward-facing
 //! grid over its plane. Ties go to the lower index; the choice is deterministic.
 //!
-//! `auto` ([`auto`]) lets the edits say where the target is: the editor first edits a
-//! quarter of the views chosen as above (the seeds), the support of each seed edit
-//! (Ω_v: its thresholded attention within its mask, docs/method.md#m2-prototypes) is
-//! lifted onto the Gaussians, and edit views are added greedily, each the one that sees
-//! the most target mass still seen well by fewer than two chosen views, until at most
-//! 2 % of the target mass is left so (the evidence the fusion's agreement between views
-//! needs). A view sees a Gaussian well when its blend weight there is at least a
-//! quarter of the Gaussian's largest over the edit views; a Gaussian's target mass is
-//! its lifted support times that largest blend weight.
+//! `auto` ([`auto`]) lets the edits say where the target is and how many views it
+//! needs. The editor first edits a quarter of the views chosen as above (the seeds).
+//! Each edited view's support Ω_v (its thresholded attention within its mask,
+//! docs/method.md#m2-prototypes) and its change Δ_v = edit − render are splatted back
+//! onto the Gaussians; the target is where the support lifted over the edited views is
+//! at least ½. For each target Gaussian, the views that see it well (blend weight at
+//! least a quarter of its largest over the edit views) give a spread of its lifted
+//! change, and the standard error of their mean, spread / √n, says how well the edit is
+//! known there (with no view, spread · √2; fewer than two views take the target's pooled
+//! spread). While the target's mean standard error (weighted by each Gaussian's largest
+//! blend weight) is above the 8-bit floor 2/255, rounds of half as many views as the
+//! seeds are added, each the view that lowers it most. A consistent editor stops at the
+//! seeds; an editor whose views disagree gets more views, up to all of them: the fusion
+//! averages its disagreement away only with enough views.
 
 use std::collections::HashMap;
 
 use crate::SessionError;
 use transsplat_edit::edits::{edit_views, render_sources};
-use transsplat_edit::lift::lift;
 use transsplat_edit::prototypes::{view_support, PrototypeConfig, ViewEvidence};
 use transsplat_editors::{EditedView, Editor, Error as EditorError, SourceView};
 use transsplat_raster::{gaussian_stats, Splats};
@@ -131,14 +135,14 @@ pub fn choose(
 
 /// The seeds of `auto`: one in this many edit views.
 const AUTO_SEED_FRACTION: usize = 4;
-/// Chosen views that must see a target Gaussian well.
-const AUTO_VIEWS_PER_GAUSSIAN: usize = 2;
 /// A view sees a Gaussian well at this share of the Gaussian's largest blend weight.
 const AUTO_SEEN_SHARE: f32 = 0.25;
-/// Views are added until at most this share of the target mass is seen too rarely.
-const AUTO_UNCOVERED: f64 = 0.02;
 /// A Gaussian is part of the target when its lifted support is at least this.
 const AUTO_TARGET: f32 = 0.5;
+/// `auto` stops once the target's edit is known to within this (mean standard error
+/// of the lifted change, colour in [0, 1]): the 8-bit quantisation floor
+/// ([`transsplat_editors::features::CHANGE_FLOOR`]).
+const AUTO_TOLERANCE: f32 = transsplat_editors::features::CHANGE_FLOOR;
 
 /// What `auto` needs of the job.
 pub struct AutoScene<'a> {
@@ -162,126 +166,286 @@ pub struct AutoChoice {
     pub seeds: usize,
 }
 
-/// `--views auto` (module doc): edits the seeds, lifts their supports onto the
-/// Gaussians and edits the views that the target needs as well. Errors when the seed
-/// edits mark no target anywhere (the editor changed nothing).
+/// One edited view's evidence on the Gaussians the seeds' supports touch: its support
+/// Ω_v and its change Δ_v = edit − render, splatted back (blend-weighted means).
+struct Lifted {
+    support: Vec<f32>,
+    change: Vec<[f32; 3]>,
+}
+
+/// `--views auto` (module doc): edits the seeds, then rounds of the views that most
+/// reduce the uncertainty of the target's edit, until it is known to within
+/// [`AUTO_TOLERANCE`] or every edit view is edited. Errors when the seed edits mark no
+/// target anywhere (the editor changed nothing).
 pub fn auto(scene: &AutoScene, editor: &mut dyn Editor) -> Result<AutoChoice, SessionError> {
     let seeds = choose(scene.cameras, scene.edit_views, ViewChoice::Fraction(AUTO_SEED_FRACTION))?;
-    let edit = |editor: &mut dyn Editor, views: &[usize]| -> Result<Vec<Option<EditedView>>, SessionError> {
+    let splats = Splats::new(scene.gaussians);
+    let mut edited: Vec<(usize, Option<EditedView>)> = Vec::new();
+    let mut lifted: HashMap<usize, Lifted> = HashMap::new();
+    // Edits `views`, keeps the outputs and lifts them onto the universe `on` (all
+    // Gaussians before it is known).
+    let mut edit_and_lift = |views: &[usize],
+                             on: Option<&[usize]>,
+                             edited: &mut Vec<(usize, Option<EditedView>)>,
+                             lifted: &mut HashMap<usize, Lifted>|
+     -> Result<(), SessionError> {
         let cams: Vec<&Camera> = views.iter().map(|&v| &scene.cameras[v]).collect();
         let sources = render_sources(scene.gaussians, &cams, scene.background);
-        Ok(edit_views(editor, scene.cameras, views, &sources, scene.prompt)?)
+        let out = edit_views(editor, scene.cameras, views, &sources, scene.prompt)?;
+        for ((&v, source), e) in views.iter().zip(&sources).zip(out) {
+            if let Some(e) = &e {
+                lifted.insert(v, lift_view(scene, &splats, v, source, e, on));
+            }
+            edited.push((v, e));
+        }
+        Ok(())
     };
-    let seed_edits = edit(editor, &seeds)?;
-    let support = lifted_support(scene, &seeds, &seed_edits);
-    let target: Vec<usize> = (0..support.len()).filter(|&i| support[i] >= AUTO_TARGET).collect();
-    let splats = Splats::new(scene.gaussians);
-    // Blend weight of each target Gaussian in each edit view (views × target).
+    edit_and_lift(&seeds, None, &mut edited, &mut lifted)?;
+    // The universe: Gaussians some seed's support touches.
+    let universe: Vec<usize> =
+        (0..scene.gaussians.len()).filter(|&i| lifted.values().any(|l| l.support[i] > 0.0)).collect();
+    for l in lifted.values_mut() {
+        l.support = universe.iter().map(|&i| l.support[i]).collect();
+        l.change = universe.iter().map(|&i| l.change[i]).collect();
+    }
+    // Blend weight of every edit view on the universe.
     let weights: Vec<Vec<f32>> = scene
         .edit_views
         .iter()
         .map(|&v| {
             let w = gaussian_stats(&splats, &scene.cameras[v], None).weight_sum;
-            target.iter().map(|&i| w[i]).collect()
+            universe.iter().map(|&i| w[i]).collect()
         })
         .collect();
     let best: Vec<f32> =
-        (0..target.len()).map(|j| weights.iter().map(|w| w[j]).fold(0.0, f32::max)).collect();
-    let mass: Vec<f64> = target.iter().zip(&best).map(|(&i, &b)| support[i] as f64 * b as f64).collect();
-    if mass.iter().sum::<f64>() <= 0.0 {
-        return Err(SessionError::Input(format!(
-            "--views auto: the editor marked no target in its {} seed views (no attention or mask \
-             anywhere), so there is nothing to choose views for; edit with --views all or a count",
-            seeds.len()
-        )));
-    }
+        (0..universe.len()).map(|j| weights.iter().map(|w| w[j]).fold(0.0, f32::max)).collect();
     let seen: Vec<Vec<bool>> = weights
         .iter()
         .map(|w| w.iter().zip(&best).map(|(&x, &b)| x > 0.0 && x >= AUTO_SEEN_SHARE * b).collect())
         .collect();
-    let at = |v: usize| scene.edit_views.iter().position(|&e| e == v).expect("seeds are edit views");
-    let chosen: Vec<usize> = seeds.iter().map(|&v| at(v)).collect();
-    let added: Vec<usize> = cover(&mass, &seen, &chosen).into_iter().map(|k| scene.edit_views[k]).collect();
+    let round_size = seeds.len().div_ceil(2).max(1);
+    let mut rounds = 0;
+    loop {
+        let chosen: Vec<usize> = edited.iter().map(|(v, _)| *v).collect();
+        let at =
+            |v: usize| scene.edit_views.iter().position(|&e| e == v).expect("chosen views are edit views");
+        let evidence =
+            Evidence::of(&chosen.iter().map(|&v| at(v)).collect::<Vec<_>>(), &weights, &seen, |k| {
+                lifted.get(&scene.edit_views[k])
+            });
+        if rounds == 0 && evidence.mass.iter().sum::<f64>() <= 0.0 {
+            return Err(SessionError::Input(format!(
+                "--views auto: the editor marked no target in its {} seed views (no attention or mask \
+                 anywhere), so there is nothing to choose views for; edit with --views all or a count",
+                seeds.len()
+            )));
+        }
+        let error = evidence.standard_error();
+        let taken: Vec<bool> =
+            (0..scene.edit_views.len()).map(|k| chosen.contains(&scene.edit_views[k])).collect();
+        let next = if error <= AUTO_TOLERANCE as f64 {
+            Vec::new()
+        } else {
+            evidence.next_views(&seen, &taken, round_size)
+        };
+        tracing::info!(
+            "--views auto: {} views edited ({} seeds), the target's edit known to ±{:.4}{}",
+            chosen.len(),
+            seeds.len(),
+            error,
+            if next.is_empty() { "; done".to_string() } else { format!("; adding {} views", next.len()) }
+        );
+        if next.is_empty() {
+            break;
+        }
+        let next: Vec<usize> = next.into_iter().map(|k| scene.edit_views[k]).collect();
+        edit_and_lift(&next, Some(&universe), &mut edited, &mut lifted)?;
+        rounds += 1;
+    }
     tracing::info!(
-        "--views auto: {} seed views, {} added for the target ({} Gaussians): {:?}",
+        "--views auto: {} seed views, {} added in {rounds} rounds ({} of {} edit views)",
         seeds.len(),
-        added.len(),
-        target.len(),
-        added
+        edited.len() - seeds.len(),
+        edited.len(),
+        scene.edit_views.len()
     );
-    let added_edits = if added.is_empty() { Vec::new() } else { edit(editor, &added)? };
-    let mut all: Vec<(usize, Option<EditedView>)> = seeds.iter().copied().zip(seed_edits).collect();
-    all.extend(added.iter().copied().zip(added_edits));
-    all.sort_by_key(|(v, _)| *v);
-    let (views, edited) = all.into_iter().unzip();
+    edited.sort_by_key(|(v, _)| *v);
+    let (views, edited) = edited.into_iter().unzip();
     Ok(AutoChoice { views, edited, seeds: seeds.len() })
 }
 
-/// Each Gaussian's support lifted from the edited views: the blend-weighted share of its
-/// footprint in those views that lies in Ω_v (0 where no view blends it).
-fn lifted_support(scene: &AutoScene, views: &[usize], edited: &[Option<EditedView>]) -> Vec<f32> {
-    let mut cams = Vec::new();
-    let mut planes = Vec::new();
-    for (&v, e) in views.iter().zip(edited) {
-        let Some(e) = e else { continue };
-        let ev = ViewEvidence {
-            width: e.width,
-            height: e.height,
-            attention: &e.attention,
-            mask: e.mask.as_deref(),
-            semantic: &[],
-            d: 0,
-            appearance: &[],
-            d_app: 0,
-        };
-        let omega = view_support(&ev, scene.prototypes).omega;
-        planes.push(omega.into_iter().map(|o| if o { 1.0f32 } else { 0.0 }).collect::<Vec<f32>>());
-        cams.push(&scene.cameras[v]);
+/// View `v`'s support Ω_v and change Δ_v = edit − render splatted back onto the
+/// Gaussians `on` (all when `None`).
+fn lift_view(
+    scene: &AutoScene,
+    splats: &Splats,
+    v: usize,
+    source: &[f32],
+    e: &EditedView,
+    on: Option<&[usize]>,
+) -> Lifted {
+    let ev = ViewEvidence {
+        width: e.width,
+        height: e.height,
+        attention: &e.attention,
+        mask: e.mask.as_deref(),
+        semantic: &[],
+        d: 0,
+        appearance: &[],
+        d_app: 0,
+    };
+    let omega = view_support(&ev, scene.prototypes).omega;
+    // Four channels: Ω, then the change.
+    let mut plane = Vec::with_capacity(omega.len() * 4);
+    for (p, &o) in omega.iter().enumerate() {
+        plane.push(if o { 1.0f32 } else { 0.0 });
+        plane.extend((0..3).map(|c| e.image[3 * p + c] - source[3 * p + c].clamp(0.0, 1.0)));
     }
-    let planes: Vec<&[f32]> = planes.iter().map(Vec::as_slice).collect();
-    lift(scene.gaussians, &cams, &planes, 1)
+    let st = gaussian_stats(splats, &scene.cameras[v], Some((&plane, 4)));
+    let pick = |i: usize| {
+        let s = &st.splat[4 * i..4 * i + 4];
+        (s[0], [s[1], s[2], s[3]])
+    };
+    let all: Vec<usize>;
+    let on = match on {
+        Some(on) => on,
+        None => {
+            all = (0..scene.gaussians.len()).collect();
+            &all
+        }
+    };
+    let (support, change) = on.iter().map(|&i| pick(i)).unzip();
+    Lifted { support, change }
 }
 
-/// The greedy cover of `auto`: given each target Gaussian's mass, which candidate views
-/// see it well (`seen[view][gaussian]`) and the views already chosen, adds the view
-/// that sees the most mass still seen by fewer than two chosen views until at most 2 %
-/// of the mass is left so, or no view adds any. Returns the added views in the order
-/// added (ties to the lower index).
-fn cover(mass: &[f64], seen: &[Vec<bool>], chosen: &[usize]) -> Vec<usize> {
-    let need = AUTO_VIEWS_PER_GAUSSIAN.min(seen.len());
-    let mut count: Vec<usize> =
-        (0..mass.len()).map(|j| chosen.iter().filter(|&&v| seen[v][j]).count()).collect();
-    let total: f64 = mass.iter().sum();
-    let mut taken: Vec<bool> = (0..seen.len()).map(|v| chosen.contains(&v)).collect();
-    let mut added = Vec::new();
-    loop {
-        let short = |j: usize| count[j] < need;
-        let left: f64 = (0..mass.len()).filter(|&j| short(j)).map(|j| mass[j]).sum();
-        if left <= AUTO_UNCOVERED * total {
-            return added;
-        }
-        let gain =
-            |v: usize| -> f64 { (0..mass.len()).filter(|&j| short(j) && seen[v][j]).map(|j| mass[j]).sum() };
-        let best = (0..seen.len()).filter(|&v| !taken[v]).map(|v| (v, gain(v))).fold(
-            None,
-            |b: Option<(usize, f64)>, (v, g)| match b {
-                Some((_, bg)) if bg >= g => b,
-                _ => Some((v, g)),
-            },
-        );
-        match best {
-            Some((v, g)) if g > 0.0 => {
-                taken[v] = true;
-                added.push(v);
-                for (j, c) in count.iter_mut().enumerate() {
-                    if seen[v][j] {
-                        *c += 1;
-                    }
+/// What the edited views say about the target (on the universe of [`auto`]): each
+/// Gaussian's target mass, the spread of its lifted change over the views that see it
+/// well, and how many do.
+struct Evidence {
+    /// Support lifted over the chosen views (blend-weighted) ≥ [`AUTO_TARGET`], times
+    /// the Gaussian's largest blend weight; 0 off the target.
+    mass: Vec<f64>,
+    /// Standard deviation of the lifted change over the chosen views that see the
+    /// Gaussian well (the pooled one where fewer than two do).
+    spread: Vec<f64>,
+    /// Chosen views that see the Gaussian well.
+    count: Vec<usize>,
+}
+
+impl Evidence {
+    /// The evidence of the chosen views `chosen` (indices into the edit views), with
+    /// `weights` and `seen` of every edit view and `lifted(k)` view k's lift (`None`
+    /// where the editor left it unedited).
+    fn of<'l>(
+        chosen: &[usize],
+        weights: &[Vec<f32>],
+        seen: &[Vec<bool>],
+        lifted: impl Fn(usize) -> Option<&'l Lifted>,
+    ) -> Evidence {
+        let n = weights.first().map_or(0, Vec::len);
+        let mut mass = vec![0.0; n];
+        let mut spread = vec![f64::NAN; n];
+        let mut count = vec![0; n];
+        for j in 0..n {
+            let (mut num, mut den) = (0.0f64, 0.0f64);
+            let mut changes = Vec::new();
+            for &k in chosen {
+                let Some(l) = lifted(k) else { continue };
+                let w = weights[k][j] as f64;
+                num += w * l.support[j] as f64;
+                den += w;
+                if seen[k][j] {
+                    changes.push(l.change[j]);
                 }
             }
-            _ => return added,
+            let best = weights.iter().map(|w| w[j]).fold(0.0, f32::max);
+            if den > 0.0 && num / den >= AUTO_TARGET as f64 {
+                mass[j] = num / den * best as f64;
+            }
+            count[j] = changes.len();
+            if changes.len() >= 2 {
+                spread[j] = spread_of(&changes);
+            }
+        }
+        // Where fewer than two views see a target Gaussian, the target's pooled spread.
+        let (num, den) = (0..n)
+            .filter(|&j| mass[j] > 0.0 && spread[j].is_finite())
+            .fold((0.0, 0.0), |(a, b), j| (a + mass[j] * spread[j], b + mass[j]));
+        let pooled = if den > 0.0 { num / den } else { 0.0 };
+        for s in spread.iter_mut().filter(|s| !s.is_finite()) {
+            *s = pooled;
+        }
+        Evidence { mass, spread, count }
+    }
+
+    /// The standard error of a Gaussian's mean change from `n` views: spread / √n,
+    /// and spread · √2 when no view sees it well.
+    fn error_at(&self, j: usize, n: usize) -> f64 {
+        self.spread[j] / (n as f64).max(0.5).sqrt()
+    }
+
+    /// The target's mean standard error, weighted by mass.
+    fn standard_error(&self) -> f64 {
+        let (num, den) =
+            (0..self.mass.len()).filter(|&j| self.mass[j] > 0.0).fold((0.0, 0.0), |(a, b), j| {
+                (a + self.mass[j] * self.error_at(j, self.count[j]), b + self.mass[j])
+            });
+        if den > 0.0 {
+            num / den
+        } else {
+            0.0
         }
     }
+
+    /// Up to `r` views not `taken`, chosen greedily: each the one whose edit would lower
+    /// the target's mass-weighted standard error most (counting the views chosen before
+    /// it in the round); ties to the lower index; none that lowers nothing.
+    fn next_views(&self, seen: &[Vec<bool>], taken: &[bool], r: usize) -> Vec<usize> {
+        let mut count = self.count.clone();
+        let mut taken = taken.to_vec();
+        let mut out = Vec::new();
+        while out.len() < r {
+            let gain = |k: usize| -> f64 {
+                (0..self.mass.len())
+                    .filter(|&j| self.mass[j] > 0.0 && seen[k][j])
+                    .map(|j| self.mass[j] * (self.error_at(j, count[j]) - self.error_at(j, count[j] + 1)))
+                    .sum()
+            };
+            let best = (0..seen.len()).filter(|&k| !taken[k]).map(|k| (k, gain(k))).fold(
+                None,
+                |b: Option<(usize, f64)>, (k, g)| match b {
+                    Some((_, bg)) if bg >= g => b,
+                    _ => Some((k, g)),
+                },
+            );
+            match best {
+                Some((k, g)) if g > 0.0 => {
+                    taken[k] = true;
+                    out.push(k);
+                    for (j, c) in count.iter_mut().enumerate() {
+                        if seen[k][j] {
+                            *c += 1;
+                        }
+                    }
+                }
+                _ => break,
+            }
+        }
+        out
+    }
+}
+
+/// The spread of colour changes: the root of the mean over channels of their variance.
+fn spread_of(changes: &[[f32; 3]]) -> f64 {
+    let n = changes.len() as f64;
+    let var: f64 = (0..3)
+        .map(|c| {
+            let mean = changes.iter().map(|x| x[c] as f64).sum::<f64>() / n;
+            changes.iter().map(|x| (x[c] as f64 - mean).powi(2)).sum::<f64>() / (n - 1.0)
+        })
+        .sum::<f64>()
+        / 3.0;
+    var.sqrt()
 }
 
 /// The file in the checkpoint folder that keeps the views `auto` chose, so a resumed
@@ -389,26 +553,49 @@ mod tests {
         assert_eq!(choose(&cams, &[0, 1, 2], ViewChoice::Fraction(2)).unwrap().len(), 2, "rounded up");
     }
 
-    /// Four Gaussians of mass 1, view 0 chosen. Short of two views: all four. Gains:
-    /// view 1 sees {0} (1), view 2 {2, 3} (2), view 3 {1, 2, 3} (3): view 3 first; then
-    /// {0, 2, 3} are short and view 2 gains 2, view 1 gains 1: view 2, then view 1 for
-    /// Gaussian 0.
+    /// Two Gaussians of spread 0.1, the first seen by one chosen view, the second by
+    /// none; the error from n views is 0.1 / √max(n, ½). Gains: view 1 (the first) 0.1 (1 −
+    /// 1/√2) = 0.0293, view 2 (the second) 0.1 (√2 − 1) = 0.0414, view 3 (both) 0.0707:
+    /// view 3; then view 1 gains 0.1 (1/√2 − 1/√3) = 0.0130, view 2 0.1 (1 − 1/√2): view 2.
     #[test]
-    fn the_cover_adds_the_view_that_sees_most_of_what_is_short() {
-        let t = true;
-        let f = false;
-        let seen = vec![vec![t, t, f, f], vec![t, f, f, f], vec![f, f, t, t], vec![f, t, t, t]];
-        assert_eq!(cover(&[1.0; 4], &seen, &[0]), vec![3, 2, 1]);
-        // A Gaussian only one view sees: its mass stays short and the cover ends when
-        // no view adds any.
-        let seen = vec![vec![t, t], vec![f, t]];
-        assert_eq!(cover(&[1.0, 1.0], &seen, &[0]), vec![1]);
-        // 1 of 101 short is under 2 %: nothing to add.
-        let seen = vec![vec![t, t], vec![t, f], vec![f, t]];
-        assert_eq!(cover(&[100.0, 1.0], &seen, &[0, 1]), Vec::<usize>::new());
-        // Equal gains go to the lower view.
-        let seen = vec![vec![t, f], vec![f, t], vec![f, t], vec![t, f]];
-        assert_eq!(cover(&[1.0, 1.0], &seen, &[]), vec![0, 1, 2, 3]);
+    fn the_next_views_lower_the_standard_error_most() {
+        let (t, f) = (true, false);
+        let evidence = Evidence { mass: vec![1.0, 1.0], spread: vec![0.1, 0.1], count: vec![1, 0] };
+        let seen = vec![vec![t, f], vec![t, f], vec![f, t], vec![t, t]];
+        assert_eq!(evidence.next_views(&seen, &[t, f, f, f], 2), vec![3, 2]);
+        assert_eq!(evidence.next_views(&seen, &[t, f, f, f], 1), vec![3]);
+        // Nothing left that lowers the error: none.
+        assert_eq!(evidence.next_views(&seen, &[t, t, t, t], 2), Vec::<usize>::new());
+        let zero = Evidence { mass: vec![1.0, 1.0], spread: vec![0.0, 0.0], count: vec![1, 0] };
+        assert_eq!(zero.next_views(&seen, &[t, f, f, f], 2), Vec::<usize>::new());
+    }
+
+    /// Views 0 and 1 chosen over two Gaussians. Gaussian 0: support 1 in both (mass 1 ×
+    /// its best weight 1), changes 0.1 and 0.3 in every channel: spread √0.02, error
+    /// √0.02/√2 = 0.1. Gaussian 1: support 1 and 0 at weights 1 and 0.1, lifted 1/1.1,
+    /// seen well by view 0 only (0.1 < ¼): the pooled spread √0.02, error √0.02 from one
+    /// view. The mean error (0.1 + 0.9091 · 0.14142) / 1.9091 = 0.11972.
+    #[test]
+    fn the_evidence_weighs_support_by_blend_weight_and_pools_the_spread() {
+        let weights = vec![vec![1.0, 1.0], vec![1.0, 0.1], vec![1.0, 0.0]];
+        let seen: Vec<Vec<bool>> = weights.iter().map(|w| w.iter().map(|&x| x >= 0.25).collect()).collect();
+        let lifted = [
+            Lifted { support: vec![1.0, 1.0], change: vec![[0.1; 3], [0.0; 3]] },
+            Lifted { support: vec![1.0, 0.0], change: vec![[0.3; 3], [0.0; 3]] },
+        ];
+        let e = Evidence::of(&[0, 1], &weights, &seen, |k| lifted.get(k));
+        assert_eq!(e.count, vec![2, 1]);
+        assert!((e.mass[0] - 1.0).abs() < 1e-6 && (e.mass[1] - 1.0 / 1.1).abs() < 1e-6, "{:?}", e.mass);
+        assert!((e.spread[0] - 0.02f64.sqrt()).abs() < 1e-6 && (e.spread[1] - e.spread[0]).abs() < 1e-12);
+        assert!((e.standard_error() - 0.119725).abs() < 1e-5, "{}", e.standard_error());
+        // Below the support threshold a Gaussian is off the target.
+        let lifted = [
+            Lifted { support: vec![0.4, 0.0], change: vec![[0.1; 3], [0.0; 3]] },
+            Lifted { support: vec![0.4, 0.0], change: vec![[0.3; 3], [0.0; 3]] },
+        ];
+        let e = Evidence::of(&[0, 1], &weights, &seen, |k| lifted.get(k));
+        assert_eq!(e.mass, vec![0.0, 0.0]);
+        assert_eq!(e.standard_error(), 0.0);
     }
 
     #[test]
