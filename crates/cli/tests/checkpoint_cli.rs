@@ -233,3 +233,40 @@ fn stopped_auto_edit_resumes_without_the_editor() {
     let read = |out: &str| std::fs::read(dir.path().join(out).join(ply)).unwrap();
     assert!(read("a") == read("b"), "resumed auto edit differs from the uninterrupted edit");
 }
+
+/// A stop during `--views auto`'s own edits (after the seeds, before the first round):
+/// the seeds are kept, the printed command chooses again from them (editing only the
+/// rest) and ends as the uninterrupted edit does.
+#[test]
+fn a_stop_during_auto_edits_resumes_from_the_kept_seeds() {
+    let dir = tempfile::tempdir().unwrap();
+    quick_scene_in(dir.path(), "data");
+    let run = |out: &'static str| {
+        [
+            "edit",
+            "--scene",
+            "data",
+            "--prompt",
+            "make the ball blue",
+            "--editor",
+            "simulated",
+            "--views",
+            "auto",
+        ]
+        .into_iter()
+        .chain(["--steps", "20", "--out", out])
+    };
+    ok(&bin().current_dir(dir.path()).args(run("a")).output().unwrap());
+    let o = bin().current_dir(dir.path()).args(run("b")).args(["--stop-after-views", "1"]).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("interrupted during the 2D edits") && err.contains("4 edited views kept"), "{err}");
+    let cmd = err.split("continue with: ").nth(1).expect("the message gives the command").trim();
+    let resumed = Command::new("sh").current_dir(dir.path()).args(["-c", cmd]).output().unwrap();
+    ok(&resumed);
+    let log = String::from_utf8_lossy(&resumed.stderr);
+    assert!(log.contains("4 of 4 views kept by the stopped run"), "{log}");
+    let ply = "point_cloud/iteration_20/point_cloud.ply";
+    let read = |out: &str| std::fs::read(dir.path().join(out).join(ply)).unwrap();
+    assert!(read("a") == read("b"), "resumed auto edit differs from the uninterrupted edit");
+}

@@ -173,32 +173,41 @@ fn views_k_edits_only_k_views() {
     assert!(out.join("transport.json").is_file());
 }
 
-/// `--views auto`: the editor edits a quarter of the views as seeds, then any view the
-/// target needs; the edit lands and says how many it chose.
+/// `--views auto`: the editor edits a quarter of the views as seeds, then more while the
+/// target's edit is uncertain: a consistent editor (severity 0) stops before every view,
+/// an inconsistent one (severity 2) gets more views; the edit lands either way.
 #[test]
 fn views_auto_edits_seeds_and_what_the_target_needs() {
     let dir = tempfile::tempdir().unwrap();
     let ds = quick_scene(dir.path());
-    let out = dir.path().join("edit");
-    let o = bin()
-        .args(["edit", "--scene"])
-        .arg(&ds)
-        .args(["--prompt", "make the ball blue", "--editor", "simulated", "--steps", "30", "--views", "auto"])
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    ok(&o);
-    let log = String::from_utf8_lossy(&o.stderr);
-    let line = log.lines().find(|l| l.contains("--views auto:")).unwrap_or_else(|| panic!("{log}"));
-    let number = |after: &str| -> usize {
-        let rest = &line[line.find(after).unwrap() + after.len()..];
-        rest.split_whitespace().next().unwrap().parse().unwrap()
-    };
     let cams = transsplat_scene::cameras::load(&ds.join("cameras.json")).unwrap();
     let edit_views = transsplat_scene::cameras::split_views(cams.len()).1.len();
-    assert_eq!(number("--views auto: "), edit_views.div_ceil(4), "{line}");
-    assert!(out.join("transport.json").is_file());
+    let chosen = |severity: &str| -> (usize, usize) {
+        let out = dir.path().join(format!("edit{severity}"));
+        let o = bin()
+            .args(["edit", "--scene"])
+            .arg(&ds)
+            .args(["--prompt", "make the ball blue", "--editor", "simulated", "--severity", severity])
+            .args(["--steps", "30", "--views", "auto", "--out"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        ok(&o);
+        assert!(out.join("transport.json").is_file());
+        let log = String::from_utf8_lossy(&o.stderr).into_owned();
+        let line = log.lines().find(|l| l.contains("seed views,")).unwrap_or_else(|| panic!("{log}"));
+        let numbers: Vec<usize> =
+            line.split(|c: char| !c.is_ascii_digit()).filter_map(|t| t.parse().ok()).collect();
+        // "--views auto: S seed views, A added in R rounds (E of T edit views)"
+        let n = numbers.len();
+        assert_eq!(numbers[n - 1], edit_views, "{line}");
+        (numbers[n - 5], numbers[n - 2])
+    };
+    let (seeds, consistent) = chosen("0");
+    assert_eq!(seeds, edit_views.div_ceil(4));
+    assert!(consistent >= seeds && consistent < edit_views, "severity 0 edited {consistent} of {edit_views}");
+    let (_, inconsistent) = chosen("2");
+    assert!(inconsistent > consistent, "severity 2 edited {inconsistent}, severity 0 {consistent}");
 }
 
 /// `--views auto` when the editor changed nothing (the exported renders handed back

@@ -36,7 +36,9 @@ pub fn run(
 /// [`run`] steered by `control`: checkpoints every `every` steps and on a stop
 /// (Ctrl-C or `stop_after`, then [`EditError::Interrupted`]); with `resume`, the
 /// editor outputs and loop state come from the checkpoint folder (the editor is not
-/// called) and the run continues to the result an uninterrupted run would give.
+/// called) and the run continues to the result an uninterrupted run would give. A
+/// folder without the editor outputs (a run stopped during the 2D edits) starts the
+/// loop afresh, the editor called again (a caller's editor may keep finished views).
 /// A NaN or infinite loss, gradient or parameter stops with [`EditError::Train`]
 /// naming the step and the parameter group.
 pub fn run_with(
@@ -163,6 +165,16 @@ fn edited_views(
     // A run stopped during the 2D edits resumes by editing again (the session's editor
     // then hands back the views it kept).
     let edits_saved = control.checkpoint.as_ref().is_some_and(|c| c.dir.join(ckpt::EDITOR_FILE).is_file());
+    if let Some(c) = control.checkpoint.as_ref().filter(|_| control.resume && !edits_saved) {
+        if c.dir.join(ckpt::STATE_FILE).is_file() {
+            return Err(EditError::Checkpoint(format!(
+                "{}: holds the loop state ({}) without the editor's outputs ({}): a damaged checkpoint",
+                c.dir.display(),
+                ckpt::STATE_FILE,
+                ckpt::EDITOR_FILE
+            )));
+        }
+    }
     if !control.resume || !edits_saved {
         let edited = edits::edit_views(editor, job.cameras, &job.edit_views, sources, job.prompt)?;
         return Ok((edited, None));

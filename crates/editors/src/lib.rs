@@ -129,6 +129,9 @@ pub trait Editor {
     fn name(&self) -> &str;
     /// Edits the views for `prompt`.
     fn edit(&mut self, views: &[SourceView], prompt: &str) -> Result<Vec<Option<EditedView>>, Error>;
+    /// Says that the next calls will, together, ask for `views` views (a caller that
+    /// hands the views over in groups), so progress can count them as one stage.
+    fn expect_views(&mut self, _views: usize) {}
 }
 
 impl<E: Editor + ?Sized> Editor for Box<E> {
@@ -138,6 +141,10 @@ impl<E: Editor + ?Sized> Editor for Box<E> {
 
     fn edit(&mut self, views: &[SourceView], prompt: &str) -> Result<Vec<Option<EditedView>>, Error> {
         (**self).edit(views, prompt)
+    }
+
+    fn expect_views(&mut self, views: usize) {
+        (**self).expect_views(views)
     }
 }
 

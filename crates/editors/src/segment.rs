@@ -72,6 +72,10 @@ impl<E: Editor, S: Segmenter> Editor for Segmented<E, S> {
         &self.name
     }
 
+    fn expect_views(&mut self, views: usize) {
+        self.editor.expect_views(views)
+    }
+
     fn edit(&mut self, views: &[SourceView], prompt: &str) -> Result<Vec<Option<EditedView>>, Error> {
         let mut edited = self.editor.edit(views, prompt)?;
         if edited.len() != views.len() {

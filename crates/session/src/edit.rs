@@ -266,26 +266,38 @@ pub fn run(
     let segmenter_name = segmenter.as_ref().map(|(s, phrase)| (s.name().to_string(), phrase.clone()));
     let editor_name = editor.name();
     // Views per call of the editor while its finished views are kept (InstructPix2Pix
-    // edits its batch at a time; other editors take the whole shard at once).
+    // edits its batch at a time; other editors take the whole shard at once), and what
+    // the kept views' key knows of the editor.
     let group = match &editor {
         EditorSpec::Ip2p { batch, .. } => *batch,
         _ => usize::MAX,
+    };
+    let editor_settings = match &editor {
+        EditorSpec::Folder(dir) => format!("folder {}", dir.display()),
+        EditorSpec::Command { command, .. } => format!("command {command}"),
+        EditorSpec::Ip2p { weights, .. } => format!("ip2p {}", weights.display()),
+        EditorSpec::Custom(e) => e.name().to_string(),
     };
     let editor = build_editor(editor, gaussians, staged.as_ref(), &config, cancel)?;
     let mut editor: Box<dyn Editor + '_> = match segmenter {
         Some((segmenter, phrase)) => Box::new(Segmented::new(editor, segmenter, phrase)),
         None => editor,
     };
+    let mut job_key = 0;
     if let Some(checkpoint) = &control.checkpoint {
         let segmenter = segmenter_name.as_ref().map(|(n, p)| format!("{n} {p}")).unwrap_or_default();
-        let key = crate::editor_views::job_key(
+        job_key = crate::editor_views::job_key(
             &transsplat_scene::fingerprint::scene(gaussians),
             prompt,
-            &format!("{} {segmenter}", editor.name()),
+            &format!("{editor_settings} {segmenter}"),
             config.seed,
         );
         let kept = checkpoint.dir.join(crate::editor_views::VIEWS_DIR);
-        let mut kept_views = crate::editor_views::KeptViews::new(editor, kept, key, group, control.resume);
+        let mut kept_views =
+            crate::editor_views::KeptViews::new(editor, kept, job_key, group, control.resume);
+        if let Some(flag) = cancel {
+            kept_views = kept_views.with_cancel(flag);
+        }
         let stop_after =
             output.as_ref().and_then(|o| o.checkpoints.as_ref()).and_then(|c| c.stop_after_views);
         if let (Some(flag), Some(after)) = (cancel, stop_after) {
@@ -293,25 +305,31 @@ pub fn run(
         }
         editor = Box::new(kept_views);
     }
-    // A stop during the 2D edits: the views finished so far are kept for a resume.
+    // A stop during the 2D edits: the views finished so far are kept for a resume; a
+    // failure says where they are.
     let kept_at =
         control.checkpoint.as_ref().zip(output.as_ref()).map(|(c, o)| (c.dir.clone(), o.path.clone()));
-    let stopped_editing = |e: SessionError| -> SessionError {
+    let editing_error = |e: SessionError| -> SessionError {
         let stopped = cancel.is_some_and(|c| c.load(std::sync::atomic::Ordering::SeqCst));
         match &kept_at {
-            Some((dir, out)) if stopped && !matches!(e, SessionError::Interrupted { .. }) => {
-                crate::editor_views::stopped(dir, out)
-            }
-            _ => e,
+            Some(_) if matches!(e, SessionError::Interrupted { .. }) => e,
+            Some((dir, out)) if stopped => crate::editor_views::stopped(dir, out),
+            Some((dir, _)) => crate::editor_views::failed_with_kept(e, dir),
+            None => e,
         }
     };
     // `auto` edits its seeds and the views the target needs now; the engine then takes
     // those outputs as the edits of the chosen views (their time is the editor's).
     let auto_clock = std::time::Instant::now();
-    let resume_dir = control.checkpoint.as_ref().filter(|_| control.resume).map(|c| c.dir.clone());
-    let edit_views = match (views, resume_dir) {
-        // A resumed `auto` edit takes its views from the checkpoint, its edits too.
-        (ViewChoice::Auto, Some(dir)) => crate::views::read_auto_choice(&dir)?,
+    let kept_choice = control
+        .checkpoint
+        .as_ref()
+        .filter(|c| control.resume && c.dir.join(crate::views::AUTO_FILE).is_file())
+        .map(|c| c.dir.clone());
+    let edit_views = match (views, kept_choice) {
+        // A resumed `auto` edit takes the views it chose; their edits come from the
+        // checkpoint or the kept views.
+        (ViewChoice::Auto, Some(dir)) => crate::views::read_auto_choice(&dir, &edit_views, job_key)?,
         (ViewChoice::Auto, None) => {
             let scene = crate::views::AutoScene {
                 gaussians,
@@ -319,11 +337,11 @@ pub fn run(
                 edit_views: &edit_views,
                 background,
                 prompt,
-                prototypes: &config.prototypes,
+                prototypes: &config.for_method(config.method).prototypes,
             };
-            let choice = crate::views::auto(&scene, editor.as_mut()).map_err(&stopped_editing)?;
+            let choice = crate::views::auto(&scene, editor.as_mut()).map_err(&editing_error)?;
             if let Some(checkpoint) = &control.checkpoint {
-                crate::views::write_auto_choice(&checkpoint.dir, &choice.views)?;
+                crate::views::write_auto_choice(&checkpoint.dir, &choice.views, job_key)?;
             }
             editor = Box::new(crate::views::Prepared::new(editor.name(), &choice.views, choice.edited));
             choice.views
@@ -351,7 +369,7 @@ pub fn run(
             return Err(checkpoints::interrupted(step as u64, &control, &o.path))
         }
         (Err(e @ EditError::Train(_)), Some(o)) => return Err(checkpoints::failed(e, &control, &o.path)),
-        (Err(e), _) => return Err(stopped_editing(e.into())),
+        (Err(e), _) => return Err(editing_error(e.into())),
     };
     result.timing.editor += auto_s;
     result.timing.total += auto_s;

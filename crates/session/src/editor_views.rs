@@ -7,9 +7,10 @@
 //! [`KeptViews`] wraps the job's editor: it hands the editor the views in groups of
 //! `group` (InstructPix2Pix: its batch; editors that take a whole shard at once: all of
 //! them), writes each finished view before the next group, and on a resume takes the
-//! views already kept. A kept view belongs to its job: its file holds a key made from
-//! the scene's fingerprint, the instruction, the editor's name, the seed and the view's
-//! camera size, and a file with another key is edited again.
+//! views already kept. A kept view belongs to its job and its view: its file holds a key
+//! made from the job's (the scene's fingerprint, the instruction, the editor and its
+//! settings, the seed) and the view's render the editor was given (which the camera and
+//! the background make), and a file with another key is edited again.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -21,9 +22,22 @@ use transsplat_scene::archive::{Archive, Hasher, Writer};
 /// The folder of kept views inside the checkpoint folder.
 pub const VIEWS_DIR: &str = "editor-views";
 
-/// The job's key for its kept views (module doc).
+/// The job's key for its kept views (module doc); `editor` names the editor and its
+/// settings.
 pub fn job_key(scene_fingerprint: &str, prompt: &str, editor: &str, seed: u64) -> u64 {
-    Hasher::default().str("editor-views 1").str(scene_fingerprint).str(prompt).str(editor).u64(seed).finish()
+    Hasher::default().str("editor-views 2").str(scene_fingerprint).str(prompt).str(editor).u64(seed).finish()
+}
+
+/// The key of one view of the job: the job's and the render the editor is given.
+fn view_key(job: u64, view: &SourceView) -> u64 {
+    let (w, h) = view.size();
+    Hasher::default().u64(job).u64(view.index as u64).u64(w as u64).u64(h as u64).f32s(view.image).finish()
+}
+
+/// The kept views' files in `dir`.
+fn kept_files(dir: &Path) -> usize {
+    std::fs::read_dir(dir)
+        .map_or(0, |d| d.flatten().filter(|e| e.file_name().to_string_lossy().ends_with(".edit")).count())
 }
 
 /// An editor whose finished views are kept in `dir` as they are made (module doc).
@@ -36,12 +50,20 @@ pub struct KeptViews<'a> {
     reuse: bool,
     /// Raise this stop (as Ctrl-C does) once `stop_after` views are kept (tests).
     stop: Option<(&'a AtomicBool, usize)>,
+    /// Ctrl-C, checked between groups.
+    cancel: Option<&'a AtomicBool>,
     kept: usize,
 }
 
 impl<'a> KeptViews<'a> {
     pub fn new(inner: Box<dyn Editor + 'a>, dir: PathBuf, key: u64, group: usize, reuse: bool) -> Self {
-        KeptViews { inner, dir, key, group: group.max(1), reuse, stop: None, kept: 0 }
+        KeptViews { inner, dir, key, group: group.max(1), reuse, stop: None, cancel: None, kept: 0 }
+    }
+
+    /// Stops between groups once `flag` is raised (Ctrl-C).
+    pub fn with_cancel(mut self, flag: &'a AtomicBool) -> Self {
+        self.cancel = Some(flag);
+        self
     }
 
     /// Stops as Ctrl-C would, raising `flag`, once `views` views are kept (tests).
@@ -61,7 +83,7 @@ impl<'a> KeptViews<'a> {
             return None;
         }
         let a = Archive::read(&path).ok()?;
-        if a.scalar("key").ok()? != self.key {
+        if a.scalar("key").ok()? != view_key(self.key, view) {
             tracing::info!("{}: kept by another job; the view is edited again", path.display());
             return None;
         }
@@ -77,17 +99,19 @@ impl<'a> KeptViews<'a> {
         Some(Some(EditedView { width: w, height: h, image, attention, mask }))
     }
 
-    /// Keeps `out` as the output of view `index` (written atomically).
-    fn keep(&self, index: usize, out: &Option<EditedView>) -> Result<(), EditorError> {
+    /// Keeps `out` as the output of `view` (written atomically).
+    fn keep(&self, view: &SourceView, out: &Option<EditedView>) -> Result<(), EditorError> {
         let mut w = Writer::new();
-        w.scalar("key", self.key).scalar("edited", out.is_some() as u64);
+        w.scalar("key", view_key(self.key, view)).scalar("edited", out.is_some() as u64);
         if let Some(e) = out {
             w.scalar("has_mask", e.mask.is_some() as u64)
                 .f32("image", &e.image[..])
                 .f32("attention", &e.attention[..])
                 .f32("mask", e.mask.as_deref().unwrap_or(&[]));
         }
-        let path = self.path(index);
+        std::fs::create_dir_all(&self.dir)
+            .map_err(|e| EditorError::Invalid(format!("{}: {e}", self.dir.display())))?;
+        let path = self.path(view.index);
         w.write(&path).map(|_| ()).map_err(|e| EditorError::Invalid(format!("keeping the edited view: {e}")))
     }
 }
@@ -116,22 +140,27 @@ impl Editor for KeptViews<'_> {
             );
         }
         if !todo.is_empty() {
-            std::fs::create_dir_all(&self.dir)
-                .map_err(|e| EditorError::Invalid(format!("{}: {e}", self.dir.display())))?;
+            self.inner.expect_views(todo.len());
         }
         for group in todo.chunks(self.group) {
-            if let Some((flag, after)) = self.stop.filter(|&(_, after)| self.kept >= after) {
+            if let Some((flag, _)) = self.stop.filter(|&(_, after)| self.kept >= after) {
                 flag.store(true, Ordering::SeqCst);
-                return Err(EditorError::Invalid(format!("stopped after {after} edited views")));
+            }
+            if self.cancel.is_some_and(|c| c.load(Ordering::SeqCst)) {
+                return Err(EditorError::Invalid(format!("interrupted after {} edited views", self.kept)));
             }
             let part: Vec<SourceView> = group.iter().map(|&k| views[k]).collect();
             let edited = self.inner.edit(&part, prompt)?;
             if edited.len() != part.len() {
-                // The engine names the mismatch; nothing is kept.
-                return Ok(edited);
+                return Err(EditorError::Invalid(format!(
+                    "editor {} returned {} views for {} inputs",
+                    self.inner.name(),
+                    edited.len(),
+                    part.len()
+                )));
             }
             for (&k, e) in group.iter().zip(edited) {
-                self.keep(views[k].index, &e)?;
+                self.keep(&views[k], &e)?;
                 self.kept += 1;
                 out[k] = e;
             }
@@ -142,22 +171,42 @@ impl Editor for KeptViews<'_> {
 
 /// Whether `dir` (a checkpoint folder) holds kept views.
 pub fn has_kept_views(dir: &Path) -> bool {
-    std::fs::read_dir(dir.join(VIEWS_DIR)).is_ok_and(|mut d| d.next().is_some())
+    kept_files(&dir.join(VIEWS_DIR)) > 0
 }
 
 /// The error after a stop during the 2D edits: nothing was written to `out`, how many
-/// views are kept and the command that continues.
+/// views are kept and the command that continues (the same command again when none is).
 pub fn stopped(dir: &Path, out: &Path) -> SessionError {
-    let kept = std::fs::read_dir(dir.join(VIEWS_DIR)).map_or(0, |d| d.count());
-    SessionError::Interrupted {
-        step: 0,
-        message: format!(
+    let kept = kept_files(&dir.join(VIEWS_DIR));
+    let message = if kept == 0 {
+        let _ = std::fs::remove_dir(dir.join(VIEWS_DIR));
+        let _ = std::fs::remove_dir(dir);
+        format!(
+            "interrupted during the 2D edits; nothing was written to {}; no view was finished",
+            out.display()
+        )
+    } else {
+        format!(
             "interrupted during the 2D edits; nothing was written to {}; {kept} edited views kept in {}; \
              continue with: {}",
             out.display(),
             dir.display(),
             crate::checkpoints::resume_command(dir)
-        ),
+        )
+    };
+    SessionError::Interrupted { step: 0, message }
+}
+
+/// A failure after some views were kept: `error` with where they are and how to use them.
+pub fn failed_with_kept(error: SessionError, dir: &Path) -> SessionError {
+    match kept_files(&dir.join(VIEWS_DIR)) {
+        0 => error,
+        kept => SessionError::Failed(format!(
+            "{error}; {kept} edited views kept in {}: continue with --resume {} (kept views are used where the \
+             scene, instruction and editor are the same), or delete the folder to start over",
+            dir.display(),
+            dir.display()
+        )),
     }
 }
 
@@ -205,7 +254,7 @@ mod tests {
             .map(|&index| SourceView { index, camera: &cams[0], image: &image })
             .collect();
         let kept = dir.path().join(VIEWS_DIR);
-        // A first run keeps views 1 and 3 (groups of two), then fails.
+        // A first run keeps every view (in groups of two); one file is then lost.
         let mut first = KeptViews::new(Box::new(counting().0), kept.clone(), 7, 2, false);
         let full = first.edit(&views, "p").unwrap();
         assert_eq!(std::fs::read_dir(&kept).unwrap().count(), 4, "every view kept, the skipped one too");

@@ -33,7 +33,7 @@
 use std::collections::HashMap;
 
 use crate::SessionError;
-use transsplat_edit::edits::{edit_views, render_sources};
+use transsplat_edit::edits::render_sources;
 use transsplat_edit::prototypes::{view_support, PrototypeConfig, ViewEvidence};
 use transsplat_editors::{EditedView, Editor, Error as EditorError, SourceView};
 use transsplat_raster::{gaussian_stats, Splats};
@@ -88,6 +88,9 @@ pub fn choose(
     edit_views: &[usize],
     choice: ViewChoice,
 ) -> Result<Vec<usize>, SessionError> {
+    if edit_views.is_empty() {
+        return Err(SessionError::Input("no edit views: every camera is a held-out test view".into()));
+    }
     let k = match choice {
         ViewChoice::All | ViewChoice::Auto => return Ok(edit_views.to_vec()),
         ViewChoice::Count(0) => return Err(SessionError::Input("--views must be at least 1".into())),
@@ -191,7 +194,36 @@ pub fn auto(scene: &AutoScene, editor: &mut dyn Editor) -> Result<AutoChoice, Se
      -> Result<(), SessionError> {
         let cams: Vec<&Camera> = views.iter().map(|&v| &scene.cameras[v]).collect();
         let sources = render_sources(scene.gaussians, &cams, scene.background);
-        let out = edit_views(editor, scene.cameras, views, &sources, scene.prompt)?;
+        let src: Vec<SourceView> = views
+            .iter()
+            .zip(&sources)
+            .map(|(&v, image)| SourceView { index: v, camera: &scene.cameras[v], image })
+            .collect();
+        // A round may leave every view unedited; the engine checks the whole set.
+        let out = editor.edit(&src, scene.prompt).map_err(|e| SessionError::Edit(e.into()))?;
+        if out.len() != views.len() {
+            return Err(SessionError::Input(format!(
+                "editor {} returned {} views for {} inputs",
+                editor.name(),
+                out.len(),
+                views.len()
+            )));
+        }
+        for (v, e) in src.iter().zip(&out) {
+            if let Some(e) =
+                e.as_ref().filter(|e| (e.width, e.height) != v.size() || e.image.len() != v.image.len())
+            {
+                return Err(SessionError::Input(format!(
+                    "editor {}: view {} came back {}x{}, its camera is {}x{}",
+                    editor.name(),
+                    v.index,
+                    e.width,
+                    e.height,
+                    v.size().0,
+                    v.size().1
+                )));
+            }
+        }
         for ((&v, source), e) in views.iter().zip(&sources).zip(out) {
             if let Some(e) = &e {
                 lifted.insert(v, lift_view(scene, &splats, v, source, e, on));
@@ -326,7 +358,9 @@ struct Evidence {
     /// the Gaussian's largest blend weight; 0 off the target.
     mass: Vec<f64>,
     /// Standard deviation of the lifted change over the chosen views that see the
-    /// Gaussian well (the pooled one where fewer than two do).
+    /// Gaussian well (where fewer than two do, the target's pooled spread, or with no
+    /// such Gaussian at all the target's mean change: the edit is then as uncertain as it
+    /// is large).
     spread: Vec<f64>,
     /// Chosen views that see the Gaussian well.
     count: Vec<usize>,
@@ -344,7 +378,8 @@ impl Evidence {
     ) -> Evidence {
         let n = weights.first().map_or(0, Vec::len);
         let mut mass = vec![0.0; n];
-        let mut spread = vec![f64::NAN; n];
+        let mut spread = vec![0.0; n];
+        let mut size = vec![0.0; n];
         let mut count = vec![0; n];
         for j in 0..n {
             let (mut num, mut den) = (0.0f64, 0.0f64);
@@ -366,14 +401,23 @@ impl Evidence {
             if changes.len() >= 2 {
                 spread[j] = spread_of(&changes);
             }
+            if !changes.is_empty() {
+                let sq: f64 = changes.iter().flatten().map(|&x| (x as f64).powi(2)).sum();
+                size[j] = (sq / (3 * changes.len()) as f64).sqrt();
+            }
         }
-        // Where fewer than two views see a target Gaussian, the target's pooled spread.
-        let (num, den) = (0..n)
-            .filter(|&j| mass[j] > 0.0 && spread[j].is_finite())
-            .fold((0.0, 0.0), |(a, b), j| (a + mass[j] * spread[j], b + mass[j]));
-        let pooled = if den > 0.0 { num / den } else { 0.0 };
-        for s in spread.iter_mut().filter(|s| !s.is_finite()) {
-            *s = pooled;
+        let pooled = |value: &[f64], take: &dyn Fn(usize) -> bool| {
+            let (num, den) = (0..n)
+                .filter(|&j| mass[j] > 0.0 && take(j))
+                .fold((0.0, 0.0), |(a, b), j| (a + mass[j] * value[j], b + mass[j]));
+            (den > 0.0).then(|| num / den)
+        };
+        let fallback =
+            pooled(&spread, &|j| count[j] >= 2).or_else(|| pooled(&size, &|j| count[j] >= 1)).unwrap_or(0.0);
+        for j in 0..n {
+            if count[j] < 2 {
+                spread[j] = fallback;
+            }
         }
         Evidence { mass, spread, count }
     }
@@ -452,28 +496,39 @@ fn spread_of(changes: &[[f32; 3]]) -> f64 {
 /// edit takes the same views (and their edits from the checkpoint) without the editor.
 pub const AUTO_FILE: &str = "auto_views.json";
 
-/// Writes `views` as the `auto` choice into the checkpoint folder `dir`.
-pub fn write_auto_choice(dir: &std::path::Path, views: &[usize]) -> Result<(), SessionError> {
+/// Writes `views` as the `auto` choice of the job `key` into the checkpoint folder `dir`.
+pub fn write_auto_choice(dir: &std::path::Path, views: &[usize], key: u64) -> Result<(), SessionError> {
     std::fs::create_dir_all(dir).map_err(|e| transsplat_scene::Error::io(dir, e))?;
-    let json = serde_json::to_vec(&serde_json::json!({ "views": views })).expect("a list of numbers");
+    let json = serde_json::to_vec(&serde_json::json!({ "key": key, "views": views })).expect("numbers");
     Ok(transsplat_scene::atomic::write_bytes(&dir.join(AUTO_FILE), &json)?)
 }
 
-/// The `auto` choice kept in the checkpoint folder `dir` (an error naming the file when
-/// it is missing or not a list of views).
-pub fn read_auto_choice(dir: &std::path::Path) -> Result<Vec<usize>, SessionError> {
+/// The `auto` choice of the job `key` kept in the checkpoint folder `dir`: an error naming
+/// the file when it is missing, another job's, or not a sorted list of `candidates`.
+pub fn read_auto_choice(
+    dir: &std::path::Path,
+    candidates: &[usize],
+    key: u64,
+) -> Result<Vec<usize>, SessionError> {
     let path = dir.join(AUTO_FILE);
     let bad = |why: String| SessionError::Input(format!("{}: {why}", path.display()));
     let bytes =
         std::fs::read(&path).map_err(|e| bad(format!("cannot read the views --views auto chose ({e})")))?;
     #[derive(serde::Deserialize)]
     struct Choice {
+        key: u64,
         views: Vec<usize>,
     }
     let choice: Choice =
         serde_json::from_slice(&bytes).map_err(|e| bad(format!("not a list of views: {e}")))?;
-    if choice.views.is_empty() {
-        return Err(bad("no views".into()));
+    if choice.key != key {
+        return Err(bad("the views were chosen for another scene, instruction or editor".into()));
+    }
+    if choice.views.is_empty()
+        || choice.views.windows(2).any(|w| w[0] >= w[1])
+        || choice.views.iter().any(|v| !candidates.contains(v))
+    {
+        return Err(bad(format!("not a sorted list of edit views (of {candidates:?})")));
     }
     Ok(choice.views)
 }

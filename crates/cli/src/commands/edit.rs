@@ -88,7 +88,8 @@ pub struct EditArgs {
     /// Which views the 2D editor edits: all (every camera but each 8th), K of them or
     /// 1/N, spread over the capture (the editor then runs K times; the transport, fusion
     /// and image loss work from those K views), or auto: a quarter of them as seeds,
-    /// then the views their edits' target needs to be seen well twice.
+    /// then rounds of the views that most lower the uncertainty of the target's edit
+    /// until it is within 2/255 (a consistent editor stops early).
     #[arg(long, value_parser = ViewChoice::parse, default_value = "all")]
     pub views: ViewChoice,
     /// Simulated editor severity (0 = perfect edits).

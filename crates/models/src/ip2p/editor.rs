@@ -32,6 +32,9 @@ pub struct Ip2pEditor<'c> {
     progress: bool,
     cancel: Option<&'c AtomicBool>,
     batch: usize,
+    /// The bar of the views announced by [`Editor::expect_views`] and how many of them
+    /// are done, kept across calls.
+    stage: Option<(indicatif::ProgressBar, usize)>,
 }
 
 /// Views per UNet call unless [`Ip2pEditor::with_batch`] says otherwise.
@@ -82,10 +85,11 @@ impl<'c> Ip2pEditor<'c> {
             progress: true,
             cancel: None,
             batch: DEFAULT_BATCH,
+            stage: None,
         })
     }
 
-    /// Shows (default) or hides the per-view progress bars.
+    /// Shows (default) or hides the progress bar.
     pub fn with_progress(mut self, show: bool) -> Self {
         self.progress = show;
         self
@@ -216,12 +220,12 @@ impl<'c> Ip2pEditor<'c> {
             cancelled = cancel.is_some_and(|c| c.load(Ordering::SeqCst));
             !cancelled
         });
-        bar.set_position(start + self.settings.steps as u64);
-        bar.set_message(format!("ip2p: {}/{total} views done", done + b));
         if cancelled {
             return Err(EditError::Invalid("ip2p: interrupted".into()));
         }
         let edit = result.map_err(|e| fail(&e))?;
+        bar.set_position(start + self.settings.steps as u64);
+        bar.set_message(format!("ip2p: {}/{total} views done", done + b));
         let to_vec = |t: &Tensor, k: usize| -> candle_core::Result<Vec<f32>> {
             t.narrow(0, k, 1)?.squeeze(0)?.permute((1, 2, 0))?.contiguous()?.flatten_all()?.to_vec1::<f32>()
         };
@@ -254,8 +258,20 @@ impl Editor for Ip2pEditor<'_> {
             return Err(EditError::Instruction("ip2p: the edit instruction is empty".into()));
         }
         let embeds = self.encode_prompt(prompt).map_err(|e| EditError::Invalid(format!("ip2p: {e}")))?;
-        // consecutive views of one model size, up to `batch` at a time, on one bar
-        let bar = self.bar(views.len());
+        // consecutive views of one model size, up to `batch` at a time, on one bar: the
+        // announced stage's if these views fit in what is left of it
+        let (bar, first) = match self.stage.take() {
+            Some((bar, done))
+                if done + views.len() <= bar.length().unwrap_or(0) as usize / self.settings.steps.max(1) =>
+            {
+                (bar, done)
+            }
+            Some((bar, _)) => {
+                bar.finish_and_clear();
+                (self.bar(views.len()), 0)
+            }
+            None => (self.bar(views.len()), 0),
+        };
         let mut out = Vec::with_capacity(views.len());
         let mut batch: Vec<&SourceView> = Vec::new();
         for v in views {
@@ -264,15 +280,27 @@ impl Editor for Ip2pEditor<'_> {
                 self.model_size(w, h)
             };
             if batch.len() == self.batch || batch.first().is_some_and(|f| size(f) != size(v)) {
-                let edited = self.edit_batch(&batch, &embeds, &bar, out.len());
+                let edited = self.edit_batch(&batch, &embeds, &bar, first + out.len());
                 out.extend(edited.inspect_err(|_| bar.abandon())?.into_iter().map(Some));
                 batch.clear();
             }
             batch.push(v);
         }
-        let edited = self.edit_batch(&batch, &embeds, &bar, out.len());
+        let edited = self.edit_batch(&batch, &embeds, &bar, first + out.len());
         out.extend(edited.inspect_err(|_| bar.abandon())?.into_iter().map(Some));
-        bar.finish_and_clear();
+        let done = first + out.len();
+        if done * self.settings.steps < bar.length().unwrap_or(0) as usize {
+            self.stage = Some((bar, done));
+        } else {
+            bar.finish_and_clear();
+        }
         Ok(out)
+    }
+
+    fn expect_views(&mut self, views: usize) {
+        if let Some((bar, _)) = self.stage.take() {
+            bar.finish_and_clear();
+        }
+        self.stage = Some((self.bar(views), 0));
     }
 }
