@@ -122,7 +122,7 @@ pub fn random_editor<'c>(device: &Device, seed: u64) -> Result<Ip2pEditor<'c>, S
     let Sd15 { unet, vae } = sd15_models(device).map_err(|e| err(&e))?;
     let ddim = Ddim::new(DdimConfig::instruct_pix2pix()).map_err(|e| err(&e))?;
     let pipeline = Ip2p { unet, vae, ddim, device: device.clone() };
-    let config = crate::models::vit_l14().text_config;
+    let config = crate::configs::vit_l14().text_config;
     let path = std::path::Path::new("(benchmark config)");
     let vb = transsplat_models::weights::random_weights(device, |vb| {
         ClipTextModel::new(vb, config.clone(), path).map(|_| ())

@@ -14,6 +14,7 @@
 //! - [`timing`]: best-of-N timing.
 
 pub mod capture;
+pub mod configs;
 pub mod demo;
 pub mod edit;
 pub mod ip2p;

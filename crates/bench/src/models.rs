@@ -5,8 +5,9 @@
 use crate::timing::try_best_of;
 use candle_core::Device;
 
+use crate::configs::vit_l14;
 use crate::ip2p::{sd15_models, Case as Ip2pCase, Sd15};
-use transsplat_models::clip::{Clip, ClipConfig, ClipTextConfig, ClipVisionConfig};
+use transsplat_models::clip::{Clip, ClipTextConfig, ClipVisionConfig};
 use transsplat_models::clipseg::{ClipSeg, ClipSegConfig, ClipSegProcessorConfig};
 use transsplat_models::dinov2::{Dinov2, Dinov2Config};
 use transsplat_models::weights::random_weights;
@@ -63,36 +64,6 @@ fn ip2p(device: &Device, case: Ip2pCase, size: usize) -> Result<f64, Error> {
 /// Seconds of one run of `f` after one untimed warm-up run.
 fn time<T>(f: impl FnMut() -> Result<T, Error>) -> Result<f64, Error> {
     try_best_of(1, 1, f).map(|(secs, _)| secs)
-}
-
-/// `openai/clip-vit-large-patch14`.
-pub(crate) fn vit_l14() -> ClipConfig {
-    ClipConfig {
-        text_config: ClipTextConfig {
-            vocab_size: 49408,
-            hidden_size: 768,
-            intermediate_size: 3072,
-            num_hidden_layers: 12,
-            num_attention_heads: 12,
-            max_position_embeddings: 77,
-            hidden_act: "quick_gelu".into(),
-            layer_norm_eps: 1e-5,
-            eos_token_id: 49407,
-            projection_dim: 768,
-        },
-        vision_config: ClipVisionConfig {
-            hidden_size: 1024,
-            intermediate_size: 4096,
-            num_hidden_layers: 24,
-            num_attention_heads: 16,
-            image_size: 224,
-            patch_size: 14,
-            num_channels: 3,
-            hidden_act: "quick_gelu".into(),
-            layer_norm_eps: 1e-5,
-        },
-        projection_dim: 768,
-    }
 }
 
 fn clip(device: &Device) -> Result<Clip, Error> {

@@ -21,6 +21,16 @@ pub struct Checkpoints {
     pub stop_after_views: Option<usize>,
 }
 
+/// The folder inside a checkpoint folder where the 2D editor's finished views are kept
+/// (`crate::editor_views`).
+pub const EDITOR_VIEWS_DIR: &str = "editor-views";
+
+/// How many finished views the checkpoint folder `dir` keeps.
+pub fn kept_view_files(dir: &Path) -> usize {
+    std::fs::read_dir(dir.join(EDITOR_VIEWS_DIR))
+        .map_or(0, |d| d.flatten().filter(|e| e.file_name().to_string_lossy().ends_with(".edit")).count())
+}
+
 /// The checkpoint folder of an output folder: `OUT.checkpoint` beside it.
 pub fn checkpoint_dir(out: &Path) -> PathBuf {
     let abs = std::path::absolute(out).unwrap_or_else(|_| out.to_path_buf());
@@ -47,7 +57,7 @@ impl Checkpoints {
             None => checkpoint_dir(out),
         };
         // Views the 2D editor finished before a stop count as a checkpoint too.
-        let has = dir.join(file).is_file() || crate::editor_views::has_kept_views(&dir);
+        let has = dir.join(file).is_file() || kept_view_files(&dir) > 0;
         match &self.resume {
             Some(_) if !has => {
                 return Err(SessionError::Input(format!(

@@ -19,8 +19,9 @@ use crate::SessionError;
 use transsplat_editors::{EditedView, Editor, Error as EditorError, SourceView};
 use transsplat_scene::archive::{Archive, Hasher, Writer};
 
+use crate::checkpoints::kept_view_files;
 /// The folder of kept views inside the checkpoint folder.
-pub const VIEWS_DIR: &str = "editor-views";
+pub use crate::checkpoints::EDITOR_VIEWS_DIR as VIEWS_DIR;
 
 /// The job's key for its kept views (module doc); `editor` names the editor and its
 /// settings.
@@ -32,12 +33,6 @@ pub fn job_key(scene_fingerprint: &str, prompt: &str, editor: &str, seed: u64) -
 fn view_key(job: u64, view: &SourceView) -> u64 {
     let (w, h) = view.size();
     Hasher::default().u64(job).u64(view.index as u64).u64(w as u64).u64(h as u64).f32s(view.image).finish()
-}
-
-/// The kept views' files in `dir`.
-fn kept_files(dir: &Path) -> usize {
-    std::fs::read_dir(dir)
-        .map_or(0, |d| d.flatten().filter(|e| e.file_name().to_string_lossy().ends_with(".edit")).count())
 }
 
 /// An editor whose finished views are kept in `dir` as they are made (module doc).
@@ -169,15 +164,10 @@ impl Editor for KeptViews<'_> {
     }
 }
 
-/// Whether `dir` (a checkpoint folder) holds kept views.
-pub fn has_kept_views(dir: &Path) -> bool {
-    kept_files(&dir.join(VIEWS_DIR)) > 0
-}
-
 /// The error after a stop during the 2D edits: nothing was written to `out`, how many
 /// views are kept and the command that continues (the same command again when none is).
 pub fn stopped(dir: &Path, out: &Path) -> SessionError {
-    let kept = kept_files(&dir.join(VIEWS_DIR));
+    let kept = kept_view_files(dir);
     let message = if kept == 0 {
         let _ = std::fs::remove_dir(dir.join(VIEWS_DIR));
         let _ = std::fs::remove_dir(dir);
@@ -199,7 +189,7 @@ pub fn stopped(dir: &Path, out: &Path) -> SessionError {
 
 /// A failure after some views were kept: `error` with where they are and how to use them.
 pub fn failed_with_kept(error: SessionError, dir: &Path) -> SessionError {
-    match kept_files(&dir.join(VIEWS_DIR)) {
+    match kept_view_files(dir) {
         0 => error,
         kept => SessionError::Failed(format!(
             "{error}; {kept} edited views kept in {}: continue with --resume {} (kept views are used where the \
