@@ -44,9 +44,18 @@ fn bench_edit_reports_every_stage() {
         assert!(stages[k].as_f64().is_some(), "{k}");
     }
     assert!(j["metrics"]["target_psnr"].as_f64().is_some_and(f64::is_finite));
+    assert_eq!(
+        (j["editor"].as_str(), j["edit_views"].as_u64(), j["candidate_views"].as_u64()),
+        (Some("simulated"), Some(14), Some(14))
+    );
+    // `--views` reaches the job: the editor edits 5 of the 14 views.
+    let o =
+        bin().args(["bench", "edit", "--size", "quick", "--steps", "10", "--views", "5"]).output().unwrap();
+    ok(&o);
+    assert_eq!(json_line(&o)["edit_views"].as_u64(), Some(5));
     let o = bin().args(["bench", "edit", "--size", "huge"]).output().unwrap();
     assert_eq!(o.status.code(), Some(2));
-    assert!(text(&o).contains("sizes are: a, b, quick"), "{}", text(&o));
+    assert!(text(&o).contains("sizes are: a, b, c, quick"), "{}", text(&o));
 }
 
 /// The suite's default is the small one: one severity-0 trained case runs through the
