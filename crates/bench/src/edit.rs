@@ -70,6 +70,40 @@ impl BenchEditor {
     }
 }
 
+/// InstructPix2Pix at random weights with the simulated editor's attention and mask: the
+/// model does the real arithmetic (timed), but its attention at random weights marks no
+/// target the lift could use, so the simulated editor's (cheap) says where the ball is.
+struct TargetOf<E: Editor> {
+    editor: E,
+    target: SimulatedEditor,
+}
+
+impl<E: Editor> Editor for TargetOf<E> {
+    fn name(&self) -> &str {
+        self.editor.name()
+    }
+
+    fn expect_views(&mut self, views: usize) {
+        self.editor.expect_views(views)
+    }
+
+    fn edit(
+        &mut self,
+        views: &[transsplat_editors::SourceView],
+        prompt: &str,
+    ) -> Result<Vec<Option<transsplat_editors::EditedView>>, transsplat_editors::Error> {
+        let mut edited = self.editor.edit(views, prompt)?;
+        let target = self.target.edit(views, prompt)?;
+        for (e, t) in edited.iter_mut().zip(target) {
+            if let (Some(e), Some(t)) = (e.as_mut(), t) {
+                e.attention = t.attention;
+                e.mask = t.mask;
+            }
+        }
+        Ok(edited)
+    }
+}
+
 /// What one timed edit is.
 #[derive(Clone, Debug)]
 pub struct EditBenchOptions<'a> {
@@ -142,7 +176,7 @@ pub fn run(
             if let Some(flag) = cancel {
                 e = e.with_cancel(flag);
             }
-            Box::new(e)
+            Box::new(TargetOf { editor: e, target: simulated })
         }
     };
     let source = scene.gaussians_with_labels();
