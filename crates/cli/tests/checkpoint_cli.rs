@@ -194,79 +194,52 @@ fn nan_stops_train_and_edit_naming_step_and_group_and_writes_no_scene() {
     assert!(!dir.path().join("e").exists());
 }
 
-/// `--views auto` stopped and resumed: the resumed edit takes the chosen views and their
-/// edits from the checkpoint (the editor is not called again) and ends as the
-/// uninterrupted edit does.
-#[test]
-fn stopped_auto_edit_resumes_without_the_editor() {
-    let dir = tempfile::tempdir().unwrap();
-    quick_scene_in(dir.path(), "data");
-    let run = |out: &'static str| {
-        [
-            "edit",
-            "--scene",
-            "data",
-            "--prompt",
-            "make the ball blue",
-            "--editor",
-            "simulated",
-            "--views",
-            "auto",
-            "--steps",
-            "30",
-            "--checkpoint-every",
-            "10",
-            "--out",
-            out,
-        ]
-    };
-    ok(&bin().current_dir(dir.path()).args(run("a")).output().unwrap());
-    let o = bin().current_dir(dir.path()).args(run("b")).args(["--stop-after", "13"]).output().unwrap();
-    let err = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert!(err.contains("--views auto:") && o.status.code() == Some(2), "{err}");
-    let cmd = err.split("continue with: ").nth(1).expect("the message gives the command").trim();
-    let resumed = Command::new("sh").current_dir(dir.path()).args(["-c", cmd]).output().unwrap();
-    ok(&resumed);
-    let log = String::from_utf8_lossy(&resumed.stderr);
-    assert!(!log.contains("--views auto:"), "the resumed edit chose its views again: {log}");
-    let ply = "point_cloud/iteration_30/point_cloud.ply";
-    let read = |out: &str| std::fs::read(dir.path().join(out).join(ply)).unwrap();
-    assert!(read("a") == read("b"), "resumed auto edit differs from the uninterrupted edit");
+/// The `--views auto` edit of the quick scene (20 steps, a checkpoint every 10) into `out`.
+fn auto_edit(out: &str) -> Vec<&str> {
+    let args = "edit --scene data --prompt make_the_ball_blue --editor simulated --views auto --steps 20";
+    let mut a: Vec<&str> = args.split(' ').collect();
+    a[4] = "make the ball blue";
+    a.extend(["--checkpoint-every", "10", "--out", out]);
+    a
 }
 
-/// A stop during `--views auto`'s own edits (after the seeds, before the first round):
-/// the seeds are kept, the printed command chooses again from them (editing only the
-/// rest) and ends as the uninterrupted edit does.
+/// Runs the command a stop printed (after "continue with: ") in `dir`, checks it ends
+/// well and that its edit equals the uninterrupted one in `a` (20 steps); returns its log.
+fn continue_and_compare(dir: &Path, stop_log: &str, out: &str) -> String {
+    let cmd = stop_log.split("continue with: ").nth(1).expect("the message gives the command").trim();
+    let resumed = Command::new("sh").current_dir(dir).args(["-c", cmd]).output().unwrap();
+    ok(&resumed);
+    let ply = "point_cloud/iteration_20/point_cloud.ply";
+    let read = |o: &str| std::fs::read(dir.join(o).join(ply)).unwrap();
+    assert!(read("a") == read(out), "the resumed auto edit differs from the uninterrupted one");
+    String::from_utf8_lossy(&resumed.stderr).into_owned()
+}
+
+/// `--views auto` stopped during the steps and resumed: the resumed edit takes the chosen
+/// views and their edits from the checkpoint (the editor is not called again) and ends as
+/// the uninterrupted edit does. Stopped during auto's own edits (after the seeds, before
+/// the first round): the seeds are kept, and the printed command chooses again from them.
 #[test]
-fn a_stop_during_auto_edits_resumes_from_the_kept_seeds() {
+fn stopped_auto_edits_resume_to_the_uninterrupted_result() {
     let dir = tempfile::tempdir().unwrap();
     quick_scene_in(dir.path(), "data");
-    let run = |out: &'static str| {
-        [
-            "edit",
-            "--scene",
-            "data",
-            "--prompt",
-            "make the ball blue",
-            "--editor",
-            "simulated",
-            "--views",
-            "auto",
-        ]
-        .into_iter()
-        .chain(["--steps", "20", "--out", out])
-    };
-    ok(&bin().current_dir(dir.path()).args(run("a")).output().unwrap());
-    let o = bin().current_dir(dir.path()).args(run("b")).args(["--stop-after-views", "1"]).output().unwrap();
+    ok(&bin().current_dir(dir.path()).args(auto_edit("a")).output().unwrap());
+
+    let o = bin().current_dir(dir.path()).args(auto_edit("b")).args(["--stop-after", "13"]).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(err.contains("--views auto:") && o.status.code() == Some(2), "{err}");
+    let log = continue_and_compare(dir.path(), &err, "b");
+    assert!(!log.contains("--views auto:"), "the resumed edit chose its views again: {log}");
+
+    let o = bin()
+        .current_dir(dir.path())
+        .args(auto_edit("c"))
+        .args(["--stop-after-views", "1"])
+        .output()
+        .unwrap();
     let err = String::from_utf8_lossy(&o.stderr).into_owned();
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("interrupted during the 2D edits") && err.contains("4 edited views kept"), "{err}");
-    let cmd = err.split("continue with: ").nth(1).expect("the message gives the command").trim();
-    let resumed = Command::new("sh").current_dir(dir.path()).args(["-c", cmd]).output().unwrap();
-    ok(&resumed);
-    let log = String::from_utf8_lossy(&resumed.stderr);
+    let log = continue_and_compare(dir.path(), &err, "c");
     assert!(log.contains("4 of 4 views kept by the stopped run"), "{log}");
-    let ply = "point_cloud/iteration_20/point_cloud.ply";
-    let read = |out: &str| std::fs::read(dir.path().join(out).join(ply)).unwrap();
-    assert!(read("a") == read("b"), "resumed auto edit differs from the uninterrupted edit");
 }

@@ -71,26 +71,32 @@ fn bad_edit_inputs_exit_2_and_write_nothing() {
     }
 }
 
+/// The exported renders handed back unedited: exit 2 saying so, nothing written; with
+/// `--views auto` the seeds already say there is no target.
 #[test]
 fn unedited_views_mean_nothing_to_edit() {
     let dir = tempfile::tempdir().unwrap();
     let ds = quick_scene(dir.path());
     let views = dir.path().join("views");
     ok(&bin().args(["views", "export", "--scene"]).arg(&ds).arg("--out").arg(&views).output().unwrap());
-    let out = dir.path().join("edit");
-    let o = bin()
-        .args(["edit", "--scene"])
-        .arg(&ds)
-        .args(["--prompt", "make it nicer", "--editor", "folder", "--edits"])
-        .arg(&views)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(2));
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("found nothing to edit"), "{err}");
-    assert!(!out.exists());
+    for (choice, says) in
+        [("all", "found nothing to edit"), ("auto", "--views auto: the editor marked no target")]
+    {
+        let out = dir.path().join(format!("edit-{choice}"));
+        let o = bin()
+            .args(["edit", "--scene"])
+            .arg(&ds)
+            .args(["--prompt", "make it nicer", "--editor", "folder", "--views", choice, "--edits"])
+            .arg(&views)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(2));
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(says), "{choice}: {err}");
+        assert!(!out.exists());
+    }
 }
 
 #[test]
@@ -208,28 +214,4 @@ fn views_auto_edits_seeds_and_what_the_target_needs() {
     assert!(consistent >= seeds && consistent < edit_views, "severity 0 edited {consistent} of {edit_views}");
     let (_, inconsistent) = chosen("2");
     assert!(inconsistent > consistent, "severity 2 edited {inconsistent}, severity 0 {consistent}");
-}
-
-/// `--views auto` when the editor changed nothing (the exported renders handed back
-/// unedited): exit 2 saying so, nothing written.
-#[test]
-fn views_auto_refuses_an_edit_that_marks_nothing() {
-    let dir = tempfile::tempdir().unwrap();
-    let ds = quick_scene(dir.path());
-    let views = dir.path().join("views");
-    ok(&bin().args(["views", "export", "--scene"]).arg(&ds).arg("--out").arg(&views).output().unwrap());
-    let out = dir.path().join("edit");
-    let o = bin()
-        .args(["edit", "--scene"])
-        .arg(&ds)
-        .args(["--prompt", "make the ball blue", "--editor", "folder", "--edits"])
-        .arg(&views)
-        .args(["--steps", "30", "--views", "auto", "--out"])
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(2), "{}", String::from_utf8_lossy(&o.stderr));
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("--views auto: the editor marked no target"), "{err}");
-    assert!(!out.exists(), "nothing written");
 }
