@@ -159,10 +159,11 @@ impl ModelConfig for ClipConfig {
 }
 
 #[derive(Debug, Clone, Copy)]
-enum Activation {
+pub(crate) enum Activation {
     QuickGelu,
     GeluErf,
     GeluTanh,
+    Relu,
 }
 
 impl Activation {
@@ -170,21 +171,23 @@ impl Activation {
         Self::named(name).map_err(|msg| Error::Corrupt { path: path.to_path_buf(), msg })
     }
 
-    fn named(name: &str) -> Result<Self, String> {
+    pub(crate) fn named(name: &str) -> Result<Self, String> {
         match name {
             "quick_gelu" => Ok(Self::QuickGelu),
             "gelu" => Ok(Self::GeluErf),
             "gelu_new" | "gelu_pytorch_tanh" => Ok(Self::GeluTanh),
+            "relu" => Ok(Self::Relu),
             other => Err(format!("unsupported hidden_act {other:?}")),
         }
     }
 
-    fn apply(self, x: &Tensor) -> candle_core::Result<Tensor> {
+    pub(crate) fn apply(self, x: &Tensor) -> candle_core::Result<Tensor> {
         match self {
             // x · sigmoid(1.702 x)
             Self::QuickGelu => x * candle_nn::ops::sigmoid(&(x * 1.702)?)?,
             Self::GeluErf => x.gelu_erf(),
             Self::GeluTanh => x.gelu(),
+            Self::Relu => x.relu(),
         }
     }
 }

@@ -242,11 +242,77 @@ impl CustomOp1 for RowConv {
     }
 }
 
+/// A transposed convolution whose kernel equals its stride (`k`): every input pixel
+/// becomes its own `k × k` block of outputs, y[o, k·i + u, k·j + v] = b[o] +
+/// Σ_c x[c, i, j] · w[c, o, u, v]. Computed as one matrix product per batch, the
+/// pixels `[h·w, cin]` times the weight `[cin, cout·k·k]`, then the blocks laid out.
+/// (CLIPSeg's decoder, SAM's mask upscaling.)
+#[derive(Debug, Clone)]
+pub struct PatchTransposedConv {
+    /// `[cin, cout·k·k]` (the weight's own memory, `[cin, cout, k, k]`).
+    weight: Tensor,
+    bias: Tensor,
+    out_channels: usize,
+    kernel: usize,
+}
+
+impl PatchTransposedConv {
+    pub fn new(vb: VarBuilder, cin: usize, cout: usize, kernel: usize) -> candle_core::Result<Self> {
+        let weight = vb.get((cin, cout, kernel, kernel), "weight")?.reshape((cin, cout * kernel * kernel))?;
+        Ok(Self { weight, bias: vb.get(cout, "bias")?, out_channels: cout, kernel })
+    }
+
+    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        let (b, cin, h, w) = x.dims4()?;
+        let (cout, k) = (self.out_channels, self.kernel);
+        let pixels = x.permute((0, 2, 3, 1))?.reshape((b * h * w, cin))?;
+        let blocks = pixels.matmul(&self.weight)?; // [b·h·w, cout·k·k]
+        blocks
+            .reshape((b, h, w, cout, k, k))?
+            .permute((0, 3, 1, 4, 2, 5))?
+            .reshape((b, cout, h * k, w * k))?
+            .broadcast_add(&self.bias.reshape((1, cout, 1, 1))?)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use candle_core::Device;
     use candle_nn::VarMap;
+
+    #[test]
+    fn patch_transposed_convolution_matches_candle() {
+        let device = Device::Cpu;
+        let (cin, cout, k) = (3, 2, 4);
+        let weight = Tensor::arange(0f32, (cin * cout * k * k) as f32, &device)
+            .unwrap()
+            .sin()
+            .unwrap()
+            .reshape((cin, cout, k, k))
+            .unwrap();
+        let bias = Tensor::new(&[0.5f32, -0.25], &device).unwrap();
+        let x = Tensor::arange(0f32, (2 * cin * 3 * 5) as f32, &device)
+            .unwrap()
+            .cos()
+            .unwrap()
+            .reshape((2, cin, 3, 5))
+            .unwrap();
+        let vb = VarBuilder::from_tensors(
+            [("weight".to_string(), weight.clone()), ("bias".to_string(), bias.clone())].into(),
+            DType::F32,
+            &device,
+        );
+        let got = PatchTransposedConv::new(vb, cin, cout, k).unwrap().forward(&x).unwrap();
+        let want = x
+            .conv_transpose2d(&weight, 0, 0, k, 1)
+            .unwrap()
+            .broadcast_add(&bias.reshape((1, cout, 1, 1)).unwrap())
+            .unwrap();
+        assert_eq!(got.dims(), [2, cout, 3 * k, 5 * k]);
+        let err = (got - want).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
+        assert!(err < 1e-5, "{err}");
+    }
 
     /// Every case against candle's own `conv2d` (its direct and tiled paths are the
     /// oracle), including strides, padding, 1×1 and odd sizes.

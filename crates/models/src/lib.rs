@@ -25,6 +25,7 @@ pub mod ip2p;
 pub mod linear;
 pub mod norm;
 pub mod resample;
+pub mod sam;
 pub mod softmax;
 pub mod tokenizer;
 pub mod weights;
