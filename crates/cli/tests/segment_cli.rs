@@ -1,6 +1,6 @@
 //! End-to-end tests of the segmentation constraint's doors on `transsplat edit`:
 //! `--masks DIR` (masks made elsewhere) and `--segment PHRASE --segment-weights DIR`
-//! (CLIPSeg): bad requests exit 2 with one line and write nothing; masks reach the edit,
+//! (CLIPSeg, `--sam-weights DIR` to sharpen its masks with SAM): bad requests exit 2 with one line and write nothing; masks reach the edit,
 //! its `transport.json` and its report.
 
 mod common;
@@ -106,6 +106,19 @@ fn bad_segmenter_requests_exit_2_with_one_line_and_write_nothing() {
         &edit(&ds, &out, &["--segment-weights", &fixture, "--segment"]),
         &out,
         &[&fixture, "\"the ball\"", "outside vocab_size 500"],
+    );
+    // SAM sharpens --segment's masks only: alone it is a usage error; a missing SAM
+    // folder is named with its download command before anything runs
+    refused(&edit(&ds, &out, &["--sam-weights", &fixture]), &out, &["--segment"]);
+    let no_sam = dir.path().join("no-sam");
+    refused(
+        &edit(
+            &ds,
+            &out,
+            &["--segment", "the ball", "--segment-weights", &fixture, "--sam-weights", &s(&no_sam)],
+        ),
+        &out,
+        &[&s(&no_sam), &format!("hf download Zigeng/SlimSAM-uniform-77 --local-dir {}", s(&no_sam))],
     );
     // masks: a missing file, a file of the wrong size, nothing found anywhere
     let masks = dir.path().join("masks");

@@ -110,3 +110,44 @@ fn bad_configs_and_prompts_are_refused() {
         sam.image_embeddings(&Tensor::zeros((1, 3, s, s), DType::F32, &Device::Cpu).unwrap()).unwrap();
     assert!(sam.decode(&embeddings, &[Prompt::default()], false).is_err());
 }
+
+/// A segmenter handing out fixed masks, standing in for CLIPSeg.
+struct Fixed(Vec<Option<Vec<f32>>>);
+
+impl transsplat_editors::Segmenter for Fixed {
+    fn name(&self) -> &str {
+        "fixed"
+    }
+
+    fn segment(
+        &mut self,
+        _views: &[transsplat_editors::SourceView],
+        _phrase: &str,
+    ) -> Result<Vec<Option<Vec<f32>>>, transsplat_editors::Error> {
+        Ok(self.0.clone())
+    }
+}
+
+#[test]
+fn sharpening_prompts_sam_with_the_coarse_masks_box_and_peak_and_keeps_misses() {
+    use transsplat_editors::{Segmenter, SourceView};
+    use transsplat_models::sam::{prompt_from_mask, SamSharpened};
+    let (w, h) = (24usize, 18usize);
+    let image: Vec<f32> = (0..w * h * 3).map(|i| ((i * 37) % 101) as f32 / 100.0).collect();
+    let cam = transsplat_scene::Camera::pinhole("v.png", w as u32, h as u32, 20.0);
+    let views = [
+        SourceView { index: 0, camera: &cam, image: &image },
+        SourceView { index: 1, camera: &cam, image: &image },
+    ];
+    // A coarse blob in the first view; the second view is a miss.
+    let coarse: Vec<f32> = (0..w * h)
+        .map(|i| if (5..12).contains(&(i % w)) && (4..9).contains(&(i / w)) { 0.8 } else { 0.1 })
+        .collect();
+    let mut sharpened = SamSharpened::new(Fixed(vec![Some(coarse.clone()), None]), load());
+    assert_eq!(sharpened.name(), "fixed+sam");
+    let masks = sharpened.segment(&views, "the ball").unwrap();
+    let want = load().segment(&image, w, h, &prompt_from_mask(&coarse, w, h).unwrap()).unwrap();
+    assert_eq!(masks[0].as_deref(), Some(want.as_slice()));
+    assert_ne!(masks[0].as_deref(), Some(coarse.as_slice()));
+    assert_eq!(masks[1], None);
+}

@@ -60,8 +60,10 @@ impl EditorSpec<'_> {
 /// mask is the segmenter's, whichever way it is made, replacing any mask the editor gave.
 pub enum SegmenterSpec<'a> {
     /// CLIPSeg from a local Hugging Face folder (`CIDAS/clipseg-rd64-refined`), segmenting
-    /// what `phrase` names ("the ball"), given by the user.
-    ClipSeg { weights: PathBuf, phrase: String },
+    /// what `phrase` names ("the ball"), given by the user; with `sam`, a SAM folder
+    /// (`SamModel` layout), each CLIPSeg mask sharpened by SAM prompted by its box and
+    /// most confident pixel (`transsplat_models::sam::SamSharpened`).
+    ClipSeg { weights: PathBuf, phrase: String, sam: Option<PathBuf> },
     /// Masks made elsewhere: `DIR/<stem>.png` (or the view's content name), grey, one per
     /// edited view at the view's size.
     Folder(PathBuf),
@@ -75,7 +77,7 @@ impl SegmenterSpec<'_> {
     /// before it builds anything slow of its own; [`run`] loads the model.
     pub fn check(&self) -> Result<(), SessionError> {
         match self {
-            SegmenterSpec::ClipSeg { weights, phrase } => {
+            SegmenterSpec::ClipSeg { weights, phrase, sam } => {
                 if phrase.trim().is_empty() {
                     return Err(SessionError::Input(
                         "segment: the phrase is empty; name the target, e.g. \"the ball\"".into(),
@@ -85,6 +87,13 @@ impl SegmenterSpec<'_> {
                     .map_err(|e| SessionError::Model(e.to_string()))?;
                 dir.file("config.json").map_err(|e| SessionError::Model(e.to_string()))?;
                 dir.safetensors("model").map_err(|e| SessionError::Model(e.to_string()))?;
+                if let Some(sam) = sam {
+                    let hint = transsplat_models::sam::download_hint(sam);
+                    let dir = transsplat_models::ModelDir::open(sam, "SAM", &hint)
+                        .map_err(|e| SessionError::Model(e.to_string()))?;
+                    dir.file("config.json").map_err(|e| SessionError::Model(e.to_string()))?;
+                    dir.safetensors("model").map_err(|e| SessionError::Model(e.to_string()))?;
+                }
                 Ok(())
             }
             SegmenterSpec::Folder(dir) => {
@@ -97,7 +106,9 @@ impl SegmenterSpec<'_> {
     /// The folders the segmenter reads (inputs of the output rule).
     fn inputs(&self) -> Vec<PathBuf> {
         match self {
-            SegmenterSpec::ClipSeg { weights, .. } => vec![weights.clone()],
+            SegmenterSpec::ClipSeg { weights, sam, .. } => {
+                std::iter::once(weights.clone()).chain(sam.clone()).collect()
+            }
             SegmenterSpec::Folder(dir) => vec![dir.clone()],
             SegmenterSpec::Custom(..) => Vec::new(),
         }
@@ -115,16 +126,22 @@ fn build_segmenter<'a>(
     gaussians: &Gaussians,
 ) -> Result<(Box<dyn Segmenter + 'a>, String), SessionError> {
     Ok(match spec {
-        SegmenterSpec::ClipSeg { weights, phrase } => {
+        SegmenterSpec::ClipSeg { weights, phrase, sam } => {
             use transsplat_models::clipseg::ClipSegSegmenter;
+            use transsplat_models::sam::{Sam, SamSharpened};
             let model = |e: transsplat_models::Error| SessionError::Model(e.to_string());
-            let mut s =
-                ClipSegSegmenter::load(&weights, &transsplat_models::default_device()).map_err(model)?;
+            let device = transsplat_models::default_device();
+            let mut s = ClipSegSegmenter::load(&weights, &device).map_err(model)?;
             // A phrase the model cannot take is refused before the editor runs.
             s.prepare(&phrase).map_err(|e| {
                 SessionError::Model(format!("{}: CLIPSeg cannot take {phrase:?}: {e}", weights.display()))
             })?;
-            (Box::new(s), phrase)
+            match sam {
+                Some(sam) => {
+                    (Box::new(SamSharpened::new(s, Sam::load(&sam, &device).map_err(model)?)), phrase)
+                }
+                None => (Box::new(s), phrase),
+            }
         }
         SegmenterSpec::Folder(dir) => {
             let folder = MaskFolder::new(dir).for_scene(transsplat_scene::fingerprint::scene(gaussians));

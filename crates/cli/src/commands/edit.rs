@@ -81,6 +81,11 @@ pub struct EditArgs {
     /// `hf download CIDAS/clipseg-rd64-refined --local-dir DIR`.
     #[arg(long, value_name = "DIR", requires = "segment")]
     pub segment_weights: Option<PathBuf>,
+    /// SAM folder (`SamModel` layout: `hf download Zigeng/SlimSAM-uniform-77 --local-dir
+    /// DIR`, or `facebook/sam-vit-base`): each CLIPSeg mask of --segment is sharpened by
+    /// SAM, prompted by the mask's box and most confident pixel.
+    #[arg(long, value_name = "DIR", requires = "segment")]
+    pub sam_weights: Option<PathBuf>,
     /// Restrict each edited view to a mask made elsewhere: DIR/<stem>.png, grey (inside
     /// where > 0.5), one per edited view at its size (replacing any mask the editor gave).
     #[arg(long, value_name = "DIR", conflicts_with = "segment")]
@@ -215,7 +220,7 @@ fn segmenter_spec(args: &EditArgs) -> Result<Option<SegmenterSpec<'static>>> {
                 }
                 given => given.to_string(),
             };
-            Some(SegmenterSpec::ClipSeg { weights: weights.clone(), phrase })
+            Some(SegmenterSpec::ClipSeg { weights: weights.clone(), phrase, sam: args.sam_weights.clone() })
         }
         (_, _, Some(dir)) => Some(SegmenterSpec::Folder(dir.clone())),
         _ => None,
@@ -233,6 +238,7 @@ fn output_request(args: &EditArgs, scene_path: PathBuf, cam_path: PathBuf) -> Ou
             &args.ip2p_weights,
             &args.dino_weights,
             &args.segment_weights,
+            &args.sam_weights,
             &args.masks,
         ]
         .into_iter()
