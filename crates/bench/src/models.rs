@@ -10,6 +10,7 @@ use crate::ip2p::{sd15_models, Case as Ip2pCase, Sd15};
 use transsplat_models::clip::{Clip, ClipTextConfig, ClipVisionConfig};
 use transsplat_models::clipseg::{ClipSeg, ClipSegConfig, ClipSegProcessorConfig};
 use transsplat_models::dinov2::{Dinov2, Dinov2Config};
+use transsplat_models::sam::{PointLabel, Prompt, Sam, SamConfig};
 use transsplat_models::weights::random_weights;
 use transsplat_models::Error;
 
@@ -20,13 +21,17 @@ pub struct Case {
     pub run: fn(&Device) -> Result<f64, Error>,
 }
 
-/// Every model case (CLIP, CLIPSeg and DINOv2; the InstructPix2Pix cases join this list).
+/// Every model case (CLIP, CLIPSeg, SAM and DINOv2; the InstructPix2Pix cases join this list).
 pub fn cases() -> Vec<Case> {
     vec![
         Case { name: "clip-vit-l14 image 224", run: clip_image },
         Case { name: "clip-vit-l14 text 77", run: clip_text },
         Case { name: "clipseg-rd64-refined segment 256x256", run: |d| clipseg(d, 256) },
         Case { name: "clipseg-rd64-refined segment 512x512", run: |d| clipseg(d, 512) },
+        Case { name: "slimsam-uniform-77 segment 256x256", run: |d| sam(d, Some((168, 696)), 256) },
+        Case { name: "slimsam-uniform-77 segment 512x512", run: |d| sam(d, Some((168, 696)), 512) },
+        Case { name: "sam-vit-base segment 256x256", run: |d| sam(d, None, 256) },
+        Case { name: "sam-vit-base segment 512x512", run: |d| sam(d, None, 512) },
         Case { name: "dinov2-small 256x256", run: |d| dinov2(d, 384, 6, 256) },
         Case { name: "dinov2-small 512x512", run: |d| dinov2(d, 384, 6, 512) },
         Case { name: "dinov2-base 256x256", run: |d| dinov2(d, 768, 12, 256) },
@@ -152,4 +157,25 @@ fn clipseg(device: &Device, size: usize) -> Result<f64, Error> {
     let model = ClipSeg::new(vb, config, processor, path)?;
     let img: Vec<f32> = (0..size * size * 3).map(|i| (i % 253) as f32 / 253.0).collect();
     time(|| model.segment(&img, size, size, "the bear statue"))
+}
+
+/// One SAM `segment` call on a `size`² view with a box and a point (resize to 1024², the
+/// ViT encoder, the decoder, the mask resized back): `facebook/sam-vit-base`'s config
+/// (transformers' defaults), or SlimSAM's pruned vision widths `(hidden_size, mlp_dim)`
+/// (`Zigeng/SlimSAM-uniform-77`: 168, 696).
+fn sam(device: &Device, slim: Option<(usize, usize)>, size: usize) -> Result<f64, Error> {
+    let mut config = SamConfig::default();
+    if let Some((hidden, mlp)) = slim {
+        config.vision_config.hidden_size = hidden;
+        config.vision_config.mlp_dim = Some(mlp);
+    }
+    let vb = random_weights(device, |vb| Sam::new(vb, config.clone()).map(|_| ()).map_err(Error::from))?;
+    let model = Sam::new(vb, config)?;
+    let img: Vec<f32> = (0..size * size * 3).map(|i| (i % 253) as f32 / 253.0).collect();
+    let q = size as f32 / 4.0;
+    let prompt = Prompt {
+        points: vec![([2.0 * q, 2.0 * q], PointLabel::Positive)],
+        bbox: Some([q, q, 3.0 * q, 3.0 * q]),
+    };
+    time(|| model.segment(&img, size, size, &prompt))
 }

@@ -62,7 +62,7 @@ enum BenchCommand {
     Transport(commands::uot::BenchArgs),
     /// Rasterizer: forward, backward and splat-back on a synthetic scene.
     Raster(commands::bench::RasterArgs),
-    /// Models: CLIP and DINOv2 forward passes at the real sizes (random weights).
+    /// Models: CLIP, CLIPSeg, SAM, DINOv2 and InstructPix2Pix forward passes at the real sizes (random weights).
     Models(commands::bench::ModelsArgs),
     /// Training: time per step (render, loss, backward, Adam) against forward + backward.
     Train(commands::train::BenchArgs),

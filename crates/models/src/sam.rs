@@ -338,7 +338,7 @@ impl VisionAttention {
             let k = k.narrow(0, start, len)?.contiguous()?;
             let mut scores = (&q * scale)?.matmul(&k.t()?)?;
             if let Some((th, tw)) = &tables {
-                scores = (scores + decomposed_rel_pos(&q, th, tw, h, w)?)?;
+                scores = add_decomposed_rel_pos(scores, &q, th, tw, h, w)?;
             }
             let probs = softmax_last_dim(&scores)?;
             outputs.push(probs.matmul(&v.narrow(0, start, len)?.contiguous()?)?);
@@ -348,15 +348,20 @@ impl VisionAttention {
     }
 }
 
-/// q_p·R_h[p_y − q_y] + q_p·R_w[p_x − q_x] for every query p and key q: `[n, hw, hw]` from
-/// the queries `[n, hw, d]` and the tables `[h, h, d]`, `[w, w, d]` of [`rel_pos_table`].
-fn decomposed_rel_pos(
+/// Adds q_p·R_h[p_y − q_y] + q_p·R_w[p_x − q_x] to the scores `[n, hw, hw]` of every query
+/// p and key q, from the queries `[n, hw, d]` and the tables `[h, h, d]`, `[w, w, d]` of
+/// [`rel_pos_table`]. The two products are `[n, hw, h]` and `[n, hw, w]`; their sum over
+/// the key grid is written straight into the scores (a broadcast add over five axes
+/// would walk the scores one element at a time).
+fn add_decomposed_rel_pos(
+    scores: Tensor,
     q: &Tensor,
     th: &Tensor,
     tw: &Tensor,
     h: usize,
     w: usize,
 ) -> candle_core::Result<Tensor> {
+    use rayon::prelude::*;
     let (n, _, d) = q.dims3()?;
     let q = q.reshape((n, h, w, d))?;
     // rel_h[n, y, x, k] = Σ_c q[n, y, x, c] th[y, k, c]: one product per query row y.
@@ -365,8 +370,21 @@ fn decomposed_rel_pos(
     // rel_w[n, y, x, k] = Σ_c q[n, y, x, c] tw[x, k, c]: one product per query column x.
     let by_column = q.permute((2, 0, 1, 3))?.reshape((w, n * h, d))?;
     let rel_w = by_column.matmul(&tw.transpose(1, 2)?)?.reshape((w, n, h, w))?.permute((1, 2, 0, 3))?;
-    let sum = rel_h.unsqueeze(4)?.broadcast_add(&rel_w.unsqueeze(3)?)?;
-    sum.reshape((n, h * w, h * w))
+    let rel_h = rel_h.flatten_all()?.to_vec1::<f32>()?;
+    let rel_w = rel_w.flatten_all()?.to_vec1::<f32>()?;
+    let device = scores.device().clone();
+    let mut data = scores.flatten_all()?.to_vec1::<f32>()?;
+    let hw = h * w;
+    data.par_chunks_mut(hw).enumerate().for_each(|(row, keys)| {
+        // row = query (n, y, x); keys in (ky, kx) order.
+        let (rh, rw) = (&rel_h[row * h..(row + 1) * h], &rel_w[row * w..(row + 1) * w]);
+        for (ky, line) in keys.chunks_exact_mut(w).enumerate() {
+            for (s, r) in line.iter_mut().zip(rw) {
+                *s += rh[ky] + r;
+            }
+        }
+    });
+    Tensor::from_vec(data, (n, hw, hw), &device)
 }
 
 #[derive(Debug)]
