@@ -6,7 +6,8 @@ What every editor built on `ShardEditor` guarantees:
 
 - one pipeline call per shard (the views transsplat or a Ray actor hands it), so a GPU
   edits the shard as one batch; views of different sizes are grouped by working size,
-  one call per group;
+  one call per group, and `max_batch` caps a call's views (`transsplat.edit` hands the
+  editor all its views at once: a whole scene at ~1024² can exceed a GPU's memory);
 - each view gets its own `torch.Generator`, seeded from the editor's seed and the
   view's index, and the generators go to the pipeline as a list (one per batch entry):
   a view's edit does not depend on which shard it came in or where in it, which is
@@ -97,6 +98,8 @@ def load_pipeline(pipeline_class, weights, device=None, offload=None):
 class ShardEditor:
     """A transsplat editor callable ``editor(views, prompt)`` around a diffusers pipeline.
 
+    `max_batch` (None: no cap) is the most views one pipeline call gets.
+
     Subclasses implement ``edit_batch(images, prompt, generators, size)``: one pipeline
     call on `images` (B, 3, h, w) in [0, 1] at the working size `size` = (h, w), with one
     generator per image, returning (B, 3, h, w) in [0, 1].
@@ -108,8 +111,9 @@ class ShardEditor:
     edits agree).
     """
 
-    def __init__(self, pipe, seed, size, multiple):
+    def __init__(self, pipe, seed, size, multiple, max_batch=None):
         self.pipe, self.seed, self.size, self.multiple = pipe, seed, size, multiple
+        self.max_batch = max_batch
 
     def edit_batch(self, images, prompt, generators, size):
         raise NotImplementedError
@@ -120,10 +124,13 @@ class ShardEditor:
             groups.setdefault(working_size(v.height, v.width, self.size, self.multiple), []).append(i)
         out = [None] * len(views)
         for size, members in groups.items():
-            shard = [views[i] for i in members]
-            generators = [view_generator(self.seed, v) for v in shard]
-            with torch.inference_mode():
-                edited = self.edit_batch(resize_views(shard, size), prompt, generators, size)
-            for i, image in zip(members, resize_back(edited, shard)):
-                out[i] = image
+            step = self.max_batch or len(members)
+            for start in range(0, len(members), step):
+                batch = members[start:start + step]
+                shard = [views[i] for i in batch]
+                generators = [view_generator(self.seed, v) for v in shard]
+                with torch.inference_mode():
+                    edited = self.edit_batch(resize_views(shard, size), prompt, generators, size)
+                for i, image in zip(batch, resize_back(edited, shard)):
+                    out[i] = image
         return out

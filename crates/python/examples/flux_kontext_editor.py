@@ -47,15 +47,16 @@ class FluxKontextEditor(ShardEditor):
         steps: denoising steps (the pipeline's default, 28).
         guidance: the distilled guidance scale (2.5 in the model card).
         size: the working size, about size × size pixels at the render's aspect.
+        max_batch: the most views one pipeline call gets (None: the whole shard).
     """
 
     def __init__(self, weights=None, device=None, offload=None, seed=0, steps=28, guidance=2.5, size=1024,
-                 pipeline=None):
+                 max_batch=None, pipeline=None):
         if (weights is None) == (pipeline is None):
             raise ValueError("give either weights (a model folder) or pipeline (a FluxKontextPipeline)")
         pipe = pipeline if pipeline is not None else load_pipeline(FluxKontextPipeline, weights, device, offload)
         # Latents are 2 × 2 patches of the VAE's 8× downsampled image: sizes are multiples of 16.
-        super().__init__(pipe, seed=seed, size=size, multiple=pipe.vae_scale_factor * 2)
+        super().__init__(pipe, seed=seed, size=size, multiple=pipe.vae_scale_factor * 2, max_batch=max_batch)
         self.steps, self.guidance = steps, guidance
 
     @classmethod
@@ -87,11 +88,14 @@ def main():
     ap.add_argument("--guidance", type=float, default=2.5)
     ap.add_argument("--size", type=int, default=1024, help="working size: about SIZE x SIZE pixels")
     ap.add_argument("--offload", choices=["model", "sequential"], help="CPU offload, for GPUs under ~34 GB")
+    ap.add_argument("--max-batch", type=int, default=4,
+                    help="views per pipeline call (transsplat.edit hands the editor all its views at once)")
     ap.add_argument("--device", help="default: cuda when available")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     editor = FluxKontextEditor(args.weights, device=args.device, offload=args.offload, seed=args.seed,
-                               steps=args.edit_steps, guidance=args.guidance, size=args.size)
+                               steps=args.edit_steps, guidance=args.guidance, size=args.size,
+                               max_batch=args.max_batch)
     r = transsplat.edit(args.scene, args.cameras, args.prompt, editor, steps=args.steps, out=args.out,
                         views=args.views)
     print(f"edited {len(r['gaussians']['means'])} Gaussians; wrote {r['out']}")

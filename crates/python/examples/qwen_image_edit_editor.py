@@ -53,16 +53,18 @@ class QwenImageEditor(ShardEditor):
         size: the output's working size, about size × size pixels at the render's
             aspect. The pipeline always gives the Qwen2.5-VL encoder and the VAE the
             input image at about 1024² whatever this is.
+        max_batch: the most views one pipeline call gets (None: the whole shard).
     """
 
     def __init__(self, weights=None, device=None, offload=None, seed=0, steps=50, true_cfg_scale=4.0,
-                 negative_prompt=" ", size=1024, pipeline=None):
+                 negative_prompt=" ", size=1024, max_batch=None, pipeline=None):
         if (weights is None) == (pipeline is None):
             raise ValueError("give either weights (a model folder) or pipeline (a QwenImageEditPipeline)")
         pipe = pipeline if pipeline is not None else load_pipeline(QwenImageEditPipeline, weights, device, offload)
         # The pipeline rounds its input image to multiples of 32 (and latents need 2 × 2
         # patches of the VAE's grid): with the same rounding our resize is the only one.
-        super().__init__(pipe, seed=seed, size=size, multiple=max(32, pipe.vae_scale_factor * 2))
+        super().__init__(pipe, seed=seed, size=size, multiple=max(32, pipe.vae_scale_factor * 2),
+                         max_batch=max_batch)
         self.steps, self.true_cfg_scale, self.negative_prompt = steps, true_cfg_scale, negative_prompt
 
     @classmethod
@@ -96,11 +98,14 @@ def main():
     ap.add_argument("--true-cfg-scale", type=float, default=4.0)
     ap.add_argument("--size", type=int, default=1024, help="working size: about SIZE x SIZE pixels")
     ap.add_argument("--offload", choices=["model", "sequential"], help="CPU offload, for GPUs under ~58 GB")
+    ap.add_argument("--max-batch", type=int, default=4,
+                    help="views per pipeline call (transsplat.edit hands the editor all its views at once)")
     ap.add_argument("--device", help="default: cuda when available")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     editor = QwenImageEditor(args.weights, device=args.device, offload=args.offload, seed=args.seed,
-                             steps=args.edit_steps, true_cfg_scale=args.true_cfg_scale, size=args.size)
+                             steps=args.edit_steps, true_cfg_scale=args.true_cfg_scale, size=args.size,
+                             max_batch=args.max_batch)
     r = transsplat.edit(args.scene, args.cameras, args.prompt, editor, steps=args.steps, out=args.out,
                         views=args.views)
     print(f"edited {len(r['gaussians']['means'])} Gaussians; wrote {r['out']}")
