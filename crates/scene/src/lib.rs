@@ -5,6 +5,8 @@
 //! - [`Camera`]: pinhole cameras in the OpenCV convention, read from INRIA
 //!   `cameras.json`, COLMAP `sparse/0` and nerfstudio / Blender `transforms.json`
 //!   ([`cameras`]).
+//! - [`formats`]: the scene formats (INRIA PLY, compressed PLY, SPZ, glTF) and the
+//!   one place that picks between them.
 //! - [`npy`]: numpy `.npy` arrays (float32 in and out).
 //! - [`image`]: PNG and JPEG images as float RGB in [0, 1].
 //! - [`scene_paths`]: finding the scene and cameras in an INRIA 3DGS output folder.
@@ -25,6 +27,7 @@ pub mod error;
 pub mod fingerprint;
 pub mod formats;
 pub mod gaussians;
+pub mod gltf;
 pub mod image;
 pub mod npy;
 pub mod ply;
