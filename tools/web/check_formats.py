@@ -13,6 +13,10 @@
    COLOR_0 to linear as the extension asks); our reader reads its file, and that
    scene renders at the original's PSNR. headless Chromium draws our file with the
    PlayCanvas engine (gltf_test.mjs).
+5. SOG: splat-transform reads our .sog (count, its plain-PLY rewrite renders within the
+   format's quantisation, as in 2-3); our reader reads splat-transform's own .sog of the
+   same PLY, which renders at a stated PSNR too (the two writers' codebooks and palettes
+   differ; the format fixes only how they are read). Sizes of both are printed.
 
 Usage: python check_formats.py BIN SPLAT_TRANSFORM WORKDIR. Exits non-zero on failure.
 """
@@ -124,6 +128,13 @@ def main():
     ours_c = os.path.join(work, "ours.compressed.ply")
     ours_s = os.path.join(work, "ours.spz")
     ours_g = os.path.join(work, "ours.glb")
+    ours_sog = os.path.join(work, "ours.sog")
+    run(bin_, "convert", src, ours_sog)
+    theirs_sog = os.path.join(work, "theirs.sog")
+    # SH k-means on the CPU (-g cpu): no GPU here.
+    run(st, "-w", "-g", "cpu", src, theirs_sog)
+    for name, path in [("ours", ours_sog), ("splat-transform's", theirs_sog)]:
+        print(f"SOG ({name}): {os.path.getsize(path) / count:.2f} bytes a Gaussian")
     run(bin_, "convert", src, ours_c)
     run(bin_, "convert", src, ours_s)
     run(bin_, "convert", src, ours_g)
@@ -148,7 +159,7 @@ def main():
         print(f"glTF ({name}): {n} Gaussians, {os.path.getsize(path) / n:.1f} bytes a Gaussian")
 
     renders = {}
-    for name, path, floor in [("compressed PLY", ours_c, 45.0), ("SPZ", ours_s, 42.0)]:
+    for name, path, floor in [("compressed PLY", ours_c, 45.0), ("SPZ", ours_s, 42.0), ("SOG", ours_sog, 38.0)]:
         n = row_count(st, path)
         back = os.path.join(work, f"st_{os.path.basename(path)}.ply")
         run(st, "-w", path, back)
@@ -156,13 +167,18 @@ def main():
         run(bin_, "render", "--scene", back, "--cameras", os.path.join(ds, "cameras.json"), "--out", out, "--raw")
         renders[name] = (out, n, floor)
     # glTF: read back by our reader (splat-transform has no glb input), ours and theirs.
-    for name, path in [("glTF (ours, our reader)", ours_g), ("glTF (splat-transform's, our reader)", theirs_g)]:
+    # and splat-transform's SOG read by our reader.
+    for name, path, floor in [
+        ("glTF (ours, our reader)", ours_g, 90.0),
+        ("glTF (splat-transform's, our reader)", theirs_g, 90.0),
+        ("SOG (splat-transform's, our reader)", theirs_sog, 38.0),
+    ]:
         back = os.path.join(work, f"back_{os.path.basename(path)}.ply")
         run(bin_, "convert", path, back)
         n = int(re.search(r"gaussians\s+([0-9]+)", run(bin_, "info", back)).group(1))
         out = os.path.join(work, f"r_{os.path.basename(path)}")
         run(bin_, "render", "--scene", back, "--cameras", os.path.join(ds, "cameras.json"), "--out", out, "--raw")
-        renders[name] = (out, n, 90.0)
+        renders[name] = (out, n, floor)
     ref = os.path.join(work, "r_src")
     run(bin_, "render", "--scene", src, "--cameras", os.path.join(ds, "cameras.json"), "--out", ref, "--raw")
     for name, (out, n, floor) in renders.items():

@@ -12,7 +12,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use transsplat_raster::synthetic as bench;
-use transsplat_scene::{cameras, gltf, npy, ply, spz, Camera, Gaussians};
+use transsplat_scene::{cameras, gltf, npy, ply, sog, spz, Camera, Gaussians};
 
 // ---------------------------------------------------------------------------------
 // The table
@@ -700,6 +700,9 @@ fn cases() -> Vec<Case> {
         Case::new("convert: .glb without KHR_gaussian_splatting", "convert {d}/in/scene.glb {d}/out.ply")
             .file("in/scene.glb", glb_without_extension())
             .expect(&["scene.glb", "no mesh primitive has the KHR_gaussian_splatting extension"]),
+        Case::new("convert: truncated .sog", "convert {d}/in/scene.sog {d}/out.ply")
+            .file("in/scene.sog", truncated(sog::to_bytes(&scene()), 100))
+            .expect(&["scene.sog", "SOG", "not a valid zip bundle"]),
         Case::new("convert: compressed PLY with too few chunks", "convert {d}/in/scene.ply {d}/out.ply")
             .file("in/scene.ply", compressed_too_few_chunks())
             .expect(&["scene.ply", "chunks for"]),

@@ -1,10 +1,11 @@
 //! The scene file formats and the one place that picks between them: the INRIA PLY
 //! ([`crate::ply`]), the PlayCanvas compressed PLY ([`crate::ply::compressed`]),
-//! Niantic's SPZ ([`crate::spz`]) and glTF binary with `KHR_gaussian_splatting`
-//! ([`crate::gltf`]). Reading recognises the format from the file's first bytes;
-//! writing takes it from the name (`.spz`, `.compressed.ply`, `.ply`, `.glb`) or a flag.
+//! Niantic's SPZ ([`crate::spz`]), glTF binary with `KHR_gaussian_splatting`
+//! ([`crate::gltf`]) and PlayCanvas SOG ([`crate::sog`]). Reading recognises the
+//! format from the file's first bytes; writing takes it from the name (`.spz`,
+//! `.compressed.ply`, `.ply`, `.glb`, `.sog`) or a flag.
 
-use crate::{atomic, gltf, ply, spz, Error, Gaussians, Result};
+use crate::{atomic, gltf, ply, sog, spz, Error, Gaussians, Result};
 use std::path::Path;
 
 /// A scene file format.
@@ -20,12 +21,15 @@ pub enum SceneFormat {
     /// glTF 2.0 binary with the Khronos `KHR_gaussian_splatting` extension: float32
     /// attributes, glTF's axes.
     Glb,
+    /// PlayCanvas SOG: lossless WebP textures and codebooks in a zip bundle, about 5 to
+    /// 10 bytes a Gaussian.
+    Sog,
 }
 
 impl SceneFormat {
     /// Every format, for messages.
-    pub const ALL: [SceneFormat; 4] =
-        [SceneFormat::Ply, SceneFormat::CompressedPly, SceneFormat::Spz, SceneFormat::Glb];
+    pub const ALL: [SceneFormat; 5] =
+        [SceneFormat::Ply, SceneFormat::CompressedPly, SceneFormat::Spz, SceneFormat::Glb, SceneFormat::Sog];
 
     /// The format's flag name.
     pub fn name(self) -> &'static str {
@@ -34,6 +38,7 @@ impl SceneFormat {
             SceneFormat::CompressedPly => "compressed-ply",
             SceneFormat::Spz => "spz",
             SceneFormat::Glb => "glb",
+            SceneFormat::Sog => "sog",
         }
     }
 
@@ -44,6 +49,7 @@ impl SceneFormat {
             SceneFormat::CompressedPly => ".compressed.ply",
             SceneFormat::Spz => ".spz",
             SceneFormat::Glb => ".glb",
+            SceneFormat::Sog => ".sog",
         }
     }
 
@@ -88,6 +94,9 @@ pub fn read_with(path: &Path, options: &ReadOptions) -> Result<(Gaussians, usize
         // Every SPZ value is decoded from bytes into a finite number: nothing to drop.
         return Ok((spz::parse_with(&bytes, path, options.spz_axes)?, 0));
     }
+    if sog::looks_like(&bytes) {
+        return screen_invalid(sog::parse(&bytes, path)?, path, options.drop_invalid);
+    }
     if gltf::looks_like(&bytes) {
         return screen_invalid(gltf::parse(&bytes, path)?, path, options.drop_invalid);
     }
@@ -131,5 +140,6 @@ pub fn write_with(path: &Path, g: &Gaussians, format: SceneFormat, options: &Wri
         SceneFormat::Spz => spz::write_with(path, g, &options.spz),
         SceneFormat::CompressedPly => ply::compressed::write(path, g),
         SceneFormat::Glb => gltf::write(path, g),
+        SceneFormat::Sog => sog::write(path, g),
     }
 }

@@ -5,7 +5,7 @@
 //! - [`Camera`]: pinhole cameras in the OpenCV convention, read from INRIA
 //!   `cameras.json`, COLMAP `sparse/0` and nerfstudio / Blender `transforms.json`
 //!   ([`cameras`]).
-//! - [`formats`]: the scene formats (INRIA PLY, compressed PLY, SPZ, glTF) and the
+//! - [`formats`]: the scene formats (INRIA PLY, compressed PLY, SPZ, glTF, SOG) and the
 //!   one place that picks between them.
 //! - [`npy`]: numpy `.npy` arrays (float32 in and out).
 //! - [`image`]: PNG and JPEG images as float RGB in [0, 1].
@@ -34,6 +34,7 @@ pub mod ply;
 pub mod resample;
 pub mod rng;
 pub mod scene_paths;
+pub mod sog;
 pub mod spz;
 
 pub use camera::Camera;

@@ -1,5 +1,5 @@
 //! `transsplat convert`: a scene from one file format to another (INRIA PLY,
-//! PlayCanvas compressed PLY, SPZ, glTF binary), and optionally its cameras to INRIA cameras.json.
+//! PlayCanvas compressed PLY, SPZ, glTF binary, SOG), and optionally its cameras to INRIA cameras.json.
 
 use super::common::{check_output, load_cameras, load_scene, SceneArgs, SpzWriteArgs};
 use anyhow::{bail, Result};
@@ -10,13 +10,13 @@ use transsplat_scene::spz;
 /// Arguments of `transsplat convert`.
 #[derive(clap::Args, Debug)]
 pub struct ConvertArgs {
-    /// Input scene: a PLY (INRIA or compressed), an .spz or .glb file or an INRIA output
-    /// folder.
+    /// Input scene: a PLY (INRIA or compressed), an .spz, .glb or .sog file or an INRIA
+    /// output folder.
     pub input: PathBuf,
     /// Output scene file; its format follows from the name (.spz, .compressed.ply, .ply,
-    /// .glb) unless --format is given.
+    /// .glb, .sog) unless --format is given.
     pub output: PathBuf,
-    /// Output format: ply, compressed-ply, spz or glb.
+    /// Output format: ply, compressed-ply, spz, glb or sog.
     #[arg(long, value_parser = SceneFormat::parse)]
     pub format: Option<SceneFormat>,
     /// Drop Gaussians with NaN or infinite parameters instead of refusing the file.
