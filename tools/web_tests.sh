@@ -2,7 +2,8 @@
 # The checks that need web tools, run by .ci/run after the Python tests:
 #  - tools/web/check_formats.py: PlayCanvas splat-transform (npm) reads our compressed
 #    PLY and SPZ files as the same scene (count, renders), and writes the same
-#    compressed PLY body as we do; its .glb matches ours attribute by attribute;
+#    compressed PLY body as we do; its .glb matches ours attribute by attribute; it
+#    reads our .sog and we read its .sog;
 #  - tools/web/gltf_test.mjs: the PlayCanvas engine draws our .glb
 #    (KHR_gaussian_splatting) in headless Chromium where transsplat renders the scene;
 #  - tools/web/viewer_test.mjs: the 3D viewer of an edit's report.html in headless

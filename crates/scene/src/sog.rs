@@ -42,7 +42,7 @@ const KMEANS_ITERATIONS: usize = 12;
 const PALETTE_ROW: usize = 64;
 /// Most Gaussians a file may declare per byte of the file: a real SOG takes several bytes
 /// a Gaussian, so this only bounds what a short file can make the reader allocate.
-const MAX_POINTS_PER_BYTE: u64 = 256;
+const MAX_POINTS_PER_BYTE: u64 = 64;
 /// The zip bundle's magic.
 const ZIP_MAGIC: &[u8; 4] = b"PK\x03\x04";
 
