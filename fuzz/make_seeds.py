@@ -312,3 +312,85 @@ for kind, name, cfg in [(0, "dinov2", fixture("dinov2/config.json")), (1, "clip_
 put("model_config", "dinov2_zero_heads", b"\x00" + json.dumps(dict(fixture("dinov2/config.json"), num_attention_heads=0)).encode())
 put("model_config", "unet_zero_groups", b"\x04" + json.dumps(dict(fixture("ip2p/unet/config.json"), norm_num_groups=0)).encode())
 put("model_config", "vae_many_blocks", b"\x05" + json.dumps(dict(fixture("ip2p/vae/config.json"), block_out_channels=[8] * 70)).encode())
+
+# ---------------------------------------------------------------- glTF (KHR_gaussian_splatting)
+GS = "KHR_gaussian_splatting"
+
+
+def glb(n, degree=1, opacity_u8=False, stride=False, count=None, ext=True, mode=0):
+    """A .glb of n Gaussians: one tightly packed float view per attribute (or, with
+    stride, POSITION and SCALE interleaved in one view), opacity as float or
+    normalised bytes."""
+    attrs = [("POSITION", "VEC3", 3), (f"{GS}:ROTATION", "VEC4", 4), (f"{GS}:SCALE", "VEC3", 3),
+             (f"{GS}:OPACITY", "SCALAR", 1)]
+    attrs += [(f"{GS}:SH_DEGREE_{l}_COEF_{c}", "VEC3", 3) for l in range(degree + 1) for c in range(2 * l + 1)]
+    binary, views, accessors, names = b"", [], [], {}
+    for k, (name, kind, comps) in enumerate(attrs):
+        if name.endswith("ROTATION"):
+            vals = [0.0, 0.0, 0.0, 1.0] * n
+        elif name.endswith("SCALE"):
+            vals = [0.01 * (i + 1) for i in range(n * 3)]
+        elif name.endswith("OPACITY"):
+            vals = [0.5] * n
+        else:
+            vals = [0.1 * i - 0.2 * k for i in range(n * comps)]
+        if opacity_u8 and name.endswith("OPACITY"):
+            data, ctype, norm = bytes(128 for _ in range(n)), 5121, True
+        else:
+            data, ctype, norm = struct.pack(f"<{len(vals)}f", *vals), 5126, False
+        views.append({"buffer": 0, "byteOffset": len(binary), "byteLength": len(data)})
+        binary += data + b"\0" * (-len(data) % 4)
+        acc = {"bufferView": k, "componentType": ctype, "count": n if count is None else count, "type": kind}
+        if norm:
+            acc["normalized"] = True
+        if name == "POSITION":
+            acc["min"], acc["max"] = [min(vals[a::3]) for a in range(3)], [max(vals[a::3]) for a in range(3)]
+        accessors.append(acc)
+        names[name] = k
+    if stride:
+        # POSITION and SCALE interleaved, 24 bytes an element.
+        pos = struct.unpack(f"<{3 * n}f", binary[views[0]["byteOffset"]:][:12 * n])
+        sc = [0.01] * (3 * n)
+        inter = b"".join(struct.pack("<6f", *pos[3 * i:3 * i + 3], *sc[3 * i:3 * i + 3]) for i in range(n))
+        views.append({"buffer": 0, "byteOffset": len(binary), "byteLength": len(inter), "byteStride": 24})
+        binary += inter
+        accessors[0]["bufferView"] = len(views) - 1
+        accessors[2] = {"bufferView": len(views) - 1, "byteOffset": 12, "componentType": 5126, "count": n, "type": "VEC3"}
+    prim = {"attributes": names, "mode": mode}
+    if ext:
+        prim["extensions"] = {GS: {"kernel": "ellipse", "colorSpace": "srgb_rec709_display"}}
+    doc = {"asset": {"version": "2.0"}, "extensionsUsed": [GS], "scene": 0, "scenes": [{"nodes": [0]}],
+           "nodes": [{"mesh": 0}], "meshes": [{"primitives": [prim]}], "accessors": accessors,
+           "bufferViews": views, "buffers": [{"byteLength": len(binary)}]}
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    total = 12 + 8 + len(js) + 8 + len(binary)
+    return (b"glTF" + struct.pack("<III", 2, total, len(js)) + b"JSON" + js
+            + struct.pack("<I", len(binary)) + b"BIN\0" + binary)
+
+
+put("gltf", "sh1.glb", glb(3))
+put("gltf", "sh3.glb", glb(2, degree=3))
+put("gltf", "sh0_u8_opacity.glb", glb(4, degree=0, opacity_u8=True))
+put("gltf", "interleaved.glb", glb(3, degree=0, stride=True))
+put("gltf", "lying_count.glb", glb(2, degree=0, count=1 << 30))
+put("gltf", "no_extension.glb", glb(2, degree=0, ext=False))
+put("gltf", "triangles.glb", glb(2, degree=0, mode=4))
+put("gltf", "truncated.glb", glb(3)[:-7])
+
+# ---------------------------------------------------------------- SOG
+# Mode bytes (fuzz_targets/sog.rs): 1 and 2 build a bundle from floats (degree = mode / 3
+# % 4), 0 parses the rest as a file (the fuzzer finds zips from modes 1 and 2's paths).
+def sog_floats(n, degree):
+    per = 11 + 3 * (degree + 1) ** 2
+    vals = []
+    for i in range(n):
+        r = [0.1 * i, -0.2 * i, 0.05 * i, -3.0, -3.5, -4.0, 1.0, 0.1 * i, 0.0, 0.0, 0.5 - 0.1 * i]
+        vals += r + [0.01 * (j - i) for j in range(per - 11)]
+    return struct.pack(f"<{len(vals)}f", *vals)
+
+
+put("sog", "build_sh0", bytes([1]) + sog_floats(5, 0))
+put("sog", "build_sh1", bytes([4]) + sog_floats(4, 1))
+put("sog", "build_sh3_mutate", bytes([11]) + struct.pack("<IBBBB", 40, 6, 255, 0, 0) + sog_floats(3, 3))
+put("sog", "zip_garbage", b"\0PK\x03\x04\x14\0\0\0\0\0")

@@ -2,7 +2,10 @@
 # The checks that need web tools, run by .ci/run after the Python tests:
 #  - tools/web/check_formats.py: PlayCanvas splat-transform (npm) reads our compressed
 #    PLY and SPZ files as the same scene (count, renders), and writes the same
-#    compressed PLY body as we do;
+#    compressed PLY body as we do; its .glb matches ours attribute by attribute; it
+#    reads our .sog and we read its .sog;
+#  - tools/web/gltf_test.mjs: the PlayCanvas engine draws our .glb
+#    (KHR_gaussian_splatting) in headless Chromium where transsplat renders the scene;
 #  - tools/web/viewer_test.mjs: the 3D viewer of an edit's report.html in headless
 #    Chromium (Debian's package) against transsplat's own renders, the before/after
 #    toggle and split, frame times on a 500k-Gaussian page, the no-WebGL message.
@@ -34,6 +37,10 @@ mkdir -p "$work"
 
 echo "== scene formats against splat-transform"
 "$python" tools/web/check_formats.py "$bin" tools/web/node_modules/.bin/splat-transform "$work/formats"
+
+echo "== our glTF drawn by the PlayCanvas engine in headless Chromium"
+node tools/web/gltf_test.mjs "$work/formats/ours.glb" "$work/formats/ds/cameras.json" \
+    "$work/formats/r_src/view_000.png" "$work/shots"
 
 echo "== the 3D viewer in headless Chromium"
 "$bin" scene tabletop --quick --out "$work/ds" 2>/dev/null

@@ -12,7 +12,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use transsplat_raster::synthetic as bench;
-use transsplat_scene::{cameras, npy, ply, spz, Camera, Gaussians};
+use transsplat_scene::{cameras, gltf, npy, ply, sog, spz, Camera, Gaussians};
 
 // ---------------------------------------------------------------------------------
 // The table
@@ -694,6 +694,15 @@ fn cases() -> Vec<Case> {
         Case::new("convert: .spz declaring 2^31 Gaussians", "convert {d}/in/scene.spz {d}/out.ply")
             .file("in/scene.spz", spz_lying_count())
             .expect(&["scene.spz", "more than the limit"]),
+        Case::new("convert: truncated .glb", "convert {d}/in/scene.glb {d}/out.ply")
+            .file("in/scene.glb", truncated(gltf::to_bytes(&scene()), 40))
+            .expect(&["scene.glb", "glTF", "the header gives a length"]),
+        Case::new("convert: .glb without KHR_gaussian_splatting", "convert {d}/in/scene.glb {d}/out.ply")
+            .file("in/scene.glb", glb_without_extension())
+            .expect(&["scene.glb", "no mesh primitive has the KHR_gaussian_splatting extension"]),
+        Case::new("convert: truncated .sog", "convert {d}/in/scene.sog {d}/out.ply")
+            .file("in/scene.sog", truncated(sog::to_bytes(&scene()), 100))
+            .expect(&["scene.sog", "SOG", "not a valid zip bundle"]),
         Case::new("convert: compressed PLY with too few chunks", "convert {d}/in/scene.ply {d}/out.ply")
             .file("in/scene.ply", compressed_too_few_chunks())
             .expect(&["scene.ply", "chunks for"]),
@@ -722,6 +731,17 @@ fn cases() -> Vec<Case> {
 }
 
 /// A gzip SPZ whose header claims 2^31 Gaussians.
+/// A GLB whose extension name is misspelt (same length, so the container stays valid):
+/// a point cloud to any reader, not splats.
+fn glb_without_extension() -> Vec<u8> {
+    let mut b = gltf::to_bytes(&scene());
+    let (from, to) = (b"KHR_gaussian_splatting\"", b"KHR_gaussian_splattinX\"");
+    while let Some(at) = b.windows(from.len()).position(|w| w == from) {
+        b[at..at + from.len()].copy_from_slice(to);
+    }
+    b
+}
+
 fn spz_lying_count() -> Vec<u8> {
     use std::io::Write;
     let mut raw = Vec::new();

@@ -30,8 +30,12 @@ fn convert_round_trips_every_format_within_its_quantisation() {
     let g = formats::read(&src).unwrap();
     let cams = cameras::load(&ds.join("cameras.json")).unwrap();
     // PSNR floors: float32 PLY is exact; the 8-bit colour of the compressed formats
-    // bounds them (measured 52 dB compressed PLY, 48.7 dB SPZ on the default tabletop).
-    for (name, floor) in [("a.ply", 119.0), ("a.compressed.ply", 45.0), ("a.spz", 42.0)] {
+    // bounds them (measured 52 dB compressed PLY, 48.7 dB SPZ on the default tabletop);
+    // glTF holds float32 (only scale and opacity pass through exp / sigmoid and back);
+    // SOG's 16-bit centres and codebooks (measured 61.6 dB on the default tabletop).
+    for (name, floor) in
+        [("a.ply", 119.0), ("a.compressed.ply", 45.0), ("a.spz", 42.0), ("a.glb", 100.0), ("a.sog", 38.0)]
+    {
         let out = d.path().join(name);
         ok(&bin().arg("convert").arg(&src).arg(&out).output().unwrap());
         let back = formats::read(&out).unwrap();

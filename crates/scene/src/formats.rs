@@ -1,9 +1,11 @@
 //! The scene file formats and the one place that picks between them: the INRIA PLY
-//! ([`crate::ply`]), the PlayCanvas compressed PLY ([`crate::ply::compressed`]) and
-//! Niantic's SPZ ([`crate::spz`]). Reading recognises the format from the file's first
-//! bytes; writing takes it from the name (`.spz`, `.compressed.ply`, `.ply`) or a flag.
+//! ([`crate::ply`]), the PlayCanvas compressed PLY ([`crate::ply::compressed`]),
+//! Niantic's SPZ ([`crate::spz`]), glTF binary with `KHR_gaussian_splatting`
+//! ([`crate::gltf`]) and PlayCanvas SOG ([`crate::sog`]). Reading recognises the
+//! format from the file's first bytes; writing takes it from the name (`.spz`,
+//! `.compressed.ply`, `.ply`, `.glb`, `.sog`) or a flag.
 
-use crate::{atomic, ply, spz, Gaussians, Result};
+use crate::{atomic, gltf, ply, sog, spz, Error, Gaussians, Result};
 use std::path::Path;
 
 /// A scene file format.
@@ -14,13 +16,20 @@ pub enum SceneFormat {
     /// PlayCanvas / SuperSplat compressed PLY: about 16 bytes a Gaussian plus 1 byte per
     /// higher SH coefficient, 256-Gaussian chunks.
     CompressedPly,
-    /// Niantic SPZ version 3 (gzip).
+    /// Niantic SPZ (version 4, zstd, by default; 3, gzip).
     Spz,
+    /// glTF 2.0 binary with the Khronos `KHR_gaussian_splatting` extension: float32
+    /// attributes, glTF's axes.
+    Glb,
+    /// PlayCanvas SOG: lossless WebP textures and codebooks in a zip bundle, about 5 to
+    /// 10 bytes a Gaussian.
+    Sog,
 }
 
 impl SceneFormat {
     /// Every format, for messages.
-    pub const ALL: [SceneFormat; 3] = [SceneFormat::Ply, SceneFormat::CompressedPly, SceneFormat::Spz];
+    pub const ALL: [SceneFormat; 5] =
+        [SceneFormat::Ply, SceneFormat::CompressedPly, SceneFormat::Spz, SceneFormat::Glb, SceneFormat::Sog];
 
     /// The format's flag name.
     pub fn name(self) -> &'static str {
@@ -28,6 +37,8 @@ impl SceneFormat {
             SceneFormat::Ply => "ply",
             SceneFormat::CompressedPly => "compressed-ply",
             SceneFormat::Spz => "spz",
+            SceneFormat::Glb => "glb",
+            SceneFormat::Sog => "sog",
         }
     }
 
@@ -37,10 +48,12 @@ impl SceneFormat {
             SceneFormat::Ply => ".ply",
             SceneFormat::CompressedPly => ".compressed.ply",
             SceneFormat::Spz => ".spz",
+            SceneFormat::Glb => ".glb",
+            SceneFormat::Sog => ".sog",
         }
     }
 
-    /// The format of a flag value (`ply`, `compressed-ply`, `spz`).
+    /// The format of a flag value ([`SceneFormat::name`]).
     pub fn parse(s: &str) -> std::result::Result<Self, String> {
         Self::ALL.into_iter().find(|f| f.name() == s).ok_or_else(|| {
             format!("unknown scene format {s:?}; expected one of: {}", Self::ALL.map(Self::name).join(", "))
@@ -50,9 +63,10 @@ impl SceneFormat {
     /// The format a file name asks for, from its ending.
     pub fn of_path(path: &Path) -> Option<Self> {
         let name = path.file_name()?.to_str()?.to_ascii_lowercase();
-        [SceneFormat::CompressedPly, SceneFormat::Spz, SceneFormat::Ply]
-            .into_iter()
-            .find(|f| name.ends_with(f.extension()))
+        // The longer ending first: `.compressed.ply` also ends in `.ply`.
+        let mut all = Self::ALL;
+        all.sort_by_key(|f| std::cmp::Reverse(f.extension().len()));
+        all.into_iter().find(|f| name.ends_with(f.extension()))
     }
 }
 
@@ -80,7 +94,31 @@ pub fn read_with(path: &Path, options: &ReadOptions) -> Result<(Gaussians, usize
         // Every SPZ value is decoded from bytes into a finite number: nothing to drop.
         return Ok((spz::parse_with(&bytes, path, options.spz_axes)?, 0));
     }
+    if sog::looks_like(&bytes) {
+        return screen_invalid(sog::parse(&bytes, path)?, path, options.drop_invalid);
+    }
+    if gltf::looks_like(&bytes) {
+        return screen_invalid(gltf::parse(&bytes, path)?, path, options.drop_invalid);
+    }
     ply::parse_with(&bytes, path, &ply::ReadOptions { drop_invalid: options.drop_invalid })
+}
+
+/// Drops the Gaussians with a NaN or infinite parameter (or an all-zero rotation) when
+/// `drop` is set, else refuses the first one, naming it.
+fn screen_invalid(mut g: Gaussians, path: &Path, drop: bool) -> Result<(Gaussians, usize)> {
+    if drop {
+        let keep: Vec<bool> = (0..g.len()).map(|i| g.non_finite_at(i).is_none()).collect();
+        let dropped = keep.iter().filter(|k| !**k).count();
+        g.retain(&keep);
+        return Ok((g, dropped));
+    }
+    match g.first_non_finite() {
+        Some((i, what)) => Err(Error::format(
+            path,
+            format!("Gaussian {i} has an invalid {what} (use --drop-invalid to skip such Gaussians)"),
+        )),
+        None => Ok((g, 0)),
+    }
 }
 
 /// Reads a scene in any format.
@@ -89,7 +127,8 @@ pub fn read(path: &Path) -> Result<Gaussians> {
 }
 
 /// Writes a scene atomically in `format` (refusing NaN or infinite parameters). The
-/// compressed formats reorder the Gaussians (Morton order) and drop extra properties.
+/// compressed formats reorder the Gaussians (Morton order); every format but the PLY
+/// drops extra properties.
 pub fn write(path: &Path, g: &Gaussians, format: SceneFormat) -> Result<()> {
     write_with(path, g, format, &WriteOptions::default())
 }
@@ -100,5 +139,7 @@ pub fn write_with(path: &Path, g: &Gaussians, format: SceneFormat, options: &Wri
         SceneFormat::Ply => ply::write(path, g),
         SceneFormat::Spz => spz::write_with(path, g, &options.spz),
         SceneFormat::CompressedPly => ply::compressed::write(path, g),
+        SceneFormat::Glb => gltf::write(path, g),
+        SceneFormat::Sog => sog::write(path, g),
     }
 }

@@ -185,6 +185,67 @@ impl Gaussians {
     }
 }
 
+/// Which of x, y, z each higher SH basis function (coefficients 1..=15, INRIA order) is
+/// odd in: `y; z; x; xy; yz; 2z²−x²−y²; xz; x²−y²; y(3x²−y²); xyz; y(4z²−x²−y²);
+/// z(2z²−3x²−3y²); x(4z²−x²−y²); z(x²−y²); x(x²−3y²)`.
+const SH_ODD_IN: [[bool; 3]; 15] = {
+    const X: [bool; 3] = [true, false, false];
+    const Y: [bool; 3] = [false, true, false];
+    const Z: [bool; 3] = [false, false, true];
+    const E: [bool; 3] = [false, false, false];
+    [
+        Y,
+        Z,
+        X,
+        [true, true, false],
+        [false, true, true],
+        E,
+        [true, false, true],
+        E,
+        Y,
+        [true; 3],
+        Y,
+        Z,
+        X,
+        Z,
+        X,
+    ]
+};
+
+impl Gaussians {
+    /// Turns the centres and the view-dependent colour half a turn about coordinate
+    /// axis `axis` (0 = x, 1 = y, 2 = z): the two other coordinates change sign, and so
+    /// does each SH coefficient whose basis function is odd in exactly one of them.
+    /// Its own inverse. The rotations are left to the caller: formats differ in which of
+    /// the two equivalent quaternions they store.
+    pub fn half_turn_means_and_sh(&mut self, axis: usize) {
+        for m in &mut self.means {
+            for (a, v) in m.iter_mut().enumerate() {
+                if a != axis {
+                    *v = -*v;
+                }
+            }
+        }
+        let sign: Vec<f32> = SH_ODD_IN
+            .iter()
+            .map(|odd| {
+                let flips = (0..3).filter(|&a| a != axis && odd[a]).count();
+                if flips % 2 == 1 {
+                    -1.0
+                } else {
+                    1.0
+                }
+            })
+            .collect();
+        let k = self.sh_coeffs();
+        for sh in self.sh.chunks_exact_mut(k * 3) {
+            for j in 1..k {
+                sh[j * 3..j * 3 + 3].iter_mut().for_each(|v| *v *= sign[j - 1]);
+            }
+        }
+    }
+}
+
 impl Gaussians {
     /// Refuses (naming `path`) a scene that no format may store: inconsistent arrays,
     /// or a NaN or infinite parameter.

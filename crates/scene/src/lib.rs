@@ -5,6 +5,8 @@
 //! - [`Camera`]: pinhole cameras in the OpenCV convention, read from INRIA
 //!   `cameras.json`, COLMAP `sparse/0` and nerfstudio / Blender `transforms.json`
 //!   ([`cameras`]).
+//! - [`formats`]: the scene formats (INRIA PLY, compressed PLY, SPZ, glTF, SOG) and the
+//!   one place that picks between them.
 //! - [`npy`]: numpy `.npy` arrays (float32 in and out).
 //! - [`image`]: PNG and JPEG images as float RGB in [0, 1].
 //! - [`scene_paths`]: finding the scene and cameras in an INRIA 3DGS output folder.
@@ -25,12 +27,14 @@ pub mod error;
 pub mod fingerprint;
 pub mod formats;
 pub mod gaussians;
+pub mod gltf;
 pub mod image;
 pub mod npy;
 pub mod ply;
 pub mod resample;
 pub mod rng;
 pub mod scene_paths;
+pub mod sog;
 pub mod spz;
 
 pub use camera::Camera;

@@ -92,27 +92,14 @@ const ZSTD_LEVEL: i32 = 19;
 /// Most Gaussians a file may declare (bounded before allocating).
 const MAX_POINTS: u64 = 1 << 28;
 
-/// Sign of each higher SH coefficient (1..=15) under the half turn about x:
-/// (x, y, z) → (x, −y, −z) negates the basis functions odd in y + z.
-const SH_FLIP: [f32; 15] = [-1., -1., 1., -1., 1., 1., -1., 1., -1., 1., -1., -1., 1., -1., 1.];
-
-/// Converts between the PLY's RDF axes and SPZ's RUB axes (its own inverse).
+/// Converts between the PLY's RDF axes and SPZ's RUB axes (its own inverse): a half
+/// turn about x, the quaternion's y and z negated (the turn's conjugation, which
+/// equals turning the Gaussian's frame up to the sign of axes its scale is symmetric in).
 pub fn flip_rdf_rub(g: &mut Gaussians) {
-    for m in &mut g.means {
-        m[1] = -m[1];
-        m[2] = -m[2];
-    }
+    g.half_turn_means_and_sh(0);
     for q in &mut g.rotations {
         q[2] = -q[2];
         q[3] = -q[3];
-    }
-    let k = g.sh_coeffs();
-    for sh in g.sh.chunks_exact_mut(k * 3) {
-        for j in 1..k {
-            for c in 0..3 {
-                sh[j * 3 + c] *= SH_FLIP[j - 1];
-            }
-        }
     }
 }
 

@@ -1,5 +1,5 @@
 //! `transsplat convert`: a scene from one file format to another (INRIA PLY,
-//! PlayCanvas compressed PLY, SPZ), and optionally its cameras to INRIA cameras.json.
+//! PlayCanvas compressed PLY, SPZ, glTF binary, SOG), and optionally its cameras to INRIA cameras.json.
 
 use super::common::{check_output, load_cameras, load_scene, SceneArgs, SpzWriteArgs};
 use anyhow::{bail, Result};
@@ -10,12 +10,13 @@ use transsplat_scene::spz;
 /// Arguments of `transsplat convert`.
 #[derive(clap::Args, Debug)]
 pub struct ConvertArgs {
-    /// Input scene: a PLY (INRIA or compressed), an .spz file or an INRIA output folder.
+    /// Input scene: a PLY (INRIA or compressed), an .spz, .glb or .sog file or an INRIA
+    /// output folder.
     pub input: PathBuf,
-    /// Output scene file; its format follows from the name (.spz, .compressed.ply, .ply)
-    /// unless --format is given.
+    /// Output scene file; its format follows from the name (.spz, .compressed.ply, .ply,
+    /// .glb, .sog) unless --format is given.
     pub output: PathBuf,
-    /// Output format: ply, compressed-ply or spz.
+    /// Output format: ply, compressed-ply, spz, glb or sog.
     #[arg(long, value_parser = SceneFormat::parse)]
     pub format: Option<SceneFormat>,
     /// Drop Gaussians with NaN or infinite parameters instead of refusing the file.
@@ -41,8 +42,9 @@ pub fn run(a: &ConvertArgs) -> Result<()> {
     let format = match a.format.or_else(|| SceneFormat::of_path(&a.output)) {
         Some(f) => f,
         None => bail!(
-            "{}: cannot tell the output format from the name; use .ply, .compressed.ply or .spz, or --format",
-            a.output.display()
+            "{}: cannot tell the output format from the name; use {}, or --format",
+            a.output.display(),
+            SceneFormat::ALL.map(SceneFormat::extension).join(", ")
         ),
     };
     let (g, scene_path) = load_scene(&SceneArgs {

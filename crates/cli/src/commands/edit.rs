@@ -119,7 +119,7 @@ pub struct EditArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Also write the edited scene in these formats beside point_cloud.ply
-    /// (compressed-ply, spz; comma-separated), for web viewers.
+    /// (compressed-ply, spz, glb, sog; comma-separated), for web viewers.
     #[arg(long, value_delimiter = ',', value_parser = SceneFormat::parse)]
     pub format: Vec<SceneFormat>,
     #[command(flatten)]
