@@ -134,3 +134,36 @@ class ShardEditor:
                 for i, image in zip(batch, resize_back(edited, shard)):
                     out[i] = image
         return out
+
+
+def command_line(doc, model, min_memory):
+    """The arguments every DiT editor example takes (scene, weights, prompt, output, the
+    lift's steps and views, working size, offload, batch, device, seed); the caller adds its
+    model's own and parses. `model` names the diffusers folder, `min_memory` the GPU size
+    below which offloading is needed."""
+    import argparse
+
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", required=True, help="PLY or INRIA output folder")
+    ap.add_argument("--cameras", help="camera source (default: beside the scene)")
+    ap.add_argument("--weights", required=True, help=f"diffusers {model} folder")
+    ap.add_argument("--prompt", required=True)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--steps", type=int, help="optimisation steps of the lift")
+    ap.add_argument("--views", default="all", help='views to edit: "all", "auto", a count or "1/N"')
+    ap.add_argument("--size", type=int, default=1024, help="working size: about SIZE x SIZE pixels")
+    ap.add_argument("--offload", choices=["model", "sequential"], help=f"CPU offload, for GPUs under ~{min_memory}")
+    ap.add_argument("--max-batch", type=int, default=4,
+                    help="views per pipeline call (transsplat.edit hands the editor all its views at once)")
+    ap.add_argument("--device", help="default: cuda when available")
+    ap.add_argument("--seed", type=int, default=0)
+    return ap
+
+
+def run_edit(args, editor):
+    """`transsplat.edit` with `editor` as the command line asked; prints what it wrote."""
+    import transsplat
+
+    r = transsplat.edit(args.scene, args.cameras, args.prompt, editor, steps=args.steps, out=args.out,
+                        views=args.views)
+    print(f"edited {len(r['gaussians']['means'])} Gaussians; wrote {r['out']}")

@@ -23,12 +23,9 @@ encoders and the VAE the pipeline's weights are about 34 GB, activations on top.
 much slower). Sizes: docs/python.md.
 """
 
-import argparse
-
 from diffusers import FluxKontextPipeline
 
-import transsplat
-from _editor_common import ShardEditor, load_pipeline
+from _editor_common import ShardEditor, command_line, load_pipeline, run_edit
 
 
 class FluxKontextEditor(ShardEditor):
@@ -76,29 +73,14 @@ class FluxKontextEditor(ShardEditor):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", required=True, help="PLY or INRIA output folder")
-    ap.add_argument("--cameras", help="camera source (default: beside the scene)")
-    ap.add_argument("--weights", required=True, help="diffusers FLUX.1 Kontext folder")
-    ap.add_argument("--prompt", required=True)
-    ap.add_argument("--out", required=True)
-    ap.add_argument("--steps", type=int, help="optimisation steps of the lift")
-    ap.add_argument("--views", default="all", help='views to edit: "all", "auto", a count or "1/N"')
+    ap = command_line(__doc__, "FLUX.1 Kontext", "34 GB")
     ap.add_argument("--edit-steps", type=int, default=28, help="denoising steps of each 2D edit")
     ap.add_argument("--guidance", type=float, default=2.5)
-    ap.add_argument("--size", type=int, default=1024, help="working size: about SIZE x SIZE pixels")
-    ap.add_argument("--offload", choices=["model", "sequential"], help="CPU offload, for GPUs under ~34 GB")
-    ap.add_argument("--max-batch", type=int, default=4,
-                    help="views per pipeline call (transsplat.edit hands the editor all its views at once)")
-    ap.add_argument("--device", help="default: cuda when available")
-    ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     editor = FluxKontextEditor(args.weights, device=args.device, offload=args.offload, seed=args.seed,
                                steps=args.edit_steps, guidance=args.guidance, size=args.size,
                                max_batch=args.max_batch)
-    r = transsplat.edit(args.scene, args.cameras, args.prompt, editor, steps=args.steps, out=args.out,
-                        views=args.views)
-    print(f"edited {len(r['gaussians']['means'])} Gaussians; wrote {r['out']}")
+    run_edit(args, editor)
 
 
 if __name__ == "__main__":

@@ -23,14 +23,11 @@ VAE the pipeline's weights are about 58 GB (an 80 GB card), activations on top.
 much slower). Sizes: docs/python.md.
 """
 
-import argparse
-
 import numpy as np
 from diffusers import QwenImageEditPipeline
 from PIL import Image
 
-import transsplat
-from _editor_common import ShardEditor, load_pipeline
+from _editor_common import ShardEditor, command_line, load_pipeline, run_edit
 
 
 class QwenImageEditor(ShardEditor):
@@ -86,29 +83,14 @@ class QwenImageEditor(ShardEditor):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", required=True, help="PLY or INRIA output folder")
-    ap.add_argument("--cameras", help="camera source (default: beside the scene)")
-    ap.add_argument("--weights", required=True, help="diffusers Qwen-Image-Edit folder")
-    ap.add_argument("--prompt", required=True)
-    ap.add_argument("--out", required=True)
-    ap.add_argument("--steps", type=int, help="optimisation steps of the lift")
-    ap.add_argument("--views", default="all", help='views to edit: "all", "auto", a count or "1/N"')
+    ap = command_line(__doc__, "Qwen-Image-Edit", "58 GB")
     ap.add_argument("--edit-steps", type=int, default=50, help="denoising steps of each 2D edit")
     ap.add_argument("--true-cfg-scale", type=float, default=4.0)
-    ap.add_argument("--size", type=int, default=1024, help="working size: about SIZE x SIZE pixels")
-    ap.add_argument("--offload", choices=["model", "sequential"], help="CPU offload, for GPUs under ~58 GB")
-    ap.add_argument("--max-batch", type=int, default=4,
-                    help="views per pipeline call (transsplat.edit hands the editor all its views at once)")
-    ap.add_argument("--device", help="default: cuda when available")
-    ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     editor = QwenImageEditor(args.weights, device=args.device, offload=args.offload, seed=args.seed,
                              steps=args.edit_steps, true_cfg_scale=args.true_cfg_scale, size=args.size,
                              max_batch=args.max_batch)
-    r = transsplat.edit(args.scene, args.cameras, args.prompt, editor, steps=args.steps, out=args.out,
-                        views=args.views)
-    print(f"edited {len(r['gaussians']['means'])} Gaussians; wrote {r['out']}")
+    run_edit(args, editor)
 
 
 if __name__ == "__main__":
