@@ -24,6 +24,7 @@ import { chromium } from 'playwright-core';
 import fs from 'node:fs';
 import http from 'node:http';
 import path from 'node:path';
+import { pngPixels } from './png.mjs';
 import { fileURLToPath } from 'node:url';
 
 const MIN_IOU = 0.6;
@@ -128,17 +129,9 @@ async function draw(url) {
 }
 
 // transsplat's render, decoded by the browser.
-async function pngPixels(file) {
+async function renderPixels(file) {
   const p = await browser.newPage();
-  const b64 = fs.readFileSync(file).toString('base64');
-  const out = await p.evaluate(async (b64) => {
-    const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
-    const img = await createImageBitmap(new Blob([bytes], { type: 'image/png' }));
-    const oc = new OffscreenCanvas(img.width, img.height);
-    const ctx = oc.getContext('2d');
-    ctx.drawImage(img, 0, 0);
-    return { w: img.width, h: img.height, data: Array.from(ctx.getImageData(0, 0, img.width, img.height).data) };
-  }, b64);
+  const out = await pngPixels(p, file);
   await p.close();
   return out;
 }
@@ -147,7 +140,7 @@ const fg = (px, i) => px[i] + px[i + 1] + px[i + 2] > 3 * 8;
 const results = {};
 try {
   const ours = await draw('/scene.glb');
-  const ref = await pngPixels(renderPath);
+  const ref = await renderPixels(renderPath);
   check(ref.w === cam.width && ref.h === cam.height, `render is ${ref.w}x${ref.h}, camera ${cam.width}x${cam.height}`);
   check(ours.errors.length === 0, `page errors: ${ours.errors.join('; ')}`);
   check(ours.splats === 1, `the engine made ${ours.splats} splat assets from our file (expected 1)`);

@@ -20,6 +20,7 @@
 import { chromium } from 'playwright-core';
 import fs from 'node:fs';
 import path from 'node:path';
+import { pngPixels } from './png.mjs';
 
 const MIN_PSNR = 25.0;
 const [dir, shots] = process.argv.slice(2, 4);
@@ -66,19 +67,6 @@ async function canvasPixels(page) {
     ctx.drawImage(img, 0, 0);
     return { w: img.width, h: img.height, data: Array.from(ctx.getImageData(0, 0, img.width, img.height).data) };
   });
-}
-
-// A PNG file's pixels, decoded by the browser (no extra npm package).
-async function pngPixels(page, file) {
-  const b64 = fs.readFileSync(file).toString('base64');
-  return page.evaluate(async (b64) => {
-    const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
-    const img = await createImageBitmap(new Blob([bytes], { type: 'image/png' }));
-    const oc = new OffscreenCanvas(img.width, img.height);
-    const ctx = oc.getContext('2d');
-    ctx.drawImage(img, 0, 0);
-    return { w: img.width, h: img.height, data: Array.from(ctx.getImageData(0, 0, img.width, img.height).data) };
-  }, b64);
 }
 
 function psnr(a, b, keep = () => true) {
