@@ -9,8 +9,8 @@ use transsplat_session::{inputs, Checkpoints, Output};
 /// Options shared by every command that reads a scene.
 #[derive(clap::Args, Debug, Clone)]
 pub struct SceneArgs {
-    /// Scene: a 3DGS PLY (INRIA or PlayCanvas compressed), an .spz file, or an INRIA
-    /// output folder (newest iteration is used).
+    /// Scene: a 3DGS PLY (INRIA or PlayCanvas compressed), an .spz, .glb or .sog file, or
+    /// an INRIA output folder (newest iteration is used).
     #[arg(long)]
     pub scene: PathBuf,
     /// Drop Gaussians with NaN or infinite parameters instead of refusing the file.

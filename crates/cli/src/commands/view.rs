@@ -10,7 +10,7 @@ use transsplat_viewer::{Layer, LayerKind, Role, Viewer};
 /// Arguments of `transsplat view`.
 #[derive(clap::Args, Debug)]
 pub struct ViewArgs {
-    /// Scene: a PLY (INRIA or compressed), an .spz file or an INRIA output folder.
+    /// Scene: a PLY (INRIA or compressed), an .spz, .glb or .sog file, or an INRIA output folder.
     pub scene: PathBuf,
     /// A second scene shown as "after" (e.g. the edited one), in the same formats.
     #[arg(long)]
