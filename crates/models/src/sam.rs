@@ -65,9 +65,12 @@ pub fn download_hint(dir: &Path) -> String {
     SAM_HINT.replace("DIR", &dir.display().to_string())
 }
 
-/// Heads of one attention computed together (bounds the score matrices of the global
-/// layers: 64² × 64² scores are 64 MiB a head at 1024²).
+/// Heads of one attention computed together.
 const HEADS_AT_ONCE: usize = 4;
+
+/// Scores computed at once, in floats (4 MiB): the global layers' 4096 × 4096 scores a head
+/// at 1024² are taken in blocks of query rows.
+const SCORE_BUDGET: usize = 1 << 20;
 
 /// `vision_config` of a `SamModel` (transformers' `SamVisionConfig` defaults: ViT-B).
 #[derive(Debug, Clone, Deserialize)]
@@ -296,6 +299,8 @@ struct VisionAttention {
     heads: usize,
     /// `(R_h, R_w)` tables, `[2n − 1, d]`.
     rel_pos: Option<(Tensor, Tensor)>,
+    /// Scores computed at once, in floats ([`SCORE_BUDGET`]).
+    budget: usize,
 }
 
 impl VisionAttention {
@@ -315,7 +320,13 @@ impl VisionAttention {
         } else {
             None
         };
-        Ok(Self { qkv, proj: linear(c, c, vb.pp("proj"))?, heads: config.num_attention_heads, rel_pos })
+        Ok(Self {
+            qkv,
+            proj: linear(c, c, vb.pp("proj"))?,
+            heads: config.num_attention_heads,
+            rel_pos,
+            budget: SCORE_BUDGET,
+        })
     }
 
     /// `x`: `[B, h, w, C]` (a batch of windows or whole grids).
@@ -330,38 +341,45 @@ impl VisionAttention {
             None => None,
         };
         let scale = (d as f64).powf(-0.5);
+        let (n, hw) = (b * self.heads, h * w);
+        let rel = match &tables {
+            Some((th, tw)) => Some(rel_products(&q.contiguous()?, th, tw, h, w)?),
+            None => None,
+        };
         let mut outputs = Vec::new();
-        let n = b * self.heads;
         for start in (0..n).step_by(HEADS_AT_ONCE) {
             let len = HEADS_AT_ONCE.min(n - start);
             let q = q.narrow(0, start, len)?.contiguous()?;
-            let k = k.narrow(0, start, len)?.contiguous()?;
-            let mut scores = (&q * scale)?.matmul(&k.t()?)?;
-            if let Some((th, tw)) = &tables {
-                scores = add_decomposed_rel_pos(scores, &q, th, tw, h, w)?;
+            let k = k.narrow(0, start, len)?.contiguous()?.t()?;
+            let v = v.narrow(0, start, len)?.contiguous()?;
+            // Query rows in blocks whose scores stay within the budget (cache-sized).
+            let rows = (self.budget / (len * hw)).clamp(1, hw);
+            let mut blocks = Vec::new();
+            for first in (0..hw).step_by(rows) {
+                let count = rows.min(hw - first);
+                let mut scores = (q.narrow(1, first, count)? * scale)?.matmul(&k)?;
+                if let Some(rel) = &rel {
+                    scores = rel.add_to(scores, start, first, h, w)?;
+                }
+                blocks.push(softmax_last_dim(&scores)?.matmul(&v)?);
             }
-            let probs = softmax_last_dim(&scores)?;
-            outputs.push(probs.matmul(&v.narrow(0, start, len)?.contiguous()?)?);
+            outputs.push(Tensor::cat(&blocks, 1)?);
         }
         let out = Tensor::cat(&outputs, 0)?.reshape((b, self.heads, h, w, d))?.permute((0, 2, 3, 1, 4))?;
         self.proj.forward(&out.reshape((b, h, w, c))?)
     }
 }
 
-/// Adds q_p·R_h[p_y − q_y] + q_p·R_w[p_x − q_x] to the scores `[n, hw, hw]` of every query
-/// p and key q, from the queries `[n, hw, d]` and the tables `[h, h, d]`, `[w, w, d]` of
-/// [`rel_pos_table`]. The two products are `[n, hw, h]` and `[n, hw, w]`; their sum over
-/// the key grid is written straight into the scores (a broadcast add over five axes
-/// would walk the scores one element at a time).
-fn add_decomposed_rel_pos(
-    scores: Tensor,
+/// The two relative-position products of every query p of `[n, hw, d]`: q_p·R_h[p_y − k_y]
+/// for each key row k_y (`[n, hw, h]`) and q_p·R_w[p_x − k_x] for each key column
+/// (`[n, hw, w]`), from the tables `[h, h, d]`, `[w, w, d]` of [`rel_pos_table`].
+fn rel_products(
     q: &Tensor,
     th: &Tensor,
     tw: &Tensor,
     h: usize,
     w: usize,
-) -> candle_core::Result<Tensor> {
-    use rayon::prelude::*;
+) -> candle_core::Result<RelProducts> {
     let (n, _, d) = q.dims3()?;
     let q = q.reshape((n, h, w, d))?;
     // rel_h[n, y, x, k] = Σ_c q[n, y, x, c] th[y, k, c]: one product per query row y.
@@ -370,21 +388,44 @@ fn add_decomposed_rel_pos(
     // rel_w[n, y, x, k] = Σ_c q[n, y, x, c] tw[x, k, c]: one product per query column x.
     let by_column = q.permute((2, 0, 1, 3))?.reshape((w, n * h, d))?;
     let rel_w = by_column.matmul(&tw.transpose(1, 2)?)?.reshape((w, n, h, w))?.permute((1, 2, 0, 3))?;
-    let rel_h = rel_h.flatten_all()?.to_vec1::<f32>()?;
-    let rel_w = rel_w.flatten_all()?.to_vec1::<f32>()?;
-    let device = scores.device().clone();
-    let mut data = scores.flatten_all()?.to_vec1::<f32>()?;
-    let hw = h * w;
-    data.par_chunks_mut(hw).enumerate().for_each(|(row, keys)| {
-        // row = query (n, y, x); keys in (ky, kx) order.
-        let (rh, rw) = (&rel_h[row * h..(row + 1) * h], &rel_w[row * w..(row + 1) * w]);
-        for (ky, line) in keys.chunks_exact_mut(w).enumerate() {
-            for (s, r) in line.iter_mut().zip(rw) {
-                *s += rh[ky] + r;
+    Ok(RelProducts { rows: rel_h.flatten_all()?.to_vec1()?, columns: rel_w.flatten_all()?.to_vec1()? })
+}
+
+/// [`rel_products`]' two tables, flat.
+#[derive(Debug)]
+struct RelProducts {
+    rows: Vec<f32>,
+    columns: Vec<f32>,
+}
+
+impl RelProducts {
+    /// Adds the decomposed relative positions, s(p, k) += rows[p, k_y] + columns[p, k_x],
+    /// to scores `[len, count, hw]` of the heads from `head` and the queries from `first`
+    /// (a broadcast add over five axes would walk the scores one element at a time).
+    fn add_to(
+        &self,
+        scores: Tensor,
+        head: usize,
+        first: usize,
+        h: usize,
+        w: usize,
+    ) -> candle_core::Result<Tensor> {
+        use rayon::prelude::*;
+        let (len, count, hw) = scores.dims3()?;
+        let device = scores.device().clone();
+        let mut data = scores.flatten_all()?.to_vec1::<f32>()?;
+        data.par_chunks_mut(hw).enumerate().for_each(|(i, keys)| {
+            let query = (head + i / count) * hw + first + i % count;
+            let (rh, rw) =
+                (&self.rows[query * h..(query + 1) * h], &self.columns[query * w..(query + 1) * w]);
+            for (ky, line) in keys.chunks_exact_mut(w).enumerate() {
+                for (s, r) in line.iter_mut().zip(rw) {
+                    *s += rh[ky] + r;
+                }
             }
-        }
-    });
-    Tensor::from_vec(data, (n, hw, hw), &device)
+        });
+        Tensor::from_vec(data, (len, count, hw), &device)
+    }
 }
 
 #[derive(Debug)]
@@ -1123,6 +1164,39 @@ mod tests {
         let back = window_unpartition(&windows, 3, padded, (5, 4)).unwrap();
         let diff = (back - &x).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
         assert_eq!(diff, 0.0);
+    }
+
+    #[test]
+    fn attention_in_blocks_of_query_rows_equals_attention_at_once() {
+        let device = Device::Cpu;
+        let config = SamVisionConfig { hidden_size: 8, num_attention_heads: 2, ..Default::default() };
+        let (c, side, d) = (8, 5, 4);
+        let values = |n: usize, f: f32| -> Tensor {
+            Tensor::from_vec((0..n).map(|i| ((i as f32 + 1.0) * f).sin()).collect::<Vec<f32>>(), n, &device)
+                .unwrap()
+        };
+        let tensors = [
+            ("qkv.weight", values(3 * c * c, 0.37).reshape((3 * c, c)).unwrap()),
+            ("qkv.bias", values(3 * c, 0.11)),
+            ("proj.weight", values(c * c, 0.23).reshape((c, c)).unwrap()),
+            ("proj.bias", values(c, 0.53)),
+            ("rel_pos_h", values((2 * side - 1) * d, 0.71).reshape((2 * side - 1, d)).unwrap()),
+            ("rel_pos_w", values((2 * side - 1) * d, 0.29).reshape((2 * side - 1, d)).unwrap()),
+        ];
+        let vb = VarBuilder::from_tensors(
+            tensors.into_iter().map(|(k, v)| (k.to_string(), v)).collect(),
+            DType::F32,
+            &device,
+        );
+        let mut attention = VisionAttention::new(vb, &config, side).unwrap();
+        let x = values(2 * side * side * c, 0.13).reshape((2, side, side, c)).unwrap();
+        let at_once = attention.forward(&x).unwrap();
+        // 2 heads × 25 keys a row: blocks of 3 query rows, the last one short.
+        attention.budget = 2 * 25 * 3;
+        let blocked = attention.forward(&x).unwrap();
+        let scale = at_once.abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
+        let diff = (at_once - blocked).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
+        assert!(diff <= 1e-5 * scale, "{diff} of {scale}");
     }
 
     #[test]
