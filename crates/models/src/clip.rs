@@ -192,8 +192,10 @@ impl Activation {
     }
 }
 
-/// Multi-head self-attention with separate q/k/v/out projections (all with bias); also
-/// DINOv2's (same computation, other weight names).
+/// Multi-head attention with separate q/k/v/out projections (all with bias): CLIP's and
+/// DINOv2's self-attention (same computation, other weight names), and SAM's mask-decoder
+/// attention (queries, keys and values from different inputs, projected to a narrower
+/// width).
 #[derive(Debug, Clone)]
 pub(crate) struct Attention {
     q: Linear,
@@ -205,11 +207,21 @@ pub(crate) struct Attention {
 
 impl Attention {
     pub(crate) fn new(vb: VarBuilder, dim: usize, heads: usize) -> candle_core::Result<Self> {
+        Self::with_width(vb, dim, dim, heads)
+    }
+
+    /// Projections from `dim` to `inner` channels (q, k, v) and back (out).
+    pub(crate) fn with_width(
+        vb: VarBuilder,
+        dim: usize,
+        inner: usize,
+        heads: usize,
+    ) -> candle_core::Result<Self> {
         Ok(Self {
-            q: linear(dim, dim, vb.pp("q_proj"))?,
-            k: linear(dim, dim, vb.pp("k_proj"))?,
-            v: linear(dim, dim, vb.pp("v_proj"))?,
-            out: linear(dim, dim, vb.pp("out_proj"))?,
+            q: linear(dim, inner, vb.pp("q_proj"))?,
+            k: linear(dim, inner, vb.pp("k_proj"))?,
+            v: linear(dim, inner, vb.pp("v_proj"))?,
+            out: linear(inner, dim, vb.pp("out_proj"))?,
             heads,
         })
     }
@@ -219,20 +231,37 @@ impl Attention {
         Self { q, k, v, out, heads }
     }
 
-    /// `mask` is added to the attention logits (`[seq, seq]`, `-inf` where masked).
+    /// Self-attention of `x` `[B, N, dim]`; `mask` is added to the attention logits
+    /// (`[seq, seq]`, `-inf` where masked).
     pub(crate) fn forward(&self, x: &Tensor, mask: Option<&Tensor>) -> candle_core::Result<Tensor> {
-        let (b, n, dim) = x.dims3()?;
-        let hd = dim / self.heads;
-        let split = |t: Tensor| t.reshape((b, n, self.heads, hd))?.transpose(1, 2)?.contiguous();
-        let q = split((self.q.forward(x)? * (hd as f64).powf(-0.5))?)?;
-        let k = split(self.k.forward(x)?)?;
-        let v = split(self.v.forward(x)?)?;
+        self.attend(x, x, x, mask)
+    }
+
+    /// Queries from `queries` `[B, N, dim]`, keys and values from `keys` and `values`
+    /// `[B, M, dim]`: softmax(q kᵀ / √d) v per head, then the output projection.
+    pub(crate) fn attend(
+        &self,
+        queries: &Tensor,
+        keys: &Tensor,
+        values: &Tensor,
+        mask: Option<&Tensor>,
+    ) -> candle_core::Result<Tensor> {
+        let (b, n, _) = queries.dims3()?;
+        let m = keys.dim(1)?;
+        let q = self.q.forward(queries)?;
+        let inner = q.dim(2)?;
+        let hd = inner / self.heads;
+        let split =
+            |t: Tensor, len: usize| t.reshape((b, len, self.heads, hd))?.transpose(1, 2)?.contiguous();
+        let q = split((q * (hd as f64).powf(-0.5))?, n)?;
+        let k = split(self.k.forward(keys)?, m)?;
+        let v = split(self.v.forward(values)?, m)?;
         let mut logits = q.matmul(&k.t()?.contiguous()?)?;
-        if let Some(m) = mask {
-            logits = logits.broadcast_add(m)?;
+        if let Some(mask) = mask {
+            logits = logits.broadcast_add(mask)?;
         }
         let probs = candle_nn::ops::softmax_last_dim(&logits)?;
-        let y = probs.matmul(&v)?.transpose(1, 2)?.reshape((b, n, dim))?;
+        let y = probs.matmul(&v)?.transpose(1, 2)?.reshape((b, n, inner))?;
         self.out.forward(&y)
     }
 }

@@ -606,12 +606,7 @@ impl ClipSeg {
         let s = self.input_size();
         let resized = transsplat_editors::resize_bilinear(rgb, width, height, 3, s, s);
         let mut planar = resample::hwc_to_chw(&resized, s, s, 3);
-        let (mean, std) = (self.processor.image_mean, self.processor.image_std);
-        for (c, plane) in planar.chunks_exact_mut(s * s).enumerate() {
-            for v in plane {
-                *v = (*v - mean[c]) / std[c];
-            }
-        }
+        resample::normalize_planes(&mut planar, &self.processor.image_mean, &self.processor.image_std);
         Ok(planar)
     }
 

@@ -236,11 +236,7 @@ impl Dinov2 {
         let (gh, gw) = self.grid(width, height);
         let planar = resample::hwc_to_chw(image, height, width, 3);
         let mut x = resample::bicubic(&planar, 3, height, width, gh * p, gw * p);
-        for (k, plane) in x.chunks_exact_mut(gh * p * gw * p).enumerate() {
-            for v in plane {
-                *v = (*v - IMAGENET_MEAN[k]) / IMAGENET_STD[k];
-            }
-        }
+        resample::normalize_planes(&mut x, &IMAGENET_MEAN, &IMAGENET_STD);
         let hidden = self.forward(x, gh, gw)?;
         // Patch tokens as planar [C, gh, gw], upsampled to the image.
         let mut grid = hidden.narrow(0, 1, gh * gw)?.t()?.contiguous()?.flatten_all()?.to_vec1::<f32>()?;

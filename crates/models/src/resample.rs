@@ -115,9 +115,27 @@ pub fn hwc_to_chw(hwc: &[f32], h: usize, w: usize, c: usize) -> Vec<f32> {
     out
 }
 
+/// Normalises planar channels in place, v ← (v − mean[c]) / std[c] (the image processors'
+/// `do_normalize`; ImageNet's mean and std for DINOv2, CLIPSeg and SAM).
+pub fn normalize_planes(planar: &mut [f32], mean: &[f32; 3], std: &[f32; 3]) {
+    let plane = planar.len() / 3;
+    for (c, values) in planar.chunks_exact_mut(plane.max(1)).enumerate().take(3) {
+        for v in values {
+            *v = (*v - mean[c]) / std[c];
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn planes_are_normalised_by_their_own_channel() {
+        let mut planar = vec![1.0, 3.0, 2.0, 2.0, 0.0, 6.0];
+        normalize_planes(&mut planar, &[1.0, 2.0, 0.0], &[2.0, 1.0, 3.0]);
+        assert_eq!(planar, vec![0.0, 1.0, 0.0, 0.0, 0.0, 2.0]);
+    }
 
     #[test]
     fn weights_sum_to_one_and_identity_size_is_exact() {

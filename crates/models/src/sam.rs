@@ -47,7 +47,7 @@ use candle_nn::{layer_norm, Conv2dConfig, LayerNorm, VarBuilder};
 use serde::Deserialize;
 
 use crate::check::{self, ModelConfig};
-use crate::clip::Activation;
+use crate::clip::{Activation, Attention};
 use crate::conv::{self, Conv2d, PatchTransposedConv};
 use crate::dinov2::{IMAGENET_MEAN, IMAGENET_STD};
 use crate::linear::{linear, Linear};
@@ -678,53 +678,16 @@ impl PromptEncoder {
     }
 }
 
-/// SAM's attention of the mask decoder: projections to `hidden / downsample` channels.
-#[derive(Debug)]
-struct DecoderAttention {
-    q: Linear,
-    k: Linear,
-    v: Linear,
-    out: Linear,
-    heads: usize,
-}
-
-impl DecoderAttention {
-    fn new(vb: VarBuilder, width: usize, downsample: usize, heads: usize) -> candle_core::Result<Self> {
-        let inner = width / downsample;
-        Ok(Self {
-            q: linear(width, inner, vb.pp("q_proj"))?,
-            k: linear(width, inner, vb.pp("k_proj"))?,
-            v: linear(width, inner, vb.pp("v_proj"))?,
-            out: linear(inner, width, vb.pp("out_proj"))?,
-            heads,
-        })
-    }
-
-    /// `q` `[B, Nq, C]`, `k` and `v` `[B, Nk, C]`.
-    fn forward(&self, q: &Tensor, k: &Tensor, v: &Tensor) -> candle_core::Result<Tensor> {
-        let split = |x: &Tensor, layer: &Linear| -> candle_core::Result<Tensor> {
-            let x = layer.forward(x)?;
-            let (b, n, inner) = x.dims3()?;
-            x.reshape((b, n, self.heads, inner / self.heads))?.transpose(1, 2)?.contiguous()
-        };
-        let (q, k, v) = (split(q, &self.q)?, split(k, &self.k)?, split(v, &self.v)?);
-        let (b, heads, nq, d) = q.dims4()?;
-        let scores = (q.matmul(&k.t()?)? * (d as f64).powf(-0.5))?;
-        let out = softmax_last_dim(&scores)?.matmul(&v)?;
-        self.out.forward(&out.transpose(1, 2)?.reshape((b, nq, heads * d))?)
-    }
-}
-
 #[derive(Debug)]
 struct TwoWayBlock {
-    self_attn: DecoderAttention,
+    self_attn: Attention,
     norm1: LayerNorm,
-    token_to_image: DecoderAttention,
+    token_to_image: Attention,
     norm2: LayerNorm,
     mlp: Mlp,
     norm3: LayerNorm,
     norm4: LayerNorm,
-    image_to_token: DecoderAttention,
+    image_to_token: Attention,
     skip_first_pe: bool,
 }
 
@@ -734,14 +697,14 @@ impl TwoWayBlock {
         let down = config.attention_downsample_rate;
         let act = Activation::named(&config.hidden_act).map_err(candle_core::Error::Msg)?;
         Ok(Self {
-            self_attn: DecoderAttention::new(vb.pp("self_attn"), c, 1, heads)?,
+            self_attn: Attention::with_width(vb.pp("self_attn"), c, c, heads)?,
             norm1: layer_norm(c, eps, vb.pp("layer_norm1"))?,
-            token_to_image: DecoderAttention::new(vb.pp("cross_attn_token_to_image"), c, down, heads)?,
+            token_to_image: Attention::with_width(vb.pp("cross_attn_token_to_image"), c, c / down, heads)?,
             norm2: layer_norm(c, eps, vb.pp("layer_norm2"))?,
             mlp: Mlp::new(vb.pp("mlp"), c, config.mlp_dim, act)?,
             norm3: layer_norm(c, eps, vb.pp("layer_norm3"))?,
             norm4: layer_norm(c, eps, vb.pp("layer_norm4"))?,
-            image_to_token: DecoderAttention::new(vb.pp("cross_attn_image_to_token"), c, down, heads)?,
+            image_to_token: Attention::with_width(vb.pp("cross_attn_image_to_token"), c, c / down, heads)?,
             skip_first_pe,
         })
     }
@@ -755,17 +718,17 @@ impl TwoWayBlock {
         image_pe: &Tensor,
     ) -> candle_core::Result<(Tensor, Tensor)> {
         let tokens = if self.skip_first_pe {
-            self.self_attn.forward(tokens, tokens, tokens)?
+            self.self_attn.forward(tokens, None)?
         } else {
             let q = (tokens + token_pe)?;
-            (tokens + self.self_attn.forward(&q, &q, tokens)?)?
+            (tokens + self.self_attn.attend(&q, &q, tokens, None)?)?
         };
         let tokens = self.norm1.forward(&tokens)?;
         let keys = image.broadcast_add(image_pe)?;
-        let tokens = (&tokens + self.token_to_image.forward(&(&tokens + token_pe)?, &keys, image)?)?;
+        let tokens = (&tokens + self.token_to_image.attend(&(&tokens + token_pe)?, &keys, image, None)?)?;
         let tokens = self.norm2.forward(&tokens)?;
         let tokens = self.norm3.forward(&(&tokens + self.mlp.forward(&tokens)?)?)?;
-        let image = (image + self.image_to_token.forward(&keys, &(&tokens + token_pe)?, &tokens)?)?;
+        let image = (image + self.image_to_token.attend(&keys, &(&tokens + token_pe)?, &tokens, None)?)?;
         Ok((tokens, self.norm4.forward(&image)?))
     }
 }
@@ -811,7 +774,7 @@ struct MaskDecoder {
     /// `[1 + M, C]`: the IoU token, then the mask tokens.
     output_tokens: Tensor,
     layers: Vec<TwoWayBlock>,
-    final_attn: DecoderAttention,
+    final_attn: Attention,
     final_norm: LayerNorm,
     upscale1: PatchTransposedConv,
     upscale_norm: LayerNorm,
@@ -834,10 +797,10 @@ impl MaskDecoder {
             layers: (0..config.num_hidden_layers)
                 .map(|i| TwoWayBlock::new(t.pp(format!("layers.{i}")), config, i == 0))
                 .collect::<candle_core::Result<_>>()?,
-            final_attn: DecoderAttention::new(
+            final_attn: Attention::with_width(
                 t.pp("final_attn_token_to_image"),
                 c,
-                config.attention_downsample_rate,
+                c / config.attention_downsample_rate,
                 config.num_attention_heads,
             )?,
             // nn.LayerNorm's own epsilon in the reference, not the config's.
@@ -878,7 +841,7 @@ impl MaskDecoder {
         }
         let q = (&tokens + &token_pe)?;
         let k = keys.broadcast_add(&image_pe)?;
-        let tokens = self.final_norm.forward(&(&tokens + self.final_attn.forward(&q, &k, &keys)?)?)?;
+        let tokens = self.final_norm.forward(&(&tokens + self.final_attn.attend(&q, &k, &keys, None)?)?)?;
         let grid = keys.transpose(1, 2)?.reshape((b, c, g, g))?;
         let up = self.upscale1.forward(&grid)?;
         let up = channel_norm(&self.upscale_norm, &up)?.gelu_erf()?;
@@ -1008,15 +971,13 @@ impl Sam {
         let s = self.input_size();
         let (nw, nh) = resized_size(width, height, s);
         let resized = transsplat_editors::resize_bilinear(rgb, width, height, 3, nw, nh);
-        let planar = resample::hwc_to_chw(&resized, nh, nw, 3);
+        let mut planar = resample::hwc_to_chw(&resized, nh, nw, 3);
+        resample::normalize_planes(&mut planar, &IMAGENET_MEAN, &IMAGENET_STD);
+        // Zeros (after normalisation) to the right and bottom.
         let mut input = vec![0f32; 3 * s * s];
-        for c in 0..3 {
-            for y in 0..nh {
-                for x in 0..nw {
-                    input[(c * s + y) * s + x] =
-                        (planar[(c * nh + y) * nw + x] - IMAGENET_MEAN[c]) / IMAGENET_STD[c];
-                }
-            }
+        for (row, values) in planar.chunks_exact(nw).enumerate() {
+            let (c, y) = (row / nh, row % nh);
+            input[(c * s + y) * s..][..nw].copy_from_slice(values);
         }
         Ok((input, (nw, nh)))
     }
