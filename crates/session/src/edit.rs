@@ -83,16 +83,9 @@ impl SegmenterSpec<'_> {
                         "segment: the phrase is empty; name the target, e.g. \"the ball\"".into(),
                     ));
                 }
-                let dir = transsplat_models::ModelDir::open(weights, "CLIPSeg", &clipseg_hint(weights))
-                    .map_err(|e| SessionError::Model(e.to_string()))?;
-                dir.file("config.json").map_err(|e| SessionError::Model(e.to_string()))?;
-                dir.safetensors("model").map_err(|e| SessionError::Model(e.to_string()))?;
+                check_model_folder(weights, "CLIPSeg", &clipseg_hint(weights))?;
                 if let Some(sam) = sam {
-                    let hint = transsplat_models::sam::download_hint(sam);
-                    let dir = transsplat_models::ModelDir::open(sam, "SAM", &hint)
-                        .map_err(|e| SessionError::Model(e.to_string()))?;
-                    dir.file("config.json").map_err(|e| SessionError::Model(e.to_string()))?;
-                    dir.safetensors("model").map_err(|e| SessionError::Model(e.to_string()))?;
+                    check_model_folder(sam, "SAM", &transsplat_models::sam::download_hint(sam))?;
                 }
                 Ok(())
             }
@@ -113,6 +106,15 @@ impl SegmenterSpec<'_> {
             SegmenterSpec::Custom(..) => Vec::new(),
         }
     }
+}
+
+/// `dir` is a model folder with `config.json` and `model.safetensors` (its error names
+/// the folder or file and `hint`, the download command).
+fn check_model_folder(dir: &Path, what: &str, hint: &str) -> Result<(), SessionError> {
+    let model = |e: transsplat_models::Error| SessionError::Model(e.to_string());
+    let dir = transsplat_models::ModelDir::open(dir, what, hint).map_err(model)?;
+    dir.file("config.json").map_err(model)?;
+    dir.safetensors("model").map(|_| ()).map_err(model)
 }
 
 /// The download command of CLIPSeg into `dir`.
