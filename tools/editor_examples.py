@@ -425,25 +425,23 @@ def main():
         scene = transsplat.builtin_scene("tabletop", str(work / "scene"), quick=True)
         cli = ["--scene", scene, "--prompt", PROMPT, "--steps", "10"]
 
-        def flux():
-            pipe = tiny_flux_kontext(work)
-            pipe.save_pretrained(work / "flux-weights")
-            counted, settings = CountedPipeline(pipe), dict(steps=2, size=32)
+        def dit(name, editor_class, build, size):
+            """A DiT example around its tiny pipeline, saved as a weights folder too."""
+            weights = work / f"{name}-weights"
+            pipe = build(work)
+            pipe.save_pretrained(weights)
+            counted, settings = CountedPipeline(pipe), dict(steps=2, size=size)
             return exercise(
-                "flux_kontext", FluxKontextEditor.from_pipeline(counted, **settings), counted, scene, work, check,
-                weights_editor=lambda: FluxKontextEditor(work / "flux-weights", device="cpu", **settings),
-                main_cmd=["flux_kontext_editor.py", *cli, "--weights", str(work / "flux-weights"), "--device", "cpu",
-                          "--views", "2", "--edit-steps", "2", "--size", "32"])
+                name, editor_class.from_pipeline(counted, **settings), counted, scene, work, check,
+                weights_editor=lambda: editor_class(weights, device="cpu", **settings),
+                main_cmd=[f"{name}_editor.py", *cli, "--weights", str(weights), "--device", "cpu",
+                          "--views", "2", "--edit-steps", "2", "--size", str(size)])
+
+        def flux():
+            return dit("flux_kontext", FluxKontextEditor, tiny_flux_kontext, 32)
 
         def qwen():
-            pipe = tiny_qwen_image_edit(work)
-            pipe.save_pretrained(work / "qwen-weights")
-            counted, settings = CountedPipeline(pipe), dict(steps=2, size=64)
-            return exercise(
-                "qwen_image_edit", QwenImageEditor.from_pipeline(counted, **settings), counted, scene, work, check,
-                weights_editor=lambda: QwenImageEditor(work / "qwen-weights", device="cpu", **settings),
-                main_cmd=["qwen_image_edit_editor.py", *cli, "--weights", str(work / "qwen-weights"),
-                          "--device", "cpu", "--views", "2", "--edit-steps", "2", "--size", "64"])
+            return dit("qwen_image_edit", QwenImageEditor, tiny_qwen_image_edit, 64)
 
         def ip2p():
             folder = tiny_ip2p_folder(work)
