@@ -86,7 +86,8 @@ pub fn run(
     }
     let (mut trainer, mut state) = match control.checkpoint.as_mut().filter(|_| control.resume) {
         Some(ck) => {
-            let (t, s) = ck.load_train(opts.config.clone())?;
+            let (mut t, s) = ck.load_train(opts.config.clone())?;
+            t.attach_filter(&ds.cameras);
             tracing::info!("resuming at step {} from {}", t.step, ck.dir.display());
             (t, s)
         }
@@ -193,6 +194,7 @@ fn summary(
         clamp_grad: config.clamp_grad.name().into(),
         camera_reach: config.densify.camera_reach,
         strategy: config.strategy.name().into(),
+        filter_3d: (config.filter_3d > 0.0).then_some(config.filter_3d),
     }
 }
 
@@ -240,8 +242,8 @@ fn warn_on_floaters(
                 100.0 * d.near_share
             ),
             Cause::Extrapolation => format!(
-                "extrapolation: it sees what the training views saw, from outside them; only {:.0} % of \
-                 what it sees lies in front of where they see it",
+                "extrapolation: it sees what the training views saw, at their depths, from an angle they \
+                 did not constrain; only {:.0} % of what it sees lies in front of where they see it",
                 100.0 * d.near_share
             ),
         };

@@ -7,9 +7,12 @@
 //!   splats no training view can see where this one does. From the training cameras
 //!   they sit far off (in the sky, say), behind the camera, or nowhere they contribute;
 //!   from the held-out camera they are near, and cover the image as haze or blobs.
-//! - **Extrapolation**: the view sees the scene the training views saw, from outside
-//!   them (a higher ring, a wider angle, a part they saw from one side or not at all).
-//!   Nothing sits in front of it; what it sees was simply never constrained from there.
+//! - **Extrapolation**: the view sees the scene the training views saw, at the depths
+//!   they see it, from an angle they did not constrain: from outside them (a higher
+//!   ring, a wider angle, a part they saw from one side or not at all), or from between
+//!   them where their geometry is wrong but consistent (a surface seen only at grazing
+//!   angles, whose splats float where every training view accepts them: the far floor
+//!   of docs/method.md T2). Nothing sits in front of it that they do not also see.
 //!
 //! They are told apart by depth ([`diagnose`]). Each splat that contributes to the test
 //! view (blend weight Σ T α > 0) is compared with its depth in the training views where
@@ -38,7 +41,8 @@ pub const FLOATER_SHARE: f32 = 0.05;
 pub enum Cause {
     /// Splats in front of the view that no training view sees at that depth.
     Floaters,
-    /// The view sees what the training views saw, from outside them.
+    /// The view sees what the training views saw, at their depths, from an angle they
+    /// did not constrain.
     Extrapolation,
 }
 

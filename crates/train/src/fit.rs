@@ -350,6 +350,9 @@ pub struct TrainSummary {
     pub clamp_grad: String,
     pub camera_reach: Option<f32>,
     pub strategy: String,
+    /// The 3D filter's variance factor (`filter3d`), absent when off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub filter_3d: Option<f32>,
 }
 
 /// The lowest-scoring test view.
@@ -400,7 +403,8 @@ pub fn write_output(out: &Path, trainer: &Trainer, cameras: &[Camera]) -> transs
     let dir = out.join("point_cloud").join(format!("iteration_{}", trainer.step));
     std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
     let ply_path = dir.join("point_cloud.ply");
-    ply::write(&ply_path, &trainer.model.gaussians)?;
+    // With the 3D filter on, the written scene has it baked in (`filter3d` module doc).
+    ply::write(&ply_path, &trainer.exported())?;
     inria::write(&out.join("cameras.json"), cameras)?;
     Ok(ply_path)
 }

@@ -31,6 +31,7 @@ pub mod checkpoint;
 pub mod dataset;
 pub mod densify;
 pub mod diagnose;
+pub mod filter3d;
 pub mod fit;
 pub mod init;
 pub mod loss;

@@ -22,6 +22,7 @@
 
 use crate::adam::{Adam, AdamRule, Group, LearningRates, NonFinite, Update};
 use crate::densify::{self, Bounds, DensifyConfig, DensifyCounts, DensifyStats};
+use crate::filter3d;
 use crate::loss::{image_loss, ImageLoss};
 use crate::mcmc::{self, McmcConfig};
 use crate::model::{Model, Reindex};
@@ -56,6 +57,10 @@ pub struct TrainConfig {
     pub clamp_grad: ClampGrad,
     /// How the Gaussians grow: INRIA's adaptive density control (default) or MCMC.
     pub strategy: Strategy,
+    /// Mip-Splatting's 3D smoothing filter ([`crate::filter3d`]): the variance factor s
+    /// in squared pixels (Mip-Splatting: 0.2); 0 = off (default, as INRIA). Needs the
+    /// training cameras ([`Trainer::for_cameras`]).
+    pub filter_3d: f32,
 }
 
 /// The densification strategy: one pluggable part of the step.
@@ -131,6 +136,7 @@ impl Default for TrainConfig {
             downscale: Downscale::default(),
             clamp_grad: ClampGrad::Exact,
             strategy: Strategy::Adaptive,
+            filter_3d: 0.0,
         }
     }
 }
@@ -168,6 +174,10 @@ pub struct InvalidSetting {
     /// What is wrong, e.g. "must be in [0, 1), got 1.5".
     pub problem: String,
 }
+
+/// The largest [`TrainConfig::filter_3d`]: a filter of 10 squared pixels blurs every
+/// Gaussian to about three pixels in the nearest camera.
+pub const MAX_FILTER_3D: f32 = 10.0;
 
 /// The most halvings [`Downscale::levels`] may ask for (1/64 of the size).
 pub const MAX_DOWNSCALES: u32 = 6;
@@ -210,6 +220,9 @@ impl TrainConfig {
         }
         if !(0.0..=1.0).contains(&self.lambda_dssim) {
             return bad("lambda_dssim", format!("must be in [0, 1], got {}", self.lambda_dssim));
+        }
+        if !(self.filter_3d.is_finite() && (0.0..=MAX_FILTER_3D).contains(&self.filter_3d)) {
+            return bad("filter_3d", format!("must be in [0, {MAX_FILTER_3D}], got {}", self.filter_3d));
         }
         if !self.background.iter().all(|c| c.is_finite()) {
             return bad("background", format!("must be finite, got {:?}", self.background));
@@ -271,6 +284,19 @@ pub struct Trainer {
     /// rows a step wrote are cleared after it, so a step's cost does not grow with
     /// the Gaussians its view did not reach). Empty until the first step.
     scratch: Grads,
+    /// The 3D filter's cameras and the filtered parameters the rasterizer sees, when
+    /// `config.filter_3d > 0` and the cameras are known.
+    filter: Option<Filter>,
+}
+
+/// The state of [`crate::filter3d`] in a trainer: the training cameras (the variances
+/// are recomputed from them) and the filtered log-scales and opacity logits, refreshed
+/// whenever the raw ones change. The variances themselves are carried in the model.
+#[derive(Clone, Debug)]
+struct Filter {
+    cameras: Vec<Camera>,
+    log_scales: Vec<[f32; 3]>,
+    opacity_logits: Vec<f32>,
 }
 
 /// Applies `r` to every per-Gaussian array: the model's ([`Model::reindex`]), the
@@ -335,6 +361,7 @@ impl Trainer {
             centre,
             cameras,
             scratch,
+            filter: None,
         })
     }
 
@@ -344,7 +371,52 @@ impl Trainer {
         let mut t = Trainer::new(model, scene_extent(cameras), config)?;
         t.centre = camera_centre(cameras);
         t.cameras = cameras.iter().map(Camera::centre).collect();
+        t.attach_filter(cameras);
         Ok(t)
+    }
+
+    /// Turns the 3D filter on with `cameras` when the config asks for it: the carried
+    /// variances are kept when the model has them (a resumed run), computed otherwise.
+    pub fn attach_filter(&mut self, cameras: &[Camera]) {
+        if self.config.filter_3d <= 0.0 || cameras.is_empty() {
+            return;
+        }
+        self.filter =
+            Some(Filter { cameras: cameras.to_vec(), log_scales: Vec::new(), opacity_logits: Vec::new() });
+        let carried = filter3d::carried(&self.model.gaussians).is_some_and(|v| v.len() == self.model.len());
+        self.refresh_filter(!carried);
+    }
+
+    /// Recomputes the carried variances (when `recompute`) and the filtered parameters.
+    fn refresh_filter(&mut self, recompute: bool) {
+        let Some(f) = self.filter.as_mut() else { return };
+        let g = &mut self.model.gaussians;
+        if recompute {
+            let v = filter3d::variances(&g.means, &f.cameras, self.config.filter_3d);
+            filter3d::carry(g, &v);
+        }
+        let v = filter3d::carried(g).unwrap_or_else(|| vec![0.0; g.len()]);
+        filter3d::filter_all(g, &v, &mut f.log_scales, &mut f.opacity_logits);
+    }
+
+    /// Turns gradients with respect to what the rasterizer saw into gradients with
+    /// respect to the raw parameters: the identity without the 3D filter,
+    /// [`filter3d::pull_back`] with it. [`Trainer::step`] does this; a caller of
+    /// [`Trainer::finish_step`] with its own backward passes must too.
+    pub fn pull_back(&self, grads: &mut Grads, rows: Option<&[u32]>) {
+        if self.filter.is_some() {
+            let v = filter3d::carried(&self.model.gaussians).unwrap_or_else(|| vec![0.0; self.model.len()]);
+            filter3d::pull_back(&self.model.gaussians, &v, grads, rows);
+        }
+    }
+
+    /// The model as a renderer without the 3D filter should draw it: the filter baked in
+    /// ([`filter3d::bake`]); the model itself without it.
+    pub fn exported(&self) -> std::borrow::Cow<'_, transsplat_scene::Gaussians> {
+        match self.filter {
+            Some(_) => std::borrow::Cow::Owned(filter3d::bake(&self.model.gaussians)),
+            None => std::borrow::Cow::Borrowed(&self.model.gaussians),
+        }
     }
 
     /// The scene's size for densification.
@@ -354,7 +426,11 @@ impl Trainer {
 
     /// The rasterizer's view of the model at the active SH degree.
     pub fn splats(&self) -> Splats<'_> {
-        self.model.splats(self.active_sh_degree)
+        let s = self.model.splats(self.active_sh_degree);
+        match &self.filter {
+            Some(f) => Splats { log_scales: &f.log_scales, opacity_logits: &f.opacity_logits, ..s },
+            None => s,
+        }
     }
 
     /// Render options (the configured background).
@@ -521,6 +597,7 @@ impl Trainer {
             self.reset_opacity(mask.as_deref());
             report.opacity_reset = true;
         }
+        self.refresh_filter(report.reindex.is_some() || step.is_multiple_of(filter3d::UPDATE_INTERVAL));
         report.gaussians = self.model.len();
         Ok(report)
     }
@@ -541,6 +618,7 @@ impl Trainer {
         if !loss.loss.is_finite() {
             return Err(TrainError::NonFinite { step: self.step, what: "the image loss".into() });
         }
+        self.pull_back(&mut grads, Some(&rows));
         // MCMC's regularisers reach every row: then the step visits every row.
         let regularised = self.add_regularisers(&mut grads);
         let report = self.finish_step(&grads, (!regularised).then_some(&rows[..]), Some(&frame), None);
@@ -556,6 +634,7 @@ impl Trainer {
     /// Applies a rearrangement to the model, Adam moments and statistics.
     pub fn apply(&mut self, r: &Reindex) {
         apply_reindex(&mut self.model, &mut self.adam, &mut self.stats, r);
+        self.refresh_filter(true);
     }
 
     /// INRIA `densify_and_prune` now (clone, split, prune), then clears the
@@ -674,6 +753,7 @@ impl Trainer {
         let touched =
             densify::reset_opacity(&mut self.model.gaussians, self.config.densify.opacity_reset_value, mask);
         self.adam.zero_moments(Group::Opacity, Some(&touched));
+        self.refresh_filter(false);
     }
 }
 

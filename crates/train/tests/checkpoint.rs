@@ -90,6 +90,42 @@ fn stopped_and_resumed_mcmc_training_is_bit_identical() {
     resumes_bit_identically(opts);
 }
 
+/// The same with Mip-Splatting's 3D filter: the variances are carried through the
+/// checkpoint (the stop falls between two recomputations), so the resumed run
+/// renders and updates with the filter the uninterrupted one had.
+#[test]
+fn stopped_and_resumed_training_with_the_3d_filter_is_bit_identical() {
+    let mut opts = options();
+    opts.config.filter_3d = 0.2;
+    resumes_bit_identically(opts);
+}
+
+/// The scene written with the 3D filter on draws, in a renderer without the filter,
+/// what the trainer drew; the filter changes what is drawn (it is not a no-op here).
+#[test]
+fn the_written_scene_has_the_3d_filter_baked_in() {
+    use transsplat_raster::{render, Splats};
+    let ds = dataset();
+    let mut opts = options();
+    opts.config.filter_3d = 2.0;
+    let (mut t, mut state) = fresh(&ds, &opts);
+    fit_with(&ds, &mut t, &mut state, 0, &mut Control::default(), |_| {}).unwrap();
+    let cam = &ds.test.first().unwrap_or(&ds.train[0]).camera;
+    let (drawn, _) = t.render(cam);
+    let exported = t.exported();
+    assert!(exported.extra.column(transsplat_train::filter3d::EXTRA_NAME).is_none());
+    let mut splats = Splats::new(&exported);
+    splats.active_sh_degree = t.active_sh_degree;
+    let (baked, _) = render(&splats, cam, &t.render_options());
+    let worst = drawn.rgb.iter().zip(&baked.rgb).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    assert!(worst < 1e-5, "baked scene differs by {worst}");
+    let mut raw = Splats::new(&t.model.gaussians);
+    raw.active_sh_degree = t.active_sh_degree;
+    let (unfiltered, _) = render(&raw, cam, &t.render_options());
+    let moved = drawn.rgb.iter().zip(&unfiltered.rgb).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    assert!(moved > 1e-3, "the filter changed nothing ({moved})");
+}
+
 fn resumes_bit_identically(opts: FitOptions) {
     let ds = dataset();
     let (mut whole, mut state) = fresh(&ds, &opts);
@@ -117,6 +153,7 @@ fn resumes_bit_identically(opts: FitOptions) {
     // Resume in a fresh trainer and finish.
     let mut ck = checkpointer(&ckdir, &ds, &opts);
     let (mut t, mut state) = ck.load_train(opts.config.clone()).unwrap();
+    t.attach_filter(&ds.cameras); // as the session does; nothing without the filter
     assert_eq!(t.step, 27);
     let mut control = Control { checkpoint: Some(ck), ..Default::default() };
     fit_with(&ds, &mut t, &mut state, 0, &mut control, |_| {}).unwrap();
@@ -131,6 +168,10 @@ fn resumes_bit_identically(opts: FitOptions) {
     assert_eq!(bits(a.rotations.as_flattened()), bits(b.rotations.as_flattened()));
     assert_eq!(bits(&a.opacity_logits), bits(&b.opacity_logits));
     assert_eq!(bits(&a.sh), bits(&b.sh));
+    assert_eq!(a.extra.names, b.extra.names);
+    assert_eq!(bits(&a.extra.values), bits(&b.extra.values));
+    let (ra, rb) = (t.render(&ds.train[0].camera).0, whole.render(&ds.train[0].camera).0);
+    assert_eq!(bits(&ra.rgb), bits(&rb.rgb));
     assert_eq!(t.adam, whole.adam);
     assert_eq!(t.stats, whole.stats);
     assert_eq!(t.active_sh_degree, whole.active_sh_degree);

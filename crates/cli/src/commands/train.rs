@@ -80,6 +80,12 @@ pub struct TrainArgs {
     /// the whole frame (docs/method.md T2).
     #[arg(long, value_parser = super::common::finite_f32, default_value_t = DensifyConfig::default().camera_reach.unwrap_or(0.0))]
     pub camera_reach: f32,
+    /// Mip-Splatting's 3D smoothing filter: every Gaussian is low-passed by the finest
+    /// sampling interval of the training cameras that see it, this factor times its
+    /// square (Mip-Splatting: 0.2; default 0 = off, as INRIA). The written scene has the
+    /// filter baked in, so any renderer draws what training saw (docs/method.md T3).
+    #[arg(long, value_parser = super::common::finite_f32, default_value_t = 0.0)]
+    pub filter_3d: f32,
     /// Never grow past this many Gaussians. With `--strategy adaptive` densification
     /// takes the largest gradients first while they fit (default 0 = no cap, as INRIA);
     /// with `--strategy mcmc` it is the budget the run grows to (default 0 = gsplat's
@@ -188,6 +194,7 @@ fn train_request(args: &TrainArgs) -> Result<TrainRequest> {
             adam: args.adam,
             clamp_grad: args.clamp_grad,
             strategy: args.strategy,
+            filter_3d: args.filter_3d,
             downscale: Downscale { levels: args.downscales, every: args.downscale_every },
             ..Default::default()
         },
@@ -227,6 +234,7 @@ fn flag_of(key: &str) -> &'static str {
         "downscale.levels" => "--downscales",
         "downscale.every" => "--downscale-every",
         "background" => "--background",
+        "filter_3d" => "--filter-3d",
         _ => "a setting",
     }
 }
