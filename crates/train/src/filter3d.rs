@@ -145,6 +145,32 @@ pub fn pull_back(g: &Gaussians, variance: &[f32], grads: &mut Grads, rows: Optio
     }
 }
 
+/// The opacity reset in filtered terms (as Mip-Splatting resets): every allowed
+/// Gaussian's *filtered* opacity is capped at `value`, its raw opacity set to what gives
+/// that through the filter (at most just below 1). Capping the raw opacity instead would
+/// leave a thin Gaussian at `value · k`, far below the reset value, and training after
+/// the reset would start from a scene much dimmer than INRIA's reset leaves. Returns
+/// the rows touched, as `densify::reset_opacity`.
+pub fn reset_opacity(g: &mut Gaussians, variance: &[f32], value: f32, mask: Option<&[bool]>) -> Vec<bool> {
+    let mut touched = vec![false; g.len()];
+    for i in 0..g.len() {
+        if mask.is_some_and(|m| !m[i]) {
+            continue;
+        }
+        let k: f32 = (0..3)
+            .map(|j| {
+                let s2 = (2.0 * g.log_scales[i][j]).exp();
+                (s2 / (s2 + variance[i])).sqrt()
+            })
+            .product();
+        let filtered = (sigmoid(g.opacity_logits[i]) * k).min(value);
+        let raw = (filtered / k.max(f32::MIN_POSITIVE)).clamp(f32::MIN_POSITIVE, 1.0 - 1e-6);
+        g.opacity_logits[i] = raw.ln() - (-raw).ln_1p();
+        touched[i] = true;
+    }
+    touched
+}
+
 /// The variances carried in `g`'s extras, if there are any.
 pub fn carried(g: &Gaussians) -> Option<Vec<f32>> {
     g.extra.column(EXTRA_NAME)
@@ -285,6 +311,30 @@ mod tests {
                 grads.log_scales[0][j]
             );
         }
+    }
+
+    #[test]
+    fn the_reset_caps_the_filtered_opacity() {
+        let mut g = Gaussians {
+            means: vec![[0.0; 3]; 3],
+            log_scales: vec![[-4.0; 3], [-4.0; 3], [-1.0; 3]],
+            rotations: vec![[1.0, 0.0, 0.0, 0.0]; 3],
+            opacity_logits: vec![3.0, 3.0, -6.0],
+            sh_degree: 0,
+            sh: vec![0.0; 9],
+            extra: Extra::default(),
+        };
+        let v = [4e-4f32, 4e-4, 4e-4];
+        let before2 = g.opacity_logits[2];
+        let touched = reset_opacity(&mut g, &v, 0.01, Some(&[true, false, true]));
+        assert_eq!(touched, [true, false, true]);
+        // Row 0: filtered opacity 0.01 after the reset, raw far above 0.01.
+        let (_, o) = filtered(g.log_scales[0], g.opacity_logits[0], v[0]);
+        assert!((sigmoid(o) - 0.01).abs() < 1e-5, "{}", sigmoid(o));
+        assert!(sigmoid(g.opacity_logits[0]) > 0.02, "the raw opacity is 0.01 / k");
+        // Row 1 is masked out; row 2 was already below 0.01 through the filter: unchanged.
+        assert_eq!(g.opacity_logits[1], 3.0);
+        assert!((g.opacity_logits[2] - before2).abs() < 1e-4);
     }
 
     #[test]

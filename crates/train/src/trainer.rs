@@ -748,10 +748,15 @@ impl Trainer {
         Ok(r)
     }
 
-    /// INRIA `reset_opacity` among the allowed Gaussians; zeroes their opacity moments.
+    /// INRIA `reset_opacity` among the allowed Gaussians (of the filtered opacity with the
+    /// 3D filter, [`filter3d::reset_opacity`]); zeroes their opacity moments.
     pub fn reset_opacity(&mut self, mask: Option<&[bool]>) {
-        let touched =
-            densify::reset_opacity(&mut self.model.gaussians, self.config.densify.opacity_reset_value, mask);
+        let value = self.config.densify.opacity_reset_value;
+        let g = &mut self.model.gaussians;
+        let touched = match (&self.filter, filter3d::carried(g)) {
+            (Some(_), Some(variance)) => filter3d::reset_opacity(g, &variance, value, mask),
+            _ => densify::reset_opacity(g, value, mask),
+        };
         self.adam.zero_moments(Group::Opacity, Some(&touched));
         self.refresh_filter(false);
     }
