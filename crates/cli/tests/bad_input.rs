@@ -456,6 +456,16 @@ fn cases() -> Vec<Case> {
             "--downscale-every must be at least 1 with --downscales 2",
         ),
         Case::train_flag(
+            "train: negative --filter-3d",
+            "--filter-3d=-1",
+            "--filter-3d must be in [0, 10], got -1",
+        ),
+        Case::train_flag(
+            "train: --filter-3d beyond the bound",
+            "--filter-3d 20",
+            "--filter-3d must be in [0, 10], got 20",
+        ),
+        Case::train_flag(
             "train: --downscales beyond the bound",
             "--downscales 7",
             "--downscales must be at most 6, got 7",

@@ -57,6 +57,31 @@ fn train_on_a_built_in_scene_writes_an_inria_folder() {
     assert!(renders.join("view_001.png").is_file());
 }
 
+/// `--filter-3d` is recorded in train.json, and the written scene is an ordinary INRIA PLY
+/// (the filter baked in, no carried column) whose render of a test view is the one
+/// training wrote in `test_renders/`.
+#[test]
+fn train_with_the_3d_filter_writes_it_baked_in() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = quick_scene_in(dir.path(), "data");
+    let out = dir.path().join("out");
+    ok(&train(&data, &out, &["--iters", "40", "--eval-every", "0", "--filter-3d", "0.2"]));
+    let typed = transsplat_train::fit::TrainSummary::read(&out).unwrap();
+    assert_eq!(typed.filter_3d, Some(0.2));
+    let scene = transsplat_scene::ply::read(&typed.scene).unwrap();
+    assert!(scene.extra.column(transsplat_train::filter3d::EXTRA_NAME).is_none(), "{:?}", scene.extra.names);
+    let renders = dir.path().join("renders");
+    ok(&bin().args(["render", "--scene"]).arg(&out).arg("--out").arg(&renders).output().unwrap());
+    let name = typed.per_test_view[0].name.clone();
+    let stem = Path::new(&name).file_stem().unwrap().to_string_lossy().to_string();
+    let read = |p: std::path::PathBuf| transsplat_scene::image::read(&p).unwrap().data;
+    let a = read(out.join("test_renders").join(format!("{stem}.png")));
+    let b = read(renders.join(format!("{stem}.png")));
+    assert_eq!(a.len(), b.len());
+    let worst = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+    assert!(worst <= 1.5 / 255.0, "the written scene renders {worst} from training's own render");
+}
+
 /// `--strategy mcmc` grows to its budget and says so in train.json; an unknown strategy
 /// is refused (status 2) naming the ones there are.
 #[test]
