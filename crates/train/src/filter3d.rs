@@ -1,14 +1,14 @@
 //! Mip-Splatting's 3D smoothing filter (Yu et al., "Mip-Splatting: Alias-free 3D
-//! Gaussian Splatting", CVPR 2024, Sec. 5.1, eqs. 7–9), as an option of the trainer
+//! Gaussian Splatting", CVPR 2024, its section "3D Smoothing Filter"), as an option of the trainer
 //! (`train --filter-3d`).
 //!
 //! A training camera at depth d with focal length f samples the world every d / f;
 //! detail finer than that was never observed. Each Gaussian is low-passed in 3D by an
 //! isotropic Gaussian of variance `s · (d̂ / f̂)²`, where d̂ is the smallest depth at which
-//! a training camera sees its centre and f̂ the largest focal length (eq. 7–8;
-//! [`variances`]). The convolution of two Gaussians is a Gaussian, so the filtered one
+//! a training camera sees its centre and f̂ the largest focal length
+//! ([`variances`]). The convolution of two Gaussians is a Gaussian, so the filtered one
 //! has scales `√(σ_j² + v)` along its own axes, and the filter keeps its integral, so its
-//! opacity is multiplied by `√(Π σ_j² / Π (σ_j² + v))` (eq. 9; [`filtered`]): a Gaussian
+//! opacity is multiplied by `√(Π σ_j² / Π (σ_j² + v))` ([`filtered`]): a Gaussian
 //! far thinner than what the cameras resolve is drawn as a dim, resolvable one, and the
 //! optimiser cannot keep sub-sample splats that only reproduce each training view's
 //! pixels.
@@ -19,7 +19,7 @@
 //! run continues bit-identically. The trainer renders the filtered parameters and pulls
 //! the image gradients back to the raw ones ([`pull_back`]); the written scene has the
 //! filter baked into its scales and opacities ([`bake`]), so any 3DGS renderer draws
-//! what training saw. The 2D Mip filter of the same paper (eq. 10–11) is not built: the
+//! what training saw. The 2D Mip filter of the same paper is not built: the
 //! rasterizer keeps INRIA's 0.3-pixel dilation.
 
 use transsplat_raster::Grads;
@@ -37,7 +37,7 @@ const NEAR: f32 = 0.2;
 /// every side (Mip-Splatting's 15 % margin).
 const MARGIN: f32 = 0.15;
 
-/// The filter variance of every Gaussian (eq. 7–8): `factor · (d̂ / f̂)²`, d̂ the nearest
+/// The filter variance of every Gaussian (the sampling rate of the paper's 3D filter): `factor · (d̂ / f̂)²`, d̂ the nearest
 /// depth (beyond [`NEAR`]) at which a camera sees the centre within its widened image,
 /// f̂ the largest focal length. A centre no camera sees takes the largest d̂ of those
 /// seen (Mip-Splatting's rule); with none seen at all, every variance is 0.
@@ -80,7 +80,8 @@ pub fn variances(means: &[[f32; 3]], cameras: &[Camera], factor: f32) -> Vec<f32
         .collect()
 }
 
-/// The filtered log-scales and opacity logits of one Gaussian (eq. 9): scales
+/// The filtered log-scales and opacity logits of one Gaussian (the 3D filter's
+/// convolution, normalised to keep the integral): scales
 /// `√(σ_j² + v)`, opacity `sigmoid(o) · √(Π σ_j² / Π (σ_j² + v))`.
 pub fn filtered(log_scales: [f32; 3], opacity_logit: f32, variance: f32) -> ([f32; 3], f32) {
     let mut out = [0.0; 3];
