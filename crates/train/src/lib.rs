@@ -9,7 +9,8 @@
 //! - [`loss`]: `0.8 L1 + 0.2 D-SSIM` with its exact image gradient; PSNR.
 //! - [`densify`]: clone / split / prune / opacity reset on INRIA's schedule, with
 //!   an optional per-Gaussian mask; [`mcmc`]: the MCMC strategy (relocation of dead
-//!   Gaussians under a fixed budget, position noise), chosen by [`Strategy`].
+//!   Gaussians under a fixed budget, position noise), chosen by [`Strategy`];
+//!   [`filter3d`]: Mip-Splatting's 3D smoothing filter, an option.
 //! - [`trainer`]: [`Trainer`], one optimisation step as a library call, split into
 //!   `begin_step` / `forward_backward` / `finish_step` so other crates can add
 //!   their own gradient terms before the Adam step.
