@@ -96,7 +96,8 @@ pub fn filtered(log_scales: [f32; 3], opacity_logit: f32, variance: f32) -> ([f3
     (out, alpha.ln() - (-alpha).ln_1p())
 }
 
-/// The filtered parameters of every Gaussian into `log_scales` and `opacity_logits`.
+/// The filtered parameters of every Gaussian into `log_scales` and `opacity_logits`
+/// (resized to the model, then written in place).
 pub fn filter_all(
     g: &Gaussians,
     variance: &[f32],
@@ -104,16 +105,14 @@ pub fn filter_all(
     opacity_logits: &mut Vec<f32>,
 ) {
     use rayon::prelude::*;
-    let (ls, ol): (Vec<[f32; 3]>, Vec<f32>) = g
-        .log_scales
-        .par_iter()
-        .zip(&g.opacity_logits)
-        .zip(variance)
+    log_scales.resize(g.len(), [0.0; 3]);
+    opacity_logits.resize(g.len(), 0.0);
+    log_scales
+        .par_iter_mut()
+        .zip(opacity_logits.par_iter_mut())
+        .zip(g.log_scales.par_iter().zip(&g.opacity_logits).zip(variance))
         .with_min_len(4096)
-        .map(|((l, &o), &v)| filtered(*l, o, v))
-        .unzip();
-    *log_scales = ls;
-    *opacity_logits = ol;
+        .for_each(|((ls, o), ((l, &raw), &v))| (*ls, *o) = filtered(*l, raw, v));
 }
 
 /// Pulls gradients with respect to the filtered log-scales l' and opacity logit o'

@@ -290,13 +290,26 @@ pub struct Trainer {
 }
 
 /// The state of [`crate::filter3d`] in a trainer: the training cameras (the variances
-/// are recomputed from them) and the filtered log-scales and opacity logits, refreshed
-/// whenever the raw ones change. The variances themselves are carried in the model.
+/// are recomputed from them), the variances (a copy of the model's carried column, which
+/// checkpoints and rearrangements keep), and the filtered log-scales and opacity logits,
+/// refreshed whenever the raw ones change.
 #[derive(Clone, Debug)]
 struct Filter {
     cameras: Vec<Camera>,
+    variance: Vec<f32>,
     log_scales: Vec<[f32; 3]>,
     opacity_logits: Vec<f32>,
+}
+
+/// Where [`Trainer::refresh_filter`] takes the variances from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Variances {
+    /// Computed again from the means and the cameras (and carried).
+    Recompute,
+    /// Read back from the carried column, after a rearrangement of the rows.
+    Carried,
+    /// Unchanged since the last refresh: only the raw parameters moved.
+    Kept,
 }
 
 /// Applies `r` to every per-Gaussian array: the model's ([`Model::reindex`]), the
@@ -381,22 +394,30 @@ impl Trainer {
         if self.config.filter_3d <= 0.0 || cameras.is_empty() {
             return;
         }
-        self.filter =
-            Some(Filter { cameras: cameras.to_vec(), log_scales: Vec::new(), opacity_logits: Vec::new() });
+        self.filter = Some(Filter {
+            cameras: cameras.to_vec(),
+            variance: Vec::new(),
+            log_scales: Vec::new(),
+            opacity_logits: Vec::new(),
+        });
         let carried = filter3d::carried(&self.model.gaussians).is_some_and(|v| v.len() == self.model.len());
-        self.refresh_filter(!carried);
+        self.refresh_filter(if carried { Variances::Carried } else { Variances::Recompute });
     }
 
-    /// Recomputes the carried variances (when `recompute`) and the filtered parameters.
-    fn refresh_filter(&mut self, recompute: bool) {
+    /// Brings the filter's variances (from `source`) and filtered parameters up to date
+    /// with the model.
+    fn refresh_filter(&mut self, source: Variances) {
         let Some(f) = self.filter.as_mut() else { return };
         let g = &mut self.model.gaussians;
-        if recompute {
-            let v = filter3d::variances(&g.means, &f.cameras, self.config.filter_3d);
-            filter3d::carry(g, &v);
+        match source {
+            Variances::Recompute => {
+                f.variance = filter3d::variances(&g.means, &f.cameras, self.config.filter_3d);
+                filter3d::carry(g, &f.variance);
+            }
+            Variances::Carried => f.variance = filter3d::carried(g).unwrap_or_else(|| vec![0.0; g.len()]),
+            Variances::Kept => {}
         }
-        let v = filter3d::carried(g).unwrap_or_else(|| vec![0.0; g.len()]);
-        filter3d::filter_all(g, &v, &mut f.log_scales, &mut f.opacity_logits);
+        filter3d::filter_all(g, &f.variance, &mut f.log_scales, &mut f.opacity_logits);
     }
 
     /// Turns gradients with respect to what the rasterizer saw into gradients with
@@ -404,9 +425,8 @@ impl Trainer {
     /// [`filter3d::pull_back`] with it. [`Trainer::step`] does this; a caller of
     /// [`Trainer::finish_step`] with its own backward passes must too.
     pub fn pull_back(&self, grads: &mut Grads, rows: Option<&[u32]>) {
-        if self.filter.is_some() {
-            let v = filter3d::carried(&self.model.gaussians).unwrap_or_else(|| vec![0.0; self.model.len()]);
-            filter3d::pull_back(&self.model.gaussians, &v, grads, rows);
+        if let Some(f) = &self.filter {
+            filter3d::pull_back(&self.model.gaussians, &f.variance, grads, rows);
         }
     }
 
@@ -597,7 +617,8 @@ impl Trainer {
             self.reset_opacity(mask.as_deref());
             report.opacity_reset = true;
         }
-        self.refresh_filter(report.reindex.is_some() || step.is_multiple_of(filter3d::UPDATE_INTERVAL));
+        let recompute = report.reindex.is_some() || step.is_multiple_of(filter3d::UPDATE_INTERVAL);
+        self.refresh_filter(if recompute { Variances::Recompute } else { Variances::Kept });
         report.gaussians = self.model.len();
         Ok(report)
     }
@@ -634,7 +655,9 @@ impl Trainer {
     /// Applies a rearrangement to the model, Adam moments and statistics.
     pub fn apply(&mut self, r: &Reindex) {
         apply_reindex(&mut self.model, &mut self.adam, &mut self.stats, r);
-        self.refresh_filter(true);
+        // The carried variances were rearranged with the rows; new rows carry their
+        // source's until the next recomputation (after every densification).
+        self.refresh_filter(Variances::Carried);
     }
 
     /// INRIA `densify_and_prune` now (clone, split, prune), then clears the
@@ -753,12 +776,12 @@ impl Trainer {
     pub fn reset_opacity(&mut self, mask: Option<&[bool]>) {
         let value = self.config.densify.opacity_reset_value;
         let g = &mut self.model.gaussians;
-        let touched = match (&self.filter, filter3d::carried(g)) {
-            (Some(_), Some(variance)) => filter3d::reset_opacity(g, &variance, value, mask),
-            _ => densify::reset_opacity(g, value, mask),
+        let touched = match &self.filter {
+            Some(f) => filter3d::reset_opacity(g, &f.variance, value, mask),
+            None => densify::reset_opacity(g, value, mask),
         };
         self.adam.zero_moments(Group::Opacity, Some(&touched));
-        self.refresh_filter(false);
+        self.refresh_filter(Variances::Kept);
     }
 }
 
