@@ -120,7 +120,8 @@ def torch_rows(args):
 
 def candle_rows(args):
     env = dict(os.environ, RAYON_NUM_THREADS=str(args.threads), OMP_NUM_THREADS=str(args.threads))
-    run = subprocess.run([args.transsplat, "bench", "models", "--only", "ip2p"], env=env,
+    run = subprocess.run([args.transsplat, "bench", "models", "--only", "ip2p",
+                          "--repeats", str(args.repeats)], env=env,
                          capture_output=True, text=True)
     if run.returncode != 0:
         sys.exit(f"{args.transsplat} bench models failed (exit {run.returncode}):\n{run.stderr[-4000:]}")

@@ -15,46 +15,50 @@ use transsplat_models::weights::random_weights;
 use transsplat_models::Error;
 
 /// One benchmark: a name and a function that builds its model and returns the seconds
-/// of one timed run (after one untimed warm-up run).
+/// of the fastest of `repeats` timed runs (after one untimed warm-up run).
 pub struct Case {
     pub name: &'static str,
-    pub run: fn(&Device) -> Result<f64, Error>,
+    pub run: fn(&Device, Repeats) -> Result<f64, Error>,
 }
+
+/// How many timed runs a case takes the fastest of (at least one).
+#[derive(Clone, Copy, Debug)]
+pub struct Repeats(pub usize);
 
 /// Every model case (CLIP, CLIPSeg, SAM and DINOv2; the InstructPix2Pix cases join this list).
 pub fn cases() -> Vec<Case> {
     vec![
         Case { name: "clip-vit-l14 image 224", run: clip_image },
         Case { name: "clip-vit-l14 text 77", run: clip_text },
-        Case { name: "clipseg-rd64-refined segment 256x256", run: |d| clipseg(d, 256) },
-        Case { name: "clipseg-rd64-refined segment 512x512", run: |d| clipseg(d, 512) },
-        Case { name: "slimsam-uniform-77 segment 256x256", run: |d| sam(d, Some((168, 696)), 256) },
-        Case { name: "slimsam-uniform-77 segment 512x512", run: |d| sam(d, Some((168, 696)), 512) },
-        Case { name: "sam-vit-base segment 256x256", run: |d| sam(d, None, 256) },
-        Case { name: "sam-vit-base segment 512x512", run: |d| sam(d, None, 512) },
-        Case { name: "dinov2-small 256x256", run: |d| dinov2(d, 384, 6, 256) },
-        Case { name: "dinov2-small 512x512", run: |d| dinov2(d, 384, 6, 512) },
-        Case { name: "dinov2-base 256x256", run: |d| dinov2(d, 768, 12, 256) },
-        Case { name: "dinov2-base 512x512", run: |d| dinov2(d, 768, 12, 512) },
-        Case { name: "ip2p unet step (batch 3) 256x256", run: |d| ip2p(d, Ip2pCase::UnetStep, 256) },
+        Case { name: "clipseg-rd64-refined segment 256x256", run: |d, n| clipseg(d, n, 256) },
+        Case { name: "clipseg-rd64-refined segment 512x512", run: |d, n| clipseg(d, n, 512) },
+        Case { name: "slimsam-uniform-77 segment 256x256", run: |d, n| sam(d, n, Some((168, 696)), 256) },
+        Case { name: "slimsam-uniform-77 segment 512x512", run: |d, n| sam(d, n, Some((168, 696)), 512) },
+        Case { name: "sam-vit-base segment 256x256", run: |d, n| sam(d, n, None, 256) },
+        Case { name: "sam-vit-base segment 512x512", run: |d, n| sam(d, n, None, 512) },
+        Case { name: "dinov2-small 256x256", run: |d, n| dinov2(d, n, 384, 6, 256) },
+        Case { name: "dinov2-small 512x512", run: |d, n| dinov2(d, n, 384, 6, 512) },
+        Case { name: "dinov2-base 256x256", run: |d, n| dinov2(d, n, 768, 12, 256) },
+        Case { name: "dinov2-base 512x512", run: |d, n| dinov2(d, n, 768, 12, 512) },
+        Case { name: "ip2p unet step (batch 3) 256x256", run: |d, n| ip2p(d, n, Ip2pCase::UnetStep, 256) },
         Case {
             name: "ip2p unet step (batch 3x2) 256x256",
-            run: |d| ip2p(d, Ip2pCase::UnetStepViews(2), 256),
+            run: |d, n| ip2p(d, n, Ip2pCase::UnetStepViews(2), 256),
         },
         Case {
             name: "ip2p unet step (batch 3x4) 256x256",
-            run: |d| ip2p(d, Ip2pCase::UnetStepViews(4), 256),
+            run: |d, n| ip2p(d, n, Ip2pCase::UnetStepViews(4), 256),
         },
-        Case { name: "ip2p vae encode 256x256", run: |d| ip2p(d, Ip2pCase::VaeEncode, 256) },
-        Case { name: "ip2p vae decode 256x256", run: |d| ip2p(d, Ip2pCase::VaeDecode, 256) },
-        Case { name: "ip2p unet step (batch 3) 512x512", run: |d| ip2p(d, Ip2pCase::UnetStep, 512) },
-        Case { name: "ip2p vae encode 512x512", run: |d| ip2p(d, Ip2pCase::VaeEncode, 512) },
-        Case { name: "ip2p vae decode 512x512", run: |d| ip2p(d, Ip2pCase::VaeDecode, 512) },
+        Case { name: "ip2p vae encode 256x256", run: |d, n| ip2p(d, n, Ip2pCase::VaeEncode, 256) },
+        Case { name: "ip2p vae decode 256x256", run: |d, n| ip2p(d, n, Ip2pCase::VaeDecode, 256) },
+        Case { name: "ip2p unet step (batch 3) 512x512", run: |d, n| ip2p(d, n, Ip2pCase::UnetStep, 512) },
+        Case { name: "ip2p vae encode 512x512", run: |d, n| ip2p(d, n, Ip2pCase::VaeEncode, 512) },
+        Case { name: "ip2p vae decode 512x512", run: |d, n| ip2p(d, n, Ip2pCase::VaeDecode, 512) },
     ]
 }
 
 /// The SD 1.5 models are built once per process (about 4 GB of random f32 weights).
-fn ip2p(device: &Device, case: Ip2pCase, size: usize) -> Result<f64, Error> {
+fn ip2p(device: &Device, repeats: Repeats, case: Ip2pCase, size: usize) -> Result<f64, Error> {
     static MODELS: std::sync::Mutex<Option<std::sync::Arc<Sd15>>> = std::sync::Mutex::new(None);
     let models = {
         let mut slot = MODELS.lock().map_err(|_| candle_core::Error::Msg("poisoned".into()))?;
@@ -63,12 +67,12 @@ fn ip2p(device: &Device, case: Ip2pCase, size: usize) -> Result<f64, Error> {
         }
         slot.clone().expect("just built")
     };
-    time(|| Ok(case.run(&models, size, device)?))
+    time(repeats, || Ok(case.run(&models, size, device)?))
 }
 
-/// Seconds of one run of `f` after one untimed warm-up run.
-fn time<T>(f: impl FnMut() -> Result<T, Error>) -> Result<f64, Error> {
-    try_best_of(1, 1, f).map(|(secs, _)| secs)
+/// Seconds of the fastest of `repeats` runs of `f` after one untimed warm-up run.
+fn time<T>(repeats: Repeats, f: impl FnMut() -> Result<T, Error>) -> Result<f64, Error> {
+    try_best_of(1, repeats.0, f).map(|(secs, _)| secs)
 }
 
 fn clip(device: &Device) -> Result<Clip, Error> {
@@ -77,19 +81,19 @@ fn clip(device: &Device) -> Result<Clip, Error> {
     Clip::new(vb, &vit_l14(), path)
 }
 
-fn clip_image(device: &Device) -> Result<f64, Error> {
+fn clip_image(device: &Device, repeats: Repeats) -> Result<f64, Error> {
     let clip = clip(device)?;
     let (w, h) = (512, 512);
     let img: Vec<f32> = (0..w * h * 3).map(|i| (i % 255) as f32 / 255.0).collect();
-    time(|| clip.image_features(&[(&img, w, h)]))
+    time(repeats, || clip.image_features(&[(&img, w, h)]))
 }
 
-fn clip_text(device: &Device) -> Result<f64, Error> {
+fn clip_text(device: &Device, repeats: Repeats) -> Result<f64, Error> {
     let clip = clip(device)?;
-    time(|| clip.text_features(&["a photo of a man turned into a clown"]))
+    time(repeats, || clip.text_features(&["a photo of a man turned into a clown"]))
 }
 
-fn dinov2(device: &Device, hidden: usize, heads: usize, size: usize) -> Result<f64, Error> {
+fn dinov2(device: &Device, repeats: Repeats, hidden: usize, heads: usize, size: usize) -> Result<f64, Error> {
     let config = Dinov2Config {
         hidden_size: hidden,
         num_hidden_layers: 12,
@@ -105,7 +109,7 @@ fn dinov2(device: &Device, hidden: usize, heads: usize, size: usize) -> Result<f
     let vb = random_weights(device, |vb| Dinov2::new(vb, config.clone()).map(|_| ()))?;
     let model = Dinov2::new(vb, config)?;
     let img: Vec<f32> = (0..size * size * 3).map(|i| (i % 251) as f32 / 251.0).collect();
-    time(|| model.features(&img, size, size))
+    time(repeats, || model.features(&img, size, size))
 }
 
 /// `CIDAS/clipseg-rd64-refined`: CLIP ViT-B/16 towers (text 512 wide, 8 heads, vision 768
@@ -149,21 +153,21 @@ fn clipseg_rd64_refined() -> ClipSegConfig {
 
 /// One `segment` call on a `size`² view (resize to 352², both towers, the decoder, the
 /// probabilities resized back).
-fn clipseg(device: &Device, size: usize) -> Result<f64, Error> {
+fn clipseg(device: &Device, repeats: Repeats, size: usize) -> Result<f64, Error> {
     let path = std::path::Path::new("(benchmark config)");
     let (config, processor) = (clipseg_rd64_refined(), ClipSegProcessorConfig::default());
     let vb =
         random_weights(device, |vb| ClipSeg::new(vb, config.clone(), processor.clone(), path).map(|_| ()))?;
     let model = ClipSeg::new(vb, config, processor, path)?;
     let img: Vec<f32> = (0..size * size * 3).map(|i| (i % 253) as f32 / 253.0).collect();
-    time(|| model.segment(&img, size, size, "the bear statue"))
+    time(repeats, || model.segment(&img, size, size, "the bear statue"))
 }
 
 /// One SAM `segment` call on a `size`² view with a box and a point (resize to 1024², the
 /// ViT encoder, the decoder, the mask resized back): `facebook/sam-vit-base`'s config
 /// (transformers' defaults), or SlimSAM's pruned vision widths `(hidden_size, mlp_dim)`
 /// (`Zigeng/SlimSAM-uniform-77`: 168, 696).
-fn sam(device: &Device, slim: Option<(usize, usize)>, size: usize) -> Result<f64, Error> {
+fn sam(device: &Device, repeats: Repeats, slim: Option<(usize, usize)>, size: usize) -> Result<f64, Error> {
     let mut config = SamConfig::default();
     if let Some((hidden, mlp)) = slim {
         config.vision_config.hidden_size = hidden;
@@ -177,5 +181,5 @@ fn sam(device: &Device, slim: Option<(usize, usize)>, size: usize) -> Result<f64
         points: vec![([2.0 * q, 2.0 * q], PointLabel::Positive)],
         bbox: Some([q, q, 3.0 * q, 3.0 * q]),
     };
-    time(|| model.segment(&img, size, size, &prompt))
+    time(repeats, || model.segment(&img, size, size, &prompt))
 }

@@ -7,8 +7,27 @@ mod commands;
 /// gradient, a transport kernel) is a fresh `mmap`: a page fault per 4 KiB on first
 /// touch and TLB shootdowns on `munmap`, which cost more than the rasterizer's own work
 /// at 1M Gaussians (`transsplat bench raster`).
+///
+/// It also gives freed memory back to the system (a purge) 10 ms to 100 ms after it is
+/// freed, and the next allocation of it faults every page in again, zeroed by the
+/// kernel. A model's forward pass frees and reallocates its large activations every few
+/// tens of milliseconds, so [`keep_freed_memory`] turns purging off: the process keeps
+/// what it freed for reuse until it exits, and its peak memory is what its work needs
+/// at once, as before.
 #[global_allocator]
 static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+/// Turns mimalloc's purging off (`mi_option_purge_delay` = −1, mimalloc.h).
+fn keep_freed_memory() {
+    extern "C" {
+        fn mi_option_set(option: std::ffi::c_int, value: std::ffi::c_long);
+    }
+    /// `mi_option_purge_delay` in mimalloc.h's `mi_option_e` (versions 2 and 3).
+    const PURGE_DELAY: std::ffi::c_int = 15;
+    // SAFETY: mimalloc is linked as the global allocator above; setting an option is
+    // thread-safe and takes plain integers.
+    unsafe { mi_option_set(PURGE_DELAY, -1) };
+}
 
 use clap::{Parser, Subcommand};
 
@@ -111,6 +130,7 @@ fn parse_args() -> Cli {
 }
 
 fn main() {
+    keep_freed_memory();
     let cli = parse_args();
     // Commands that poll CANCEL stop cleanly at their next step; the others (short, and
     // writing each output atomically) keep the default: Ctrl-C ends them at once.

@@ -1,6 +1,44 @@
 //! What this crate's CPU operations share: reading a contiguous f32 input from candle's
-//! storage, and a bounds-checked GEMM over row-major or transposed matrices on every
-//! rayon thread (the `gemm` crate, AVX-512 kernels where the CPU has them).
+//! storage, a bounds-checked GEMM over row-major or transposed matrices on every rayon
+//! thread (the `gemm` crate, AVX-512 kernels where the CPU has them), and
+//! [`simd_versions!`], which compiles an element-wise loop for the vector units the CPU
+//! has.
+
+/// Defines `fn $name(args)` from a plain loop body compiled three times: for AVX-512F,
+/// for AVX2 with FMA, and for the build's baseline (SSE2 on x86-64), the first the CPU
+/// has picked at run time. The release build targets the baseline, where a loop gets 4
+/// lanes and calls such as `round_ties_even` stay calls into the C library; compiled
+/// for AVX2 the same loop gets 8 lanes, for AVX-512 16.
+macro_rules! simd_versions {
+    ($(#[$meta:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)? $body:block) => {
+        $(#[$meta])*
+        $vis fn $name($($arg: $ty),*) $(-> $ret)? {
+            #[inline(always)]
+            fn portable($($arg: $ty),*) $(-> $ret)? $body
+            #[cfg(target_arch = "x86_64")]
+            {
+                #[target_feature(enable = "avx512f")]
+                unsafe fn avx512($($arg: $ty),*) $(-> $ret)? {
+                    portable($($arg),*)
+                }
+                #[target_feature(enable = "avx2,fma")]
+                unsafe fn avx2($($arg: $ty),*) $(-> $ret)? {
+                    portable($($arg),*)
+                }
+                if std::arch::is_x86_feature_detected!("avx512f") {
+                    // SAFETY: the CPU has AVX-512F, checked just above.
+                    return unsafe { avx512($($arg),*) };
+                }
+                if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+                    // SAFETY: the CPU has AVX2 and FMA, checked just above.
+                    return unsafe { avx2($($arg),*) };
+                }
+            }
+            portable($($arg),*)
+        }
+    };
+}
+pub(crate) use simd_versions;
 
 use candle_core::{CpuStorage, Layout};
 

@@ -16,10 +16,11 @@
 //! `tools/model_fixtures_*.py` and committed under `tests/fixtures`.
 
 pub mod check;
+#[macro_use]
+mod cpu;
 pub mod clip;
 pub mod clipseg;
 pub mod conv;
-mod cpu;
 pub mod dinov2;
 pub mod ip2p;
 pub mod linear;

@@ -148,27 +148,12 @@ impl CustomOp1 for Geglu {
     }
 }
 
-fn geglu_row(value: &[f32], gate: &[f32], out: &mut [f32]) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU has AVX-512F, checked just above.
-            return unsafe { geglu_row_avx512(value, gate, out) };
+crate::cpu::simd_versions! {
+    /// value · GELU(gate) (module doc), for the vector units the CPU has.
+    fn geglu_row(value: &[f32], gate: &[f32], out: &mut [f32]) {
+        for ((o, &v), &g) in out.iter_mut().zip(value).zip(gate) {
+            *o = v * 0.5 * g * (1.0 + erf(g * std::f32::consts::FRAC_1_SQRT_2));
         }
-    }
-    geglu_row_portable(value, gate, out)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn geglu_row_avx512(value: &[f32], gate: &[f32], out: &mut [f32]) {
-    geglu_row_portable(value, gate, out)
-}
-
-#[inline(always)]
-fn geglu_row_portable(value: &[f32], gate: &[f32], out: &mut [f32]) {
-    for ((o, &v), &g) in out.iter_mut().zip(value).zip(gate) {
-        *o = v * 0.5 * g * (1.0 + erf(g * std::f32::consts::FRAC_1_SQRT_2));
     }
 }
 

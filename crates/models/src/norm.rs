@@ -99,27 +99,57 @@ impl CustomOp1 for GroupNormOp {
         let mut y = vec![0.0f32; x.len()];
         y.par_chunks_mut(per_group).zip(x.par_chunks(per_group)).enumerate().for_each(|(k, (out, inp))| {
             let first_channel = (k % self.groups) * (c / self.groups);
-            let n = inp.len() as f64;
-            let mean = inp.iter().map(|&v| v as f64).sum::<f64>() / n;
-            let var = inp.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / n;
-            let rstd = 1.0 / (var + self.eps).sqrt();
+            let (mean, rstd) = moments(inp, self.eps);
             for (j, (o, i)) in out.chunks_mut(positions).zip(inp.chunks(positions)).enumerate() {
                 let ch = first_channel + j;
                 let scale = (self.weight[ch] as f64 * rstd) as f32;
                 let shift = self.bias[ch] - (mean * self.weight[ch] as f64 * rstd) as f32;
-                if self.silu {
-                    for (o, &v) in o.iter_mut().zip(i) {
-                        let t = v * scale + shift;
-                        *o = t / (1.0 + (-t).exp());
-                    }
-                } else {
-                    for (o, &v) in o.iter_mut().zip(i) {
-                        *o = v * scale + shift;
-                    }
-                }
+                affine(i, o, scale, shift, self.silu);
             }
         });
         Ok((CpuStorage::F32(y), layout.shape().clone()))
+    }
+}
+
+crate::cpu::simd_versions! {
+    /// The mean of `x` and 1/√(variance + eps), in f64 over 8 independent lanes (a single
+    /// running sum is a chain of dependent additions the compiler cannot vectorise).
+    fn moments(x: &[f32], eps: f64) -> (f64, f64) {
+        #[inline(always)]
+        fn lanes_sum(x: &[f32], f: impl Fn(f32) -> f64) -> f64 {
+            const LANES: usize = 8;
+            let mut lanes = [0.0f64; LANES];
+            let mut chunks = x.chunks_exact(LANES);
+            for c in &mut chunks {
+                for (l, &v) in lanes.iter_mut().zip(c) {
+                    *l += f(v);
+                }
+            }
+            chunks.remainder().iter().map(|&v| f(v)).sum::<f64>() + lanes.iter().sum::<f64>()
+        }
+        let n = x.len().max(1) as f64;
+        let mean = lanes_sum(x, |v| v as f64) / n;
+        let var = lanes_sum(x, |v| (v as f64 - mean) * (v as f64 - mean)) / n;
+        (mean, 1.0 / (var + eps).sqrt())
+    }
+}
+
+crate::cpu::simd_versions! {
+    /// o = x · scale + shift, then SiLU(t) = t / (1 + e⁻ᵗ) with `silu`: e⁻ᵗ from the
+    /// vectorised exponential of −|t| (t ≥ 0: t / (1 + e); t < 0: t · e / (1 + e)).
+    fn affine(x: &[f32], out: &mut [f32], scale: f32, shift: f32, silu: bool) {
+        if silu {
+            for (o, &v) in out.iter_mut().zip(x) {
+                let t = v * scale + shift;
+                let e = crate::softmax::exp_nonpositive(-t.abs());
+                let num = if t >= 0.0 { t } else { t * e };
+                *o = num / (1.0 + e);
+            }
+        } else {
+            for (o, &v) in out.iter_mut().zip(x) {
+                *o = v * scale + shift;
+            }
+        }
     }
 }
 

@@ -7,8 +7,8 @@
 //! r = t − n ln 2 (ln 2 split in two parts, Cody and Waite) and p the degree-6 Taylor
 //! polynomial of eʳ on |r| ≤ ln 2 / 2 (relative error below 2·10⁻⁷, about one f32 unit in
 //! the last place), written as plain arithmetic over slices so the compiler vectorises it;
-//! the row loop is compiled a second time for AVX-512 and picked at run time where the
-//! CPU has it. Rows run in parallel. Off the CPU, or in another dtype, candle's op runs.
+//! the row loop is compiled for AVX-512, for AVX2 and for the baseline, and the CPU's
+//! best is picked at run time. Rows run in parallel. Off the CPU, or in another dtype, candle's op runs.
 
 use candle_core::{CpuStorage, CustomOp1, DType, Layout, Shape, Tensor};
 use rayon::prelude::*;
@@ -44,38 +44,22 @@ impl CustomOp1 for Softmax {
     }
 }
 
-/// One row, on AVX-512 where the CPU has it.
-fn softmax_row(x: &[f32], y: &mut [f32]) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU has AVX-512F, checked just above.
-            return unsafe { softmax_row_avx512(x, y) };
+crate::cpu::simd_versions! {
+    /// One row (module doc), for the vector units the CPU has.
+    fn softmax_row(x: &[f32], y: &mut [f32]) {
+        let max = lanes_fold(x, f32::NEG_INFINITY, f32::max);
+        if !max.is_finite() {
+            // a row of −∞ (fully masked) or holding NaN or +∞: as the exact formula gives it
+            let sum: f32 = x.iter().map(|&v| (v - max).exp()).sum();
+            y.iter_mut().zip(x).for_each(|(o, &v)| *o = (v - max).exp() / sum);
+            return;
         }
+        for (o, &v) in y.iter_mut().zip(x) {
+            *o = exp_nonpositive(v - max);
+        }
+        let inv = 1.0 / lanes_fold(y, 0.0, |a, b| a + b);
+        y.iter_mut().for_each(|o| *o *= inv);
     }
-    softmax_row_portable(x, y)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn softmax_row_avx512(x: &[f32], y: &mut [f32]) {
-    softmax_row_portable(x, y)
-}
-
-#[inline(always)]
-fn softmax_row_portable(x: &[f32], y: &mut [f32]) {
-    let max = lanes_fold(x, f32::NEG_INFINITY, f32::max);
-    if !max.is_finite() {
-        // a row of −∞ (fully masked) or holding NaN or +∞: as the exact formula gives it
-        let sum: f32 = x.iter().map(|&v| (v - max).exp()).sum();
-        y.iter_mut().zip(x).for_each(|(o, &v)| *o = (v - max).exp() / sum);
-        return;
-    }
-    for (o, &v) in y.iter_mut().zip(x) {
-        *o = exp_nonpositive(v - max);
-    }
-    let inv = 1.0 / lanes_fold(y, 0.0, |a, b| a + b);
-    y.iter_mut().for_each(|o| *o *= inv);
 }
 
 /// Folds `values` with `f` over 16 independent lanes, then the lanes: a reduction the
@@ -100,8 +84,11 @@ pub(crate) fn exp_nonpositive(t: f32) -> f32 {
     const LOG2E: f32 = std::f32::consts::LOG2_E;
     const LN2_HI: f32 = 0.693_145_75;
     const LN2_LO: f32 = 1.428_606_8e-6;
+    // round to the nearest integer by adding and taking away 1.5 · 2²³ (exact for
+    // |x| < 2²²; one vector addition, where `round_ties_even` is a library call on SSE2)
+    const ROUND: f32 = 12_582_912.0;
     let t = t.max(-87.0);
-    let n = (t * LOG2E).round_ties_even();
+    let n = (t * LOG2E + ROUND) - ROUND;
     let r = (t - n * LN2_HI) - n * LN2_LO;
     let p = 1.0
         + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));

@@ -116,18 +116,24 @@ pub struct ModelsArgs {
     /// Only the cases whose name contains this text.
     #[arg(long)]
     pub only: Option<String>,
+    /// Timed runs per case, the fastest reported (1 to 100).
+    #[arg(long, default_value_t = 1)]
+    pub repeats: usize,
 }
 
-/// `transsplat bench models`: one forward pass per model case (real architecture sizes,
-/// random weights), after one warm-up.
+/// `transsplat bench models`: the fastest of `--repeats` forward passes per model case
+/// (real architecture sizes, random weights), after one warm-up.
 pub fn models(args: &ModelsArgs) -> anyhow::Result<()> {
+    if !(1..=100).contains(&args.repeats) {
+        anyhow::bail!("--repeats must be between 1 and 100, got {}", args.repeats);
+    }
     let device = transsplat_models::default_device();
     println!("{:<28} {:>10}", "case", "seconds");
     for case in transsplat_bench::models::cases() {
         if args.only.as_deref().is_some_and(|o| !case.name.contains(o)) {
             continue;
         }
-        let s = (case.run)(&device)?;
+        let s = (case.run)(&device, transsplat_bench::models::Repeats(args.repeats))?;
         println!("{:<28} {:>10.3}", case.name, s);
     }
     Ok(())
