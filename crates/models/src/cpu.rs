@@ -72,6 +72,18 @@ impl Matrix<'_> {
     }
 }
 
+/// How [`gemm`] writes its product.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Product {
+    /// Add to the destination (else overwrite it).
+    pub accumulate: bool,
+    /// The product's factor.
+    pub scale: f32,
+    /// Split the product over every rayon thread (else run it on the calling thread: for
+    /// products that are themselves tasks of a parallel loop).
+    pub parallel: bool,
+}
+
 /// dst += lhs · rhs for lhs `m × k` and rhs `k × n`; dst is `m × n` starting at `offset`
 /// of `y`, rows `y_rows` apart, columns adjacent.
 pub(crate) fn gemm_accumulate(
@@ -80,14 +92,28 @@ pub(crate) fn gemm_accumulate(
     y_rows: usize,
     lhs: Matrix,
     rhs: Matrix,
+    dims: (usize, usize, usize),
+) {
+    gemm(y, offset, y_rows, lhs, rhs, dims, Product { accumulate: true, scale: 1.0, parallel: true })
+}
+
+/// dst (+)= scale · lhs · rhs for lhs `m × k` and rhs `k × n` ([`Product`]); dst is
+/// `m × n` starting at `offset` of `y`, rows `y_rows` apart, columns adjacent.
+pub(crate) fn gemm(
+    y: &mut [f32],
+    offset: usize,
+    y_rows: usize,
+    lhs: Matrix,
+    rhs: Matrix,
     (m, n, k): (usize, usize, usize),
+    how: Product,
 ) {
     if m == 0 || n == 0 {
         return;
     }
     assert!(lhs.holds(m, k) && rhs.holds(k, n), "gemm: an operand is smaller than {m}x{k} · {k}x{n}");
     assert!(offset + (m - 1) * y_rows + n <= y.len(), "gemm: the output is smaller than {m}x{n}");
-    let threads = rayon::current_num_threads();
+    let threads = if how.parallel { rayon::current_num_threads() } else { 1 };
     let parallelism = if threads > 1 { gemm::Parallelism::Rayon(threads) } else { gemm::Parallelism::None };
     // SAFETY: the asserts above bound every access of the three matrices by their strides.
     unsafe {
@@ -98,7 +124,7 @@ pub(crate) fn gemm_accumulate(
             y.as_mut_ptr().add(offset),
             1,
             y_rows as isize,
-            true,
+            how.accumulate,
             lhs.data.as_ptr(),
             lhs.cols as isize,
             lhs.rows as isize,
@@ -106,7 +132,7 @@ pub(crate) fn gemm_accumulate(
             rhs.cols as isize,
             rhs.rows as isize,
             1.0,
-            1.0,
+            how.scale,
             false,
             false,
             false,

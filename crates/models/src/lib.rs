@@ -15,6 +15,7 @@
 //! transformers) on tiny randomly initialised configurations; the fixtures are written by
 //! `tools/model_fixtures_*.py` and committed under `tests/fixtures`.
 
+pub mod attention;
 pub mod check;
 #[macro_use]
 mod cpu;

@@ -46,7 +46,7 @@ impl CustomOp1 for Softmax {
 
 crate::cpu::simd_versions! {
     /// One row (module doc), for the vector units the CPU has.
-    fn softmax_row(x: &[f32], y: &mut [f32]) {
+    pub(crate) fn softmax_row(x: &[f32], y: &mut [f32]) {
         let max = lanes_fold(x, f32::NEG_INFINITY, f32::max);
         if !max.is_finite() {
             // a row of −∞ (fully masked) or holding NaN or +∞: as the exact formula gives it

@@ -154,8 +154,7 @@ impl VaeAttention {
         let t = self.group_norm.forward(x)?.reshape((b, c, h * w))?.transpose(1, 2)?.contiguous()?;
         let (q, k, v) = (self.to_q.forward(&t)?, self.to_k.forward(&t)?, self.to_v.forward(&t)?);
         let scale = 1.0 / (self.channels as f64).sqrt();
-        let weights = crate::softmax::softmax_last_dim(&(q.matmul(&k.t()?)? * scale)?)?;
-        let o = self.to_out.forward(&weights.matmul(&v)?)?;
+        let o = self.to_out.forward(&crate::attention::multi_head_attention(&q, &k, &v, 1, scale)?)?;
         o.transpose(1, 2)?.reshape((b, c, h, w))? + x
     }
 }

@@ -227,73 +227,11 @@ impl Attention {
         })
     }
 
-    fn split_heads(&self, x: &Tensor) -> candle_core::Result<Tensor> {
-        let (b, n, c) = x.dims3()?;
-        x.reshape((b, n, self.heads, c / self.heads))?.transpose(1, 2)?.contiguous()
-    }
-
     fn forward(&self, x: &Tensor, context: Option<&Tensor>) -> candle_core::Result<Tensor> {
-        let (b, n, c) = x.dims3()?;
         let ctx = context.unwrap_or(x);
-        let bh = b * self.heads;
-        let flat = |t: Tensor| -> candle_core::Result<Tensor> {
-            let d = t.dim(3)?;
-            t.reshape((bh, t.dim(2)?, d))
-        };
-        let q = flat(self.split_heads(&self.to_q.forward(x)?)?)?;
-        let k = flat(self.split_heads(&self.to_k.forward(ctx)?)?)?;
-        let v = flat(self.split_heads(&self.to_v.forward(ctx)?)?)?;
-        let o = sliced_attention(&q, &k, &v, self.scale, ATTENTION_BUDGET)?;
-        let o = o.reshape((b, self.heads, n, c / self.heads))?.transpose(1, 2)?.reshape((b, n, c))?;
-        self.to_out.forward(&o)
+        let (q, k, v) = (self.to_q.forward(x)?, self.to_k.forward(ctx)?, self.to_v.forward(ctx)?);
+        self.to_out.forward(&crate::attention::multi_head_attention(&q, &k, &v, self.heads, self.scale)?)
     }
-}
-
-/// Largest number of attention weights (f32) computed at once: 2²⁰ (4 MiB), a block that
-/// stays in the cache between the product, the softmax and the product with v.
-const ATTENTION_BUDGET: usize = 1 << 20;
-
-/// softmax(q kᵀ · scale) v for `q`: `S × n × d`, `k`, `v`: `S × m × d`, in blocks of at
-/// most `budget` weights: several of the S (batch × heads) slices at once when their
-/// n × m weights fit, else blocks of query rows of one slice. The scale is applied to q
-/// (n × d values) rather than to the weights (n × m), and each block is computed exactly
-/// as the whole would be (a softmax row depends on its own weights only).
-fn sliced_attention(
-    q: &Tensor,
-    k: &Tensor,
-    v: &Tensor,
-    scale: f64,
-    budget: usize,
-) -> candle_core::Result<Tensor> {
-    let (s, n, _) = q.dims3()?;
-    let m = k.dim(1)?;
-    let q = (q * scale)?;
-    let block =
-        |q: &Tensor, k: &Tensor, v: &Tensor| crate::softmax::softmax_last_dim(&q.matmul(&k.t()?)?)?.matmul(v);
-    if n * m <= budget {
-        let per = (budget / (n * m).max(1)).clamp(1, s.max(1));
-        let mut outs = Vec::with_capacity(s.div_ceil(per));
-        for start in (0..s).step_by(per) {
-            let len = per.min(s - start);
-            outs.push(block(
-                &q.narrow(0, start, len)?,
-                &k.narrow(0, start, len)?,
-                &v.narrow(0, start, len)?,
-            )?);
-        }
-        return Tensor::cat(&outs, 0);
-    }
-    let rows = (budget / m.max(1)).clamp(1, n);
-    let mut heads = Vec::with_capacity(s);
-    for h in 0..s {
-        let (qh, kh, vh) = (q.narrow(0, h, 1)?, k.narrow(0, h, 1)?, v.narrow(0, h, 1)?);
-        let mut outs = Vec::with_capacity(n.div_ceil(rows));
-        for r0 in (0..n).step_by(rows) {
-            outs.push(block(&qh.narrow(1, r0, rows.min(n - r0))?, &kh, &vh)?);
-        }
-        heads.push(Tensor::cat(&outs, 1)?);
-    }
-    Tensor::cat(&heads, 0)
 }
 
 /// GEGLU feed-forward: `proj` to twice the inner width, value × GELU(gate), back.
@@ -633,26 +571,5 @@ mod tests {
         let mut bad = good;
         bad.attention_head_dim = PerBlock::Each(vec![2; n - 1]);
         assert!(bad.check().unwrap_err().contains("attention_head_dim"));
-    }
-
-    #[test]
-    fn sliced_attention_equals_whole() {
-        let d = Device::Cpu;
-        let q = Tensor::randn(0f32, 1.0, (6, 10, 4), &d).unwrap();
-        let k = Tensor::randn(0f32, 1.0, (6, 7, 4), &d).unwrap();
-        let v = Tensor::randn(0f32, 1.0, (6, 7, 4), &d).unwrap();
-        let whole = sliced_attention(&q, &k, &v, 0.5, usize::MAX).unwrap();
-        for budget in [1, 7, 20, 70, 140, 300] {
-            let sliced = sliced_attention(&q, &k, &v, 0.5, budget).unwrap();
-            let diff =
-                (&sliced - &whole).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
-            assert!(diff < 1e-6, "budget {budget}: {diff}");
-        }
-        // and against the direct formula
-        let w =
-            candle_nn::ops::softmax_last_dim(&(q.matmul(&k.t().unwrap()).unwrap() * 0.5).unwrap()).unwrap();
-        let direct = w.matmul(&v).unwrap();
-        let diff = (&direct - &whole).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
-        assert!(diff < 1e-6, "{diff}");
     }
 }
