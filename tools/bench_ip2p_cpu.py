@@ -20,7 +20,7 @@ own peak memory is read from the child's rusage); PyTorch runs in this process w
 `torch.set_num_threads(--threads)`, and the child gets `RAYON_NUM_THREADS` and
 `OMP_NUM_THREADS` set to the same number.
 
-    python3 tools/bench_ip2p_cpu.py [--threads 2] [--repeats 2] [--sizes 256 512]
+    python3 tools/bench_ip2p_cpu.py [--threads 2] [--repeats 2] [--rounds 1] [--sizes 256 512]
         [--transsplat target/release/transsplat] [--out bench_ip2p_cpu.json]
 
 With `--device cuda` both sides run on the GPU instead (issue #40's item 6): PyTorch
@@ -65,13 +65,16 @@ def best_of_synced(repeats, f, warm_up=True, sync=lambda: None):
     return best
 
 
-def torch_rows(args):
+def torch_rows(args, built={}):
+    """PyTorch's rows; its models are built on the first call and kept for the next."""
     import torch
 
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     dev = args.device
-    unet, vae = torch_models(torch, dev)
+    if not built:
+        built["models"] = torch_models(torch, dev)
+    unet, vae = built["models"]
     text = torch.randn(3, 77, 768, device=dev)
     sync = torch.cuda.synchronize if dev == "cuda" else (lambda: None)
 
@@ -142,6 +145,9 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--threads", type=int, default=os.cpu_count())
     ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--rounds", type=int, default=1,
+                    help="alternate the two sides this many times and keep each row's fastest: on a shared "
+                         "machine whose speed drifts over minutes, both sides then see the same spells")
     ap.add_argument("--sizes", type=int, nargs="+", default=[256, 512])
     ap.add_argument("--transsplat", default="target/release/transsplat")
     ap.add_argument("--out", help="also write the table as JSON here")
@@ -151,8 +157,11 @@ def main():
     if not os.access(args.transsplat, os.X_OK):
         sys.exit(f"{args.transsplat}: not an executable (build it: cargo build --release -p transsplat)")
     # candle first, in a child, so its peak memory is its own.
-    candle = candle_rows(args)
-    torch = torch_rows(args)
+    candle, torch = {}, {}
+    for _ in range(max(args.rounds, 1)):
+        for side, rows in ((candle, candle_rows(args)), (torch, torch_rows(args))):
+            for k, v in rows.items():
+                side[k] = max(side.get(k, v), v) if "memory" in k else min(side.get(k, v), v)
     keys = [k for k in torch if "memory" not in k] + [k for k in torch if "memory" in k]
     print(f"{'row':<32} {'candle s':>10} {'PyTorch s':>10} {'PyTorch / candle':>17}")
     table = []
@@ -164,7 +173,8 @@ def main():
         table.append({"row": k, "candle": ck, "pytorch": tk})
     if args.out:
         with open(args.out + ".partial", "w") as f:
-            json.dump({"device": args.device, "threads": args.threads, "repeats": args.repeats, "rows": table},
+            json.dump({"device": args.device, "threads": args.threads, "repeats": args.repeats,
+                       "rounds": args.rounds, "rows": table},
                       f, indent=1)
         os.rename(args.out + ".partial", args.out)
 

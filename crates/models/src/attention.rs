@@ -6,23 +6,26 @@
 //!
 //! On the CPU the heads are never split into their own tensors: each task takes a block
 //! of query rows of one batch item and, head by head, multiplies the rows' q by kᵀ into a
-//! block of weights (the scale as the product's factor), takes the softmax of each row
-//! and multiplies the block by v straight into the head's columns of the output, all
-//! read and written through strides. A block holds at most [`BLOCK`] weights, so it
-//! stays in the core's cache between the three steps and the n × m weights of a head are
-//! never written whole; the tasks run in parallel, each product on its own thread. This
-//! replaces three copies that split the heads, one that joins them, the scaling of q,
-//! and products too small to split well over the threads. Elsewhere (a GPU) the heads
+//! block of weights (the scale as the product's factor), takes the exponentials of each
+//! row less its largest value in place, multiplies the block by v straight into the
+//! head's columns of the output and divides each output row by its row's sum (d values
+//! rather than m weights), all read and written through strides. A block holds at most
+//! [`BLOCK`] weights, so the n × m weights of a head are never written whole, and up to
+//! [`MAX_ROWS`] rows, because each task packs the head's k and v again for its products
+//! (a block of a few rows against thousands of keys spends its time packing); the
+//! tasks run in parallel, each product on its own thread. This replaces three copies that
+//! split the heads, one that joins them, the scaling of q, and products too small to
+//! split well over the threads. Elsewhere (a GPU) the heads
 //! are split and each slice of at most 2²⁰ weights takes candle's operations.
 
 use crate::cpu::{f32_input, gemm, Matrix, Product};
 use candle_core::{CpuStorage, CustomOp3, DType, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
-/// Largest number of attention weights a CPU task holds at once (256 KiB of f32).
-const BLOCK: usize = 1 << 16;
-/// Most query rows per CPU task, so that a batch item's rows make several tasks.
-const MAX_ROWS: usize = 64;
+/// Largest number of attention weights a CPU task holds at once (4 MiB of f32).
+const BLOCK: usize = 1 << 20;
+/// Most query rows per CPU task.
+const MAX_ROWS: usize = 256;
 /// Largest number of weights computed at once off the CPU (4 MiB of f32).
 const SLICE_BUDGET: usize = 1 << 20;
 
@@ -88,7 +91,10 @@ impl CustomOp3 for Attention {
         let (b, n, c) = ql.shape().dims3()?;
         let m = kl.shape().dims3()?.1;
         let d = c / self.heads;
-        let rows = (BLOCK / m.max(1)).clamp(1, MAX_ROWS);
+        // enough tasks to keep every thread busy to the end, as few as that allows: each
+        // task packs the head's k and v again for its products
+        let tasks = 4 * rayon::current_num_threads();
+        let rows = (BLOCK / m.max(1)).clamp(1, MAX_ROWS).min((b * n).div_ceil(tasks)).max(1);
         let mut y = vec![0.0f32; b * n * c];
         if y.is_empty() || m == 0 {
             // no keys: softmax over nothing, as candle's operations give it (NaN)
@@ -101,21 +107,24 @@ impl CustomOp3 for Attention {
                 let r0 = block * rows;
                 let len = out.len() / c;
                 let q = &q[(item * n + r0) * c..(item * n + r0 + len) * c];
-                let mut scores = vec![0.0f32; len * m];
                 let mut weights = vec![0.0f32; len * m];
+                let mut inv_sums = vec![0.0f32; len];
                 let serial = |accumulate, scale| Product { accumulate, scale, parallel: false };
                 for h in 0..self.heads {
                     // scores = scale · q_h kₕᵀ: q_h rows c apart; kₕᵀ (d × m) element (i, j) at j·c + i
                     let q_h = Matrix { data: &q[h * d..], rows: c, cols: 1 };
                     let k_t = Matrix { data: &k[h * d..], rows: 1, cols: c };
-                    gemm(&mut scores, 0, m, q_h, k_t, (len, m, d), serial(false, self.scale));
-                    for (s, w) in scores.chunks_exact(m).zip(weights.chunks_exact_mut(m)) {
-                        crate::softmax::softmax_row(s, w);
+                    gemm(&mut weights, 0, m, q_h, k_t, (len, m, d), serial(false, self.scale));
+                    for (w, inv) in weights.chunks_exact_mut(m).zip(&mut inv_sums) {
+                        *inv = 1.0 / crate::softmax::exp_row_in_place(w);
                     }
-                    // out[:, h·d..(h+1)·d] = weights vₕ
+                    // out[:, h·d..(h+1)·d] = weights vₕ, each row then divided by its sum
                     let w = Matrix { data: &weights, rows: m, cols: 1 };
                     let v_h = Matrix { data: &v[h * d..], rows: c, cols: 1 };
                     gemm(out, h * d, c, w, v_h, (len, d, m), serial(false, 1.0));
+                    for (row, &inv) in out.chunks_exact_mut(c).zip(&inv_sums) {
+                        row[h * d..(h + 1) * d].iter_mut().for_each(|o| *o *= inv);
+                    }
                 }
             });
         });

@@ -46,7 +46,7 @@ impl CustomOp1 for Softmax {
 
 crate::cpu::simd_versions! {
     /// One row (module doc), for the vector units the CPU has.
-    pub(crate) fn softmax_row(x: &[f32], y: &mut [f32]) {
+    fn softmax_row(x: &[f32], y: &mut [f32]) {
         let max = lanes_fold(x, f32::NEG_INFINITY, f32::max);
         if !max.is_finite() {
             // a row of −∞ (fully masked) or holding NaN or +∞: as the exact formula gives it
@@ -59,6 +59,35 @@ crate::cpu::simd_versions! {
         }
         let inv = 1.0 / lanes_fold(y, 0.0, |a, b| a + b);
         y.iter_mut().for_each(|o| *o *= inv);
+    }
+}
+
+crate::cpu::simd_versions! {
+    /// The unnormalised softmax of a row in place: yⱼ ← exp(yⱼ − max y); returns Σⱼ yⱼ,
+    /// by which the caller divides (attention divides its output rows instead, which are
+    /// shorter than the weight rows).
+    pub(crate) fn exp_row_in_place(y: &mut [f32]) -> f32 {
+        let max = lanes_fold(y, f32::NEG_INFINITY, f32::max);
+        if !max.is_finite() {
+            // a row of −∞ (fully masked) or holding NaN or +∞: as the exact formula gives it
+            y.iter_mut().for_each(|v| *v = (*v - max).exp());
+            return y.iter().sum();
+        }
+        const LANES: usize = 16;
+        let mut sums = [0.0f32; LANES];
+        let mut chunks = y.chunks_exact_mut(LANES);
+        for c in &mut chunks {
+            for (s, v) in sums.iter_mut().zip(c) {
+                *v = exp_nonpositive(*v - max);
+                *s += *v;
+            }
+        }
+        let mut tail = 0.0;
+        for v in chunks.into_remainder() {
+            *v = exp_nonpositive(*v - max);
+            tail += *v;
+        }
+        sums.iter().fold(tail, |a, &s| a + s)
     }
 }
 
@@ -114,6 +143,25 @@ mod tests {
         assert!(worst < 3e-7, "relative error {worst}");
         assert_eq!(exp_nonpositive(0.0), 1.0);
         assert_eq!(exp_nonpositive(-200.0), exp_nonpositive(-87.0));
+    }
+
+    /// The exponentials less the row's largest value and their sum: divided, the softmax
+    /// (a row longer than the lanes with a tail, a short row, a fully masked row).
+    #[test]
+    fn exp_row_in_place_divided_by_its_sum_is_the_softmax() {
+        for row in [(0..37).map(|i| (i as f32 * 0.7).sin() * 9.0).collect::<Vec<_>>(), vec![1.0, -2.0, 0.5]] {
+            let mut y = row.clone();
+            let sum = exp_row_in_place(&mut y);
+            let max = row.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+            let want_sum: f64 = row.iter().map(|&v| ((v - max) as f64).exp()).sum();
+            assert!(((sum as f64 - want_sum) / want_sum).abs() < 1e-6, "{sum} against {want_sum}");
+            for (&got, &v) in y.iter().zip(&row) {
+                let want = ((v - max) as f64).exp();
+                assert!((got as f64 - want).abs() < 1e-6 * want.max(1e-30) + 1e-12, "{got} against {want}");
+            }
+        }
+        let mut masked = vec![f32::NEG_INFINITY; 5];
+        assert!(exp_row_in_place(&mut masked).is_nan(), "a fully masked row has no softmax");
     }
 
     #[test]
