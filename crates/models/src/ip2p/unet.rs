@@ -557,7 +557,6 @@ impl UNet {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use candle_core::Device;
 
     #[test]
     fn per_block_lists_must_match_the_block_count() {
