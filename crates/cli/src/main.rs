@@ -219,3 +219,32 @@ fn main() {
     }
     exit(0)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn runs(args: &[&str]) -> bool {
+        let cli = Cli::try_parse_from(std::iter::once("transsplat").chain(args.iter().copied())).unwrap();
+        runs_models(&cli.command)
+    }
+
+    /// Purging stays on unless the command runs a neural model (the doc of `ALLOC`).
+    #[test]
+    fn only_commands_that_run_a_model_keep_freed_memory() {
+        assert!(runs(&["bench", "models"]));
+        assert!(runs(&["bench", "edit", "--editor", "ip2p"]));
+        assert!(!runs(&["bench", "edit"]));
+        let edit = |editor: &str, more: &[&str]| {
+            let mut args =
+                vec!["edit", "--scene", "s.ply", "--cameras", "c.json", "--prompt", "p", "--out", "o"];
+            args.extend(["--editor", editor]);
+            args.extend(more);
+            runs(&args)
+        };
+        assert!(edit("ip2p", &[]));
+        assert!(edit("simulated", &["--segment", "the ball", "--segment-weights", "clipseg"]));
+        assert!(!edit("simulated", &[]));
+        assert!(!runs(&["demo"]));
+    }
+}
