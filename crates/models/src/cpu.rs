@@ -1,8 +1,8 @@
 //! What this crate's CPU operations share: reading a contiguous f32 input from candle's
 //! storage, a bounds-checked GEMM over row-major or transposed matrices on every rayon
-//! thread (the `gemm` crate, AVX-512 kernels where the CPU has them), and
+//! thread (the `gemm` crate, AVX-512 kernels where the CPU has them),
 //! [`simd_versions!`], which compiles an element-wise loop for the vector units the CPU
-//! has.
+//! has, and [`lanes_fold`], a reduction such a loop can vectorise.
 
 /// Defines `fn $name(args)` from a plain loop body compiled three times: for AVX-512F,
 /// for AVX2 with FMA, and for the build's baseline (SSE2 on x86-64), the first the CPU
@@ -39,6 +39,30 @@ macro_rules! simd_versions {
     };
 }
 pub(crate) use simd_versions;
+
+/// Independent accumulators of [`lanes_fold`].
+pub(crate) const LANES: usize = 16;
+
+/// Folds `values` into [`LANES`] independent accumulators with `step`, then joins them
+/// with `combine`: a reduction the compiler vectorises, where a single running one is a
+/// chain of dependent operations. `init` must be `combine`'s identity.
+#[inline(always)]
+pub(crate) fn lanes_fold<A: Copy>(
+    values: &[f32],
+    init: A,
+    step: impl Fn(A, f32) -> A,
+    combine: impl Fn(A, A) -> A,
+) -> A {
+    let mut lanes = [init; LANES];
+    let mut chunks = values.chunks_exact(LANES);
+    for c in &mut chunks {
+        for (l, &v) in lanes.iter_mut().zip(c) {
+            *l = step(*l, v);
+        }
+    }
+    let tail = chunks.remainder().iter().fold(init, |a, &v| step(a, v));
+    lanes.iter().fold(tail, |a, &l| combine(a, l))
+}
 
 use candle_core::{CpuStorage, Layout};
 

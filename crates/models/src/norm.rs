@@ -112,24 +112,12 @@ impl CustomOp1 for GroupNormOp {
 }
 
 crate::cpu::simd_versions! {
-    /// The mean of `x` and 1/√(variance + eps), in f64 over 8 independent lanes (a single
-    /// running sum is a chain of dependent additions the compiler cannot vectorise).
+    /// The mean of `x` and 1/√(variance + eps), summed in f64 over independent lanes.
     fn moments(x: &[f32], eps: f64) -> (f64, f64) {
-        #[inline(always)]
-        fn lanes_sum(x: &[f32], f: impl Fn(f32) -> f64) -> f64 {
-            const LANES: usize = 8;
-            let mut lanes = [0.0f64; LANES];
-            let mut chunks = x.chunks_exact(LANES);
-            for c in &mut chunks {
-                for (l, &v) in lanes.iter_mut().zip(c) {
-                    *l += f(v);
-                }
-            }
-            chunks.remainder().iter().map(|&v| f(v)).sum::<f64>() + lanes.iter().sum::<f64>()
-        }
         let n = x.len().max(1) as f64;
-        let mean = lanes_sum(x, |v| v as f64) / n;
-        let var = lanes_sum(x, |v| (v as f64 - mean) * (v as f64 - mean)) / n;
+        let add = |a: f64, b: f64| a + b;
+        let mean = crate::cpu::lanes_fold(x, 0.0, |a, v| a + v as f64, add) / n;
+        let var = crate::cpu::lanes_fold(x, 0.0, |a, v| a + (v as f64 - mean) * (v as f64 - mean), add) / n;
         (mean, 1.0 / (var + eps).sqrt())
     }
 }

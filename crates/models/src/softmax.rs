@@ -10,6 +10,7 @@
 //! the row loop is compiled for AVX-512, for AVX2 and for the baseline, and the CPU's
 //! best is picked at run time. Rows run in parallel. Off the CPU, or in another dtype, candle's op runs.
 
+use crate::cpu::lanes_fold;
 use candle_core::{CpuStorage, CustomOp1, DType, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
@@ -47,17 +48,8 @@ impl CustomOp1 for Softmax {
 crate::cpu::simd_versions! {
     /// One row (module doc), for the vector units the CPU has.
     fn softmax_row(x: &[f32], y: &mut [f32]) {
-        let max = lanes_fold(x, f32::NEG_INFINITY, f32::max);
-        if !max.is_finite() {
-            // a row of −∞ (fully masked) or holding NaN or +∞: as the exact formula gives it
-            let sum: f32 = x.iter().map(|&v| (v - max).exp()).sum();
-            y.iter_mut().zip(x).for_each(|(o, &v)| *o = (v - max).exp() / sum);
-            return;
-        }
-        for (o, &v) in y.iter_mut().zip(x) {
-            *o = exp_nonpositive(v - max);
-        }
-        let inv = 1.0 / lanes_fold(y, 0.0, |a, b| a + b);
+        y.copy_from_slice(x);
+        let inv = 1.0 / exp_row_in_place(y);
         y.iter_mut().for_each(|o| *o *= inv);
     }
 }
@@ -67,13 +59,13 @@ crate::cpu::simd_versions! {
     /// by which the caller divides (attention divides its output rows instead, which are
     /// shorter than the weight rows).
     pub(crate) fn exp_row_in_place(y: &mut [f32]) -> f32 {
-        let max = lanes_fold(y, f32::NEG_INFINITY, f32::max);
+        let max = lanes_fold(y, f32::NEG_INFINITY, f32::max, f32::max);
         if !max.is_finite() {
             // a row of −∞ (fully masked) or holding NaN or +∞: as the exact formula gives it
             y.iter_mut().for_each(|v| *v = (*v - max).exp());
             return y.iter().sum();
         }
-        const LANES: usize = 16;
+        const LANES: usize = crate::cpu::LANES;
         let mut sums = [0.0f32; LANES];
         let mut chunks = y.chunks_exact_mut(LANES);
         for c in &mut chunks {
@@ -89,22 +81,6 @@ crate::cpu::simd_versions! {
         }
         sums.iter().fold(tail, |a, &s| a + s)
     }
-}
-
-/// Folds `values` with `f` over 16 independent lanes, then the lanes: a reduction the
-/// compiler vectorises (a single running sum is a chain of dependent additions).
-#[inline(always)]
-fn lanes_fold(values: &[f32], init: f32, f: impl Fn(f32, f32) -> f32) -> f32 {
-    const LANES: usize = 16;
-    let mut lanes = [init; LANES];
-    let mut chunks = values.chunks_exact(LANES);
-    for c in &mut chunks {
-        for (l, &v) in lanes.iter_mut().zip(c) {
-            *l = f(*l, v);
-        }
-    }
-    let tail = chunks.remainder().iter().fold(init, |a, &v| f(a, v));
-    lanes.iter().fold(tail, |a, &v| f(a, v))
 }
 
 /// eᵗ for t ≤ 0 (module doc); 0 below −87.
