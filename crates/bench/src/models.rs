@@ -54,6 +54,14 @@ pub fn cases() -> Vec<Case> {
         Case { name: "ip2p unet step (batch 3) 512x512", run: |d, n| ip2p(d, n, Ip2pCase::UnetStep, 512) },
         Case { name: "ip2p vae encode 512x512", run: |d, n| ip2p(d, n, Ip2pCase::VaeEncode, 512) },
         Case { name: "ip2p vae decode 512x512", run: |d, n| ip2p(d, n, Ip2pCase::VaeDecode, 512) },
+        Case {
+            name: "ip2p self-attention 512x512 (3x8 heads, 4096 tokens)",
+            run: |d, n| attention(d, n, 4096),
+        },
+        Case {
+            name: "ip2p self-attention 256x256 (3x8 heads, 1024 tokens)",
+            run: |d, n| attention(d, n, 1024),
+        },
     ]
 }
 
@@ -68,6 +76,14 @@ fn ip2p(device: &Device, repeats: Repeats, case: Ip2pCase, size: usize) -> Resul
         slot.clone().expect("just built")
     };
     time(repeats, || Ok(case.run(&models, size, device)?))
+}
+
+/// One self-attention of the InstructPix2Pix UNet's finest level: a batch of 3 (the
+/// three-way guidance), `tokens` latent pixels, 320 channels in 8 heads of 40.
+fn attention(device: &Device, repeats: Repeats, tokens: usize) -> Result<f64, Error> {
+    let x = candle_core::Tensor::randn(0f32, 1.0, (3, tokens, 320), device)?;
+    let scale = 1.0 / 40f64.sqrt();
+    time(repeats, || Ok(transsplat_models::attention::multi_head_attention(&x, &x, &x, 8, scale)?))
 }
 
 /// Seconds of the fastest of `repeats` runs of `f` after one untimed warm-up run.

@@ -93,12 +93,16 @@ pub(crate) fn exp_nonpositive(t: f32) -> f32 {
     // |x| < 2²²; one vector addition, where `round_ties_even` is a library call on SSE2)
     const ROUND: f32 = 12_582_912.0;
     let t = t.max(-87.0);
-    let n = (t * LOG2E + ROUND) - ROUND;
+    let shifted = t * LOG2E + ROUND;
+    let n = shifted - ROUND;
     let r = (t - n * LN2_HI) - n * LN2_LO;
     let p = 1.0
         + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
-    // 2ⁿ for n in [−126, 0] by its exponent bits
-    let two_n = f32::from_bits(((n as i32 + 127) as u32) << 23);
+    // 2ⁿ for n in [−126, 0] by its exponent bits. The integer n is read from the bits of
+    // `shifted`, whose unit in the last place is 1 (1.5 · 2²³ + n holds n in its mantissa):
+    // `n as i32` is a saturating conversion, which the compiler does not vectorise.
+    let n_int = (shifted.to_bits() as i32).wrapping_sub(ROUND.to_bits() as i32);
+    let two_n = f32::from_bits((n_int.wrapping_add(127) as u32) << 23);
     p * two_n
 }
 
