@@ -34,6 +34,7 @@ use candle_nn::{Conv2dConfig, VarBuilder};
 use rayon::prelude::*;
 
 use crate::cpu::{f32_input, gemm_accumulate, Matrix};
+use crate::winograd;
 
 /// Most floats of one im2col matrix (64 MiB): tiles of output rows are sized to it.
 pub const COL_BUDGET: usize = 16 << 20;
@@ -300,7 +301,19 @@ impl CustomOp1 for RowConv {
         };
         let per_out = self.out_channels * oh * ow;
         let mut y = vec![0.0f32; b * per_out];
-        self.batch(x, b, (h, w), &mut y, (oh, ow), COL_BUDGET);
+        let (th, tw) = winograd::tiles((oh, ow));
+        if self.kernel == (3, 3) && self.stride == 1 && b * th * tw >= winograd::MIN_TILES {
+            let layer = winograd::Layer {
+                weight: &self.weight,
+                bias: self.bias.as_deref(),
+                out_channels: self.out_channels,
+                in_channels: self.in_channels,
+                padding: self.padding,
+            };
+            winograd::conv3x3(&layer, x, b, (h, w), &mut y, COL_BUDGET);
+        } else {
+            self.batch(x, b, (h, w), &mut y, (oh, ow), COL_BUDGET);
+        }
         Ok((CpuStorage::F32(y), Shape::from((b, self.out_channels, oh, ow))))
     }
 }
@@ -378,7 +391,8 @@ mod tests {
     }
 
     /// Every case against candle's own `conv2d` (its direct and tiled paths are the
-    /// oracle), including strides, padding, 1×1 and odd sizes.
+    /// oracle), including strides, padding, 1×1, odd sizes and inputs large enough for the
+    /// Winograd path.
     #[test]
     fn matches_candle_conv2d() {
         let dev = Device::Cpu;
@@ -392,6 +406,9 @@ mod tests {
             (2, 3, 3, 1, 0, 3, 3, 1, true),
             (2, 2, 5, 1, 2, 4, 6, 1, true),
             (3, 2, 3, 3, 2, 10, 11, 2, true),
+            // enough tiles for Winograd's F(2×2, 3×3) (crate::winograd)
+            (3, 5, 3, 1, 1, 16, 13, 2, true),
+            (4, 4, 3, 1, 0, 18, 18, 1, false),
         ];
         for (i, &(cin, cout, k, stride, padding, h, w, b, bias)) in cases.iter().enumerate() {
             let varmap = VarMap::new();
