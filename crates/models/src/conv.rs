@@ -310,7 +310,7 @@ impl CustomOp1 for RowConv {
                 in_channels: self.in_channels,
                 padding: self.padding,
             };
-            winograd::conv3x3(&layer, x, b, (h, w), &mut y, COL_BUDGET);
+            winograd::conv3x3(&layer, x, b, (h, w), &mut y, layer.chunk());
         } else {
             self.batch(x, b, (h, w), &mut y, (oh, ow), COL_BUDGET);
         }

@@ -17,8 +17,9 @@
 //! transforms are additions (and the halves of G). U is computed on each call from the
 //! layer's weight, 16 values per weight pair, which costs about as much as a product over
 //! two dozen tiles, so [`MIN_TILES`] sends smaller inputs to the direct convolution. Tiles
-//! of every batch item are the product's columns together, in chunks whose V and M fit a
-//! budget of floats.
+//! of every batch item are the product's columns together, in chunks whose V and M fit
+//! [`CHUNK_BUDGET`]. Both transforms run over a row of tiles at a time as plain loops the
+//! compiler vectorises.
 
 use rayon::prelude::*;
 
@@ -26,6 +27,13 @@ use crate::cpu::{gemm, Matrix, Product};
 
 /// Fewest tiles (over the whole batch) for which the transform of the weight pays.
 pub const MIN_TILES: usize = 32;
+/// Most floats of V (and of M) of one chunk of tiles (4 MiB: they stay in the last-level
+/// cache between the transforms and the products; a chunk of all tiles of a VAE layer at
+/// 256², 64 MiB each, spent as long in the transforms as in the products).
+pub const CHUNK_BUDGET: usize = 1 << 20;
+/// Fewest tiles per chunk, whatever the budget: each of a chunk's 16 products packs its
+/// U_ξ (O × C) again, which a product over fewer tiles does not pay back.
+const MIN_CHUNK: usize = 64;
 
 /// The layer a [`conv3x3`] call computes: `weight` `[O, C, 3, 3]` row-major, an optional
 /// bias `[O]`, zero padding of `padding` pixels on every side, stride 1.
@@ -43,17 +51,24 @@ pub fn tiles((oh, ow): (usize, usize)) -> (usize, usize) {
     (oh.div_ceil(2), ow.div_ceil(2))
 }
 
+impl Layer<'_> {
+    /// Tiles per chunk: as many as keep V and M within [`CHUNK_BUDGET`] floats each, and at
+    /// least [`MIN_CHUNK`].
+    pub fn chunk(&self) -> usize {
+        (CHUNK_BUDGET / (16 * self.in_channels.max(self.out_channels)).max(1)).max(MIN_CHUNK)
+    }
+}
+
 /// y `[B, O, oh, ow]` of the layer for x `[B, C, h, w]`, where (oh, ow) = (h + 2p − 2,
-/// w + 2p − 2) (module doc); V and M of a chunk of tiles hold at most `budget` floats
-/// each (at least one tile).
-pub fn conv3x3(layer: &Layer, x: &[f32], b: usize, (h, w): (usize, usize), y: &mut [f32], budget: usize) {
+/// w + 2p − 2) (module doc), `chunk` tiles at a time ([`Layer::chunk`]).
+pub fn conv3x3(layer: &Layer, x: &[f32], b: usize, (h, w): (usize, usize), y: &mut [f32], chunk: usize) {
     let (o_n, c_n, p) = (layer.out_channels, layer.in_channels, layer.padding);
     let (oh, ow) = (h + 2 * p - 2, w + 2 * p - 2);
     let (th, tw) = tiles((oh, ow));
     let per_item = th * tw;
     let total = b * per_item;
     let u = transform_weight(layer.weight, o_n, c_n);
-    let chunk = (budget / (16 * c_n.max(o_n)).max(1)).clamp(1, total.max(1));
+    let chunk = chunk.clamp(1, total.max(1));
     let mut v = vec![0.0f32; 16 * c_n * chunk];
     let mut m = vec![0.0f32; 16 * o_n * chunk];
     for t0 in (0..total).step_by(chunk) {
@@ -74,36 +89,55 @@ pub fn conv3x3(layer: &Layer, x: &[f32], b: usize, (h, w): (usize, usize), y: &m
         // Y = Aᵀ M A into each (item, o) plane the chunk touches
         y.par_chunks_mut(oh * ow).enumerate().for_each(|(plane, out)| {
             let (item, o) = (plane / o_n, plane % o_n);
-            let first = (item * per_item).max(t0);
-            let last = ((item + 1) * per_item).min(t0 + n);
-            if first >= last {
-                return;
-            }
             let bias = layer.bias.map_or(0.0, |bias| bias[o]);
             let mo = &m[o * 16 * n..(o + 1) * 16 * n];
-            for t in first..last {
-                let at = t - t0;
-                let mut tile = [0.0f32; 16];
-                for (xi, value) in tile.iter_mut().enumerate() {
-                    *value = mo[xi * n + at];
+            let mut ys = [const { Vec::new() }; 4];
+            for_each_run(item, per_item, tw, t0, n, |ty, tx0, tx1, at| {
+                let len = tx1 - tx0;
+                let m = |xi: usize| &mo[xi * n + at..xi * n + at + len];
+                for y in ys.iter_mut() {
+                    y.resize(len, 0.0);
                 }
-                let out_tile = transform_output(&tile);
-                let r = t - item * per_item;
-                let (ty, tx) = (r / tw, r % tw);
-                for (i, row) in out_tile.iter().enumerate() {
+                transform_output(std::array::from_fn(m), &mut ys, bias);
+                for (i, (y_left, y_right)) in [(&ys[0], &ys[1]), (&ys[2], &ys[3])].into_iter().enumerate() {
                     let yy = 2 * ty + i;
                     if yy >= oh {
                         continue;
                     }
-                    for (j, &value) in row.iter().enumerate() {
-                        let xx = 2 * tx + j;
-                        if xx < ow {
-                            out[yy * ow + xx] = value + bias;
+                    let row = &mut out[yy * ow..(yy + 1) * ow];
+                    for (k, (&left, &right)) in y_left.iter().zip(y_right).enumerate() {
+                        let xx = 2 * (tx0 + k);
+                        row[xx] = left;
+                        if xx + 1 < ow {
+                            row[xx + 1] = right;
                         }
                     }
                 }
-            }
+            });
         });
+    }
+}
+
+/// Calls `f(ty, tx0, tx1, at)` for each tile row of batch item `item` that the chunk of
+/// global tiles `t0..t0 + n` holds: tiles tx0..tx1 of tile row ty, the first of them at
+/// column `at` of the chunk.
+fn for_each_run(
+    item: usize,
+    per_item: usize,
+    tw: usize,
+    t0: usize,
+    n: usize,
+    mut f: impl FnMut(usize, usize, usize, usize),
+) {
+    let first = (item * per_item).max(t0);
+    let last = ((item + 1) * per_item).min(t0 + n);
+    let mut t = first;
+    while t < last {
+        let r = t - item * per_item;
+        let (ty, tx0) = (r / tw, r % tw);
+        let tx1 = tw.min(tx0 + (last - t));
+        f(ty, tx0, tx1, t - t0);
+        t += tx1 - tx0;
     }
 }
 
@@ -136,7 +170,8 @@ fn transform_weight(weight: &[f32], o_n: usize, c_n: usize) -> Vec<f32> {
 
 /// V of input channel `c` for the global tiles `t0..t0 + n` into `vc` `[16][n]`:
 /// V = Bᵀ d B (module doc) with d the 4×4 patch whose corner is input pixel
-/// (2·ty − p, 2·tx − p). Bᵀ d is computed once per tile row over the padded columns.
+/// (2·ty − p, 2·tx − p). Bᵀ d is computed once per tile row over the padded columns, its
+/// even and odd columns apart, so that d B is a plain loop over the row's tiles.
 fn transform_input(
     x: &[f32],
     (b, c_n, h, w): (usize, usize, usize, usize),
@@ -149,60 +184,75 @@ fn transform_input(
     let n = vc.len() / 16;
     let per_item = th * tw;
     let width = 2 * tw + 2;
-    let mut rows = vec![[0.0f32; 4]; width];
-    let mut t = t0;
-    while t < t0 + n {
-        let item = t / per_item;
-        debug_assert!(item < b);
-        let r = t % per_item;
-        let (ty, tx0) = (r / tw, r % tw);
-        let tx1 = tw.min(tx0 + (t0 + n - t));
+    let mut padded = [const { Vec::new() }; 4];
+    let mut even = [const { Vec::new() }; 4];
+    let mut odd = [const { Vec::new() }; 4];
+    for i in 0..4 {
+        padded[i] = vec![0.0f32; width];
+        even[i] = vec![0.0f32; tw + 1];
+        odd[i] = vec![0.0f32; tw + 1];
+    }
+    let first_item = t0 / per_item;
+    let last_item = (t0 + n - 1) / per_item;
+    debug_assert!(last_item < b);
+    for item in first_item..=last_item {
         let plane = &x[(item * c_n + c) * h * w..(item * c_n + c + 1) * h * w];
-        // patch row i is input row 2·ty − p + i, zero outside the image
-        let row = |i: usize| -> Option<&[f32]> {
-            let yy = (2 * ty + i).checked_sub(p).filter(|&yy| yy < h)?;
-            Some(&plane[yy * w..(yy + 1) * w])
-        };
-        let input_rows = [row(0), row(1), row(2), row(3)];
-        // Bᵀ d over the padded columns 2·tx0 .. 2·tx1 + 2
-        for (col, bd) in rows.iter_mut().enumerate().take(2 * tx1 + 2).skip(2 * tx0) {
-            let at = col.checked_sub(p).filter(|&xx| xx < w);
-            let d = |i: usize| match (input_rows[i], at) {
-                (Some(row), Some(xx)) => row[xx],
-                _ => 0.0,
-            };
-            let (d0, d1, d2, d3) = (d(0), d(1), d(2), d(3));
-            *bd = [d0 - d2, d1 + d2, d2 - d1, d1 - d3];
-        }
-        for tx in tx0..tx1 {
-            let at = t + tx - tx0 - t0;
-            let a = 2 * tx;
-            let (k0, k1, k2, k3) = (rows[a], rows[a + 1], rows[a + 2], rows[a + 3]);
-            for i in 0..4 {
-                vc[(4 * i) * n + at] = k0[i] - k2[i];
-                vc[(4 * i + 1) * n + at] = k1[i] + k2[i];
-                vc[(4 * i + 2) * n + at] = k2[i] - k1[i];
-                vc[(4 * i + 3) * n + at] = k1[i] - k3[i];
+        for_each_run(item, per_item, tw, t0, n, |ty, tx0, tx1, at| {
+            // patch row i is input row 2·ty − p + i, column col − p, zero outside the image
+            for (i, dst) in padded.iter_mut().enumerate() {
+                dst.fill(0.0);
+                if let Some(yy) = (2 * ty + i).checked_sub(p).filter(|&yy| yy < h) {
+                    let end = (p + w).min(width);
+                    dst[p..end].copy_from_slice(&plane[yy * w..yy * w + end - p]);
+                }
             }
-        }
-        t += tx1 - tx0;
+            // Bᵀ d, row by row, even and odd columns apart
+            let [d0, d1, d2, d3] = &padded;
+            for k in 0..=tw {
+                for (col, parity) in [(2 * k, &mut even), (2 * k + 1, &mut odd)] {
+                    let (a, b_, c_, e) = (d0[col], d1[col], d2[col], d3[col]);
+                    parity[0][k] = a - c_;
+                    parity[1][k] = b_ + c_;
+                    parity[2][k] = c_ - b_;
+                    parity[3][k] = b_ - e;
+                }
+            }
+            // (Bᵀ d) B for tiles tx0..tx1: columns 2·tx .. 2·tx + 3 are even[tx], odd[tx],
+            // even[tx + 1], odd[tx + 1]
+            let len = tx1 - tx0;
+            for i in 0..4 {
+                let (e0, e1) = (&even[i][tx0..tx1], &even[i][tx0 + 1..tx1 + 1]);
+                let (o0, o1) = (&odd[i][tx0..tx1], &odd[i][tx0 + 1..tx1 + 1]);
+                let (v0, rest) = vc[(4 * i) * n + at..].split_at_mut(n);
+                let (v1, rest) = rest.split_at_mut(n);
+                let (v2, v3) = rest.split_at_mut(n);
+                for k in 0..len {
+                    v0[k] = e0[k] - e1[k];
+                    v1[k] = o0[k] + e1[k];
+                    v2[k] = e1[k] - o0[k];
+                    v3[k] = o0[k] - o1[k];
+                }
+            }
+        });
     }
 }
 
-/// Y = Aᵀ m A (module doc) of one tile's 4×4 sums, ξ = 4·row + column.
-fn transform_output(m: &[f32; 16]) -> [[f32; 2]; 2] {
-    // Aᵀ m (2 × 4)
-    let mut am = [[0.0f32; 4]; 2];
-    for j in 0..4 {
-        am[0][j] = m[j] + m[4 + j] + m[8 + j];
-        am[1][j] = m[4 + j] - m[8 + j] - m[12 + j];
+/// Y = Aᵀ m A + bias (module doc) for a run of tiles: `m[ξ]` holds sum ξ (4·row + column)
+/// of each tile, `y` gets the outputs (0, 0), (0, 1), (1, 0), (1, 1) of each tile.
+fn transform_output(m: [&[f32]; 16], y: &mut [Vec<f32>; 4], bias: f32) {
+    let [y00, y01, y10, y11] = y;
+    for k in 0..y00.len() {
+        let s = |xi: usize| m[xi][k];
+        // Aᵀ m (2 × 4)
+        let top = |j: usize| s(j) + s(4 + j) + s(8 + j);
+        let bottom = |j: usize| s(4 + j) - s(8 + j) - s(12 + j);
+        let (t0, t1, t2, t3) = (top(0), top(1), top(2), top(3));
+        let (b0, b1, b2, b3) = (bottom(0), bottom(1), bottom(2), bottom(3));
+        y00[k] = t0 + t1 + t2 + bias;
+        y01[k] = t1 - t2 - t3 + bias;
+        y10[k] = b0 + b1 + b2 + bias;
+        y11[k] = b1 - b2 - b3 + bias;
     }
-    let mut y = [[0.0f32; 2]; 2];
-    for (row, a) in y.iter_mut().zip(&am) {
-        row[0] = a[0] + a[1] + a[2];
-        row[1] = a[1] - a[2] - a[3];
-    }
-    y
 }
 
 #[cfg(test)]
@@ -263,11 +313,11 @@ mod tests {
             let layer =
                 Layer { weight: &w, bias: Some(&bias), out_channels: o_n, in_channels: c_n, padding: p };
             let scale = want.iter().fold(1.0f32, |a, v| a.max(v.abs()));
-            for budget in [1, 16 * c_n.max(o_n) * 5, usize::MAX] {
+            for chunk in [1, 5, layer.chunk(), usize::MAX] {
                 let mut got = vec![f32::NAN; want.len()];
-                conv3x3(&layer, &x, b, (h, wd), &mut got, budget);
+                conv3x3(&layer, &x, b, (h, wd), &mut got, chunk);
                 let diff = want.iter().zip(&got).map(|(a, g)| (a - g).abs()).fold(0.0f32, f32::max);
-                assert!(diff <= 2e-6 * scale, "{b}x{c_n}x{h}x{wd} → {o_n}, p {p}, budget {budget}: {diff}");
+                assert!(diff <= 2e-6 * scale, "{b}x{c_n}x{h}x{wd} → {o_n}, p {p}, chunks of {chunk}: {diff}");
             }
         }
     }
