@@ -31,7 +31,7 @@ pub mod sam;
 pub mod softmax;
 pub mod tokenizer;
 pub mod weights;
-pub mod winograd;
+mod winograd;
 
 pub use check::ModelConfig;
 pub use weights::{default_device, Error, ModelDir};

@@ -64,6 +64,7 @@ impl Layer<'_> {
 /// w + 2p − 2) (module doc), `chunk` tiles at a time ([`Layer::chunk`]).
 pub fn conv3x3(layer: &Layer, x: &[f32], b: usize, (h, w): (usize, usize), y: &mut [f32], chunk: usize) {
     let (o_n, c_n, p) = (layer.out_channels, layer.in_channels, layer.padding);
+    assert!(h + 2 * p >= 3 && w + 2 * p >= 3, "winograd: a {h}x{w} input padded by {p} is smaller than 3x3");
     let (oh, ow) = (h + 2 * p - 2, w + 2 * p - 2);
     let (th, tw) = tiles((oh, ow));
     let per_item = th * tw;
