@@ -139,8 +139,8 @@ impl RowConv {
     /// y = W · X for a batch of `b` items (`x` `[B, C, H, W]`, `y` `[B, O, H'·W']`). Items
     /// whose im2col matrices fit `budget` floats together are one GEMM, their matrices side
     /// by side as the columns of one X: the product then packs the layer's weight once for
-    /// them, not once per item, which is most of a small image's cost (a UNet's 4×4 and
-    /// 8×8 levels, where W has 1280 rows and 11,520 columns and X a few dozen). An item
+    /// them, not once per item (a UNet's 4×4 level, where W has 1280 rows and 11,520
+    /// columns and X 16 per item; 3×3 layers with more tiles go to Winograd). An item
     /// whose matrix alone passes the budget goes by tiles of its output rows ([`Self::item`]).
     fn batch(
         &self,
@@ -406,6 +406,8 @@ mod tests {
             (2, 3, 3, 1, 0, 3, 3, 1, true),
             (2, 2, 5, 1, 2, 4, 6, 1, true),
             (3, 2, 3, 3, 2, 10, 11, 2, true),
+            // too few tiles for Winograd: the im2col path with padding
+            (3, 5, 3, 1, 1, 5, 6, 1, true),
             // enough tiles for Winograd's F(2×2, 3×3) (crate::winograd)
             (3, 5, 3, 1, 1, 16, 13, 2, true),
             (4, 4, 3, 1, 0, 18, 18, 1, false),

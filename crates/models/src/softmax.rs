@@ -83,7 +83,7 @@ crate::cpu::simd_versions! {
     }
 }
 
-/// eᵗ for t ≤ 0 (module doc); 0 below −87.
+/// eᵗ for t ≤ 0 (module doc); e⁻⁸⁷ (about 1.6 · 10⁻³⁸) below −87.
 #[inline(always)]
 pub(crate) fn exp_nonpositive(t: f32) -> f32 {
     const LOG2E: f32 = std::f32::consts::LOG2_E;

@@ -3,9 +3,9 @@
 //!
 //! The output of each channel is cut into tiles of 2×2 pixels. Output tile t of channel o is
 //!
-//!   Y = Aᵀ [ Σ_c U_oc ⊙ V_ct ] A,   U_oc = G g_oc Gᵀ,   V_ct = Bᵀ d_ct B,
+//!   Y = Aᵀ [ Σ_c U_oc ⊙ V_ct ] A + b_o,   U_oc = G g_oc Gᵀ,   V_ct = Bᵀ d_ct B,
 //!
-//! with g_oc the 3×3 weight from input channel c, d_ct the 4×4 input patch under the tile
+//! with g_oc the 3×3 weight from input channel c, b_o the bias, d_ct the 4×4 input patch under the tile
 //! (zero outside the image), ⊙ the element-wise product, and
 //!
 //!   Bᵀ = [1 0 −1 0; 0 1 1 0; 0 −1 1 0; 0 1 0 −1],   G = [1 0 0; ½ ½ ½; ½ −½ ½; 0 0 1],
@@ -15,8 +15,9 @@
 //! M_ξ = U_ξ (O × C) · V_ξ (C × T) over the T tiles: 16 multiplications per tile and
 //! channel pair where the direct convolution spends 36 on the same four outputs. The
 //! transforms are additions (and the halves of G). U is computed on each call from the
-//! layer's weight, 16 values per weight pair, which costs about as much as a product over
-//! two dozen tiles, so [`MIN_TILES`] sends smaller inputs to the direct convolution. Tiles
+//! layer's weight, 16 values per weight pair, and each chunk's products pack it again; below
+//! [`MIN_TILES`] (measured) that costs more than the multiplications saved, and the input
+//! goes to the direct convolution. Tiles
 //! of every batch item are the product's columns together, in chunks whose V and M fit
 //! [`CHUNK_BUDGET`]. Both transforms run over a row of tiles at a time as plain loops the
 //! compiler vectorises.
@@ -210,7 +211,7 @@ fn transform_input(
             }
             // Bᵀ d, row by row, even and odd columns apart
             let [d0, d1, d2, d3] = &padded;
-            for k in 0..=tw {
+            for k in tx0..=tx1 {
                 for (col, parity) in [(2 * k, &mut even), (2 * k + 1, &mut odd)] {
                     let (a, b_, c_, e) = (d0[col], d1[col], d2[col], d3[col]);
                     parity[0][k] = a - c_;
@@ -299,15 +300,20 @@ mod tests {
         y
     }
 
-    /// Against the direct formula: odd and even sizes (a last tile cut by the edge),
-    /// padding 0, 1 and 2, several items, and chunks of one tile, a few tiles (chunks
-    /// that start and end inside a tile row and cross items) and all tiles.
+    /// Against the direct formula: odd and even sizes (a last tile cut by the edge, one
+    /// row of tiles), padding 0, 1 and 2, several items, and chunks of one tile, of a few
+    /// tiles (chunks that start and end inside a tile row and span two or more items) and
+    /// of all tiles.
     #[test]
     fn matches_the_direct_formula() {
         // (batch, cin, cout, h, w, padding)
-        for &(b, c_n, o_n, h, wd, p) in
-            &[(2, 3, 4, 7, 6, 1), (1, 5, 2, 8, 8, 1), (3, 2, 3, 5, 9, 0), (1, 2, 2, 4, 3, 2)]
-        {
+        for &(b, c_n, o_n, h, wd, p) in &[
+            (2, 3, 4, 7, 6, 1),
+            (1, 5, 2, 8, 8, 1),
+            (3, 2, 3, 5, 9, 0),
+            (1, 2, 2, 4, 3, 2),
+            (4, 2, 2, 3, 7, 0),
+        ] {
             let w: Vec<f32> = (0..o_n * c_n * 9).map(|i| ((i * 29 % 17) as f32 - 8.0) / 7.0).collect();
             let bias: Vec<f32> = (0..o_n).map(|o| o as f32 * 0.25 - 0.3).collect();
             let x: Vec<f32> = (0..b * c_n * h * wd).map(|i| ((i * 13 % 23) as f32 - 11.0) / 5.0).collect();
@@ -315,9 +321,10 @@ mod tests {
             let layer =
                 Layer { weight: &w, bias: Some(&bias), out_channels: o_n, in_channels: c_n, padding: p };
             let scale = want.iter().fold(1.0f32, |a, v| a.max(v.abs()));
-            for chunk in [1, 5, layer.chunk(), usize::MAX] {
+            for chunk in [1, 5, 17, usize::MAX] {
                 let mut got = vec![f32::NAN; want.len()];
                 conv3x3(&layer, &x, b, (h, wd), &mut got, chunk);
+                assert!(got.iter().all(|v| v.is_finite()), "every output pixel is written");
                 let diff = want.iter().zip(&got).map(|(a, g)| (a - g).abs()).fold(0.0f32, f32::max);
                 assert!(diff <= 2e-6 * scale, "{b}x{c_n}x{h}x{wd} → {o_n}, p {p}, chunks of {chunk}: {diff}");
             }
