@@ -1,5 +1,4 @@
-//! 2D convolution for the CPU: im2col by rows, then one GEMM per tile of output rows, or
-//! per group of batch items where a whole item's im2col matrix is small.
+//! 2D convolution for the CPU: im2col by rows, then one GEMM per tile of output rows.
 //!
 //! For input x `[B, C, H, W]` and weight w `[O, C, kh, kw]` (bias b `[O]`), the output is
 //! y[n, o, i, j] = b[o] + Σ_{c, u, v} w[o, c, u, v] · x[n, c, s·i + u − p, s·j + v − p]
@@ -16,10 +15,8 @@
 //! GEMM writes straight into the output `[O, H'·W']` of its batch item, with the bias as
 //! its starting value; a 1×1 convolution with s = 1 and p = 0 is the GEMM on the input
 //! itself. The im2col matrix is built for as many output rows at a time as fit
-//! [`COL_BUDGET`] floats, so a VAE decoder at 512² does not allocate gigabytes. Where
-//! several items' matrices fit that budget together (a UNet's coarse levels), they are one
-//! GEMM, X_n side by side as the columns of one matrix, so the weight is packed once per
-//! group instead of once per item; the product is then copied into each item's output.
+//! [`COL_BUDGET`] floats, so a VAE decoder at 512² does not allocate gigabytes. A 3×3
+//! convolution with stride 1 over enough pixels goes to [`crate::winograd`] instead.
 //!
 //! The `gemm` crate is built with its `x86-v4` kernels (AVX-512, chosen at run time where
 //! the CPU has it; AVX2 and FMA otherwise); the feature applies to candle's own matrix
@@ -136,55 +133,6 @@ impl RowConv {
         Some(((hp - kh) / self.stride + 1, (wp - kw) / self.stride + 1))
     }
 
-    /// y = W · X for a batch of `b` items (`x` `[B, C, H, W]`, `y` `[B, O, H'·W']`). Items
-    /// whose im2col matrices fit `budget` floats together are one GEMM, their matrices side
-    /// by side as the columns of one X: the product then packs the layer's weight once for
-    /// them, not once per item (a UNet's 4×4 level, where W has 1280 rows and 11,520
-    /// columns and X 16 per item; 3×3 layers with more tiles go to Winograd). An item
-    /// whose matrix alone passes the budget goes by tiles of its output rows ([`Self::item`]).
-    fn batch(
-        &self,
-        x: &[f32],
-        b: usize,
-        (h, w): (usize, usize),
-        y: &mut [f32],
-        (oh, ow): (usize, usize),
-        budget: usize,
-    ) {
-        let (kh, kw) = self.kernel;
-        let k = self.in_channels * kh * kw;
-        let pixels = oh * ow;
-        let (per_in, per_out) = (self.in_channels * h * w, self.out_channels * pixels);
-        let group = (budget / (k * pixels).max(1)).min(b);
-        if group < 2 {
-            for (xb, yb) in x.chunks_exact(per_in).zip(y.chunks_exact_mut(per_out)) {
-                self.item(xb, (h, w), yb, (oh, ow), budget);
-            }
-            return;
-        }
-        let mut col = vec![0.0f32; k * group * pixels];
-        let mut product = vec![0.0f32; self.out_channels * group * pixels];
-        for first in (0..b).step_by(group) {
-            let items = group.min(b - first);
-            let cols = items * pixels;
-            let col = &mut col[..k * cols];
-            self.im2col(&x[first * per_in..(first + items) * per_in], items, (h, w), 0, oh, ow, col);
-            let product = &mut product[..self.out_channels * cols];
-            match &self.bias {
-                Some(bias) => product.chunks_exact_mut(cols).zip(bias).for_each(|(row, &v)| row.fill(v)),
-                None => product.fill(0.0),
-            }
-            gemm_into(product, cols, 0, cols, &self.weight, col, self.out_channels, k);
-            // product[o, item·pixels + p] is y[first + item, o, p]
-            for (o, row) in product.chunks_exact(cols).enumerate() {
-                for (item, run) in row.chunks_exact(pixels).enumerate() {
-                    let at = (first + item) * per_out + o * pixels;
-                    y[at..at + pixels].copy_from_slice(run);
-                }
-            }
-        }
-    }
-
     /// y = W · X for one batch item: `x` `[C, H, W]`, `y` `[O, H'·W']`; im2col matrices of
     /// at most `budget` floats (at least one output row).
     fn item(
@@ -213,29 +161,19 @@ impl RowConv {
             let n_rows = rows.min(oh - r0);
             let n = n_rows * ow;
             let col = &mut col[..k * n];
-            self.im2col(x, 1, (h, w), r0, n_rows, ow, col);
+            self.im2col(x, h, w, r0, n_rows, ow, col);
             gemm_into(y, pixels, r0 * ow, n, &self.weight, col, self.out_channels, k);
         }
     }
 
-    /// Rows (c, u, v) of X for output rows `r0..r0 + n_rows` of `items` consecutive batch
-    /// items of `x` into `col` `[C·kh·kw, items·n_rows·W']`, the items' columns side by side.
+    /// Rows (c, u, v) of X for output rows `r0..r0 + n_rows` into `col` `[C·kh·kw, n_rows·W']`.
     #[allow(clippy::too_many_arguments)]
-    fn im2col(
-        &self,
-        x: &[f32],
-        items: usize,
-        (h, w): (usize, usize),
-        r0: usize,
-        n_rows: usize,
-        ow: usize,
-        col: &mut [f32],
-    ) {
+    fn im2col(&self, x: &[f32], h: usize, w: usize, r0: usize, n_rows: usize, ow: usize, col: &mut [f32]) {
         let (kh, kw) = self.kernel;
         let (s, p) = (self.stride, self.padding as isize);
-        let channels = self.in_channels;
-        col.par_chunks_mut(items * n_rows * ow).enumerate().for_each(|(row, out)| {
+        col.par_chunks_mut(n_rows * ow).enumerate().for_each(|(row, out)| {
             let (c, u, v) = (row / (kh * kw), (row / kw) % kh, row % kw);
+            let plane = &x[c * h * w..(c + 1) * h * w];
             // output columns j whose input column s·j + v − p lies inside the image
             let first = ((p - v as isize).max(0) as usize).div_ceil(s);
             let last = if (w as isize) + p - (v as isize) <= 0 {
@@ -244,8 +182,6 @@ impl RowConv {
                 (((w as isize + p - v as isize - 1) as usize) / s + 1).min(ow)
             };
             for (i, dst) in out.chunks_exact_mut(ow).enumerate() {
-                let (item, i) = (i / n_rows, i % n_rows);
-                let plane = &x[(item * channels + c) * h * w..][..h * w];
                 let iy = ((r0 + i) * s + u) as isize - p;
                 if iy < 0 || iy >= h as isize || first >= last {
                     dst.fill(0.0);
@@ -312,7 +248,9 @@ impl CustomOp1 for RowConv {
             };
             winograd::conv3x3(&layer, x, b, (h, w), &mut y, layer.chunk());
         } else {
-            self.batch(x, b, (h, w), &mut y, (oh, ow), COL_BUDGET);
+            for (xb, yb) in x.chunks_exact(c * h * w).zip(y.chunks_exact_mut(per_out)) {
+                self.item(xb, (h, w), yb, (oh, ow), COL_BUDGET);
+            }
         }
         Ok((CpuStorage::F32(y), Shape::from((b, self.out_channels, oh, ow))))
     }
@@ -461,32 +399,6 @@ mod tests {
         conv.item(&x, (9, 7), &mut tiled, out, 1);
         assert_eq!(whole, tiled);
         assert!(whole.iter().any(|&v| v != 0.0));
-    }
-
-    /// A batch gives each item what the item alone gives, whether the items go one GEMM
-    /// each, all in one, or in groups of two with a ragged last group.
-    #[test]
-    fn batch_groups_do_not_change_the_result() {
-        let dev = Device::Cpu;
-        let varmap = VarMap::new();
-        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
-        let cfg = Conv2dConfig { padding: 1, ..Default::default() };
-        let Conv2d::Cpu(conv) = conv2d(3, 4, 3, cfg, vb).unwrap() else { panic!("the CPU path") };
-        let (b, h, w) = (3, 5, 6);
-        let x: Vec<f32> = (0..b * 3 * h * w).map(|i| ((i * 37 % 13) as f32 - 6.0) / 4.0).collect();
-        let per_out = 4 * h * w;
-        let mut alone = vec![0.0; b * per_out];
-        for (xb, yb) in x.chunks_exact(3 * h * w).zip(alone.chunks_exact_mut(per_out)) {
-            conv.item(xb, (h, w), yb, (h, w), usize::MAX);
-        }
-        let one_item = 3 * 9 * h * w;
-        for budget in [1, 2 * one_item, usize::MAX] {
-            let mut batched = vec![0.0; b * per_out];
-            conv.batch(&x, b, (h, w), &mut batched, (h, w), budget);
-            let diff = alone.iter().zip(&batched).map(|(a, g)| (a - g).abs()).fold(0.0f32, f32::max);
-            assert!(diff < 1e-5, "budget {budget}: max difference {diff}");
-        }
-        assert!(alone.iter().filter(|&&v| v != 0.0).count() > b * per_out / 2);
     }
 
     #[test]

@@ -29,9 +29,9 @@ use crate::cpu::{gemm, Matrix, Product};
 /// Fewest tiles (over the whole batch) for which the transform of the weight pays. On the
 /// 256² UNet step (batch 3) 8, 64 and 200 were each slower than 32, by 2–7 %.
 pub const MIN_TILES: usize = 32;
-/// Most floats of V (and of M) of one chunk of tiles (4 MiB: they stay in the last-level
-/// cache between the transforms and the products; a chunk of all tiles of a VAE layer at
-/// 256², 64 MiB each, spent as long in the transforms as in the products).
+/// Most floats of V (and of M) of one chunk of tiles (4 MiB, so they stay in the last-level
+/// cache between the transforms and the products; on 2 cores with a 32 MiB cache, chunks
+/// of 4 to 64 MiB measured alike within the machine's drift).
 pub const CHUNK_BUDGET: usize = 1 << 20;
 /// Fewest tiles per chunk, whatever the budget: each of a chunk's 16 products packs its
 /// U_ξ (O × C) again, which a product over fewer tiles does not pay back.
@@ -187,14 +187,9 @@ fn transform_input(
     let n = vc.len() / 16;
     let per_item = th * tw;
     let width = 2 * tw + 2;
-    let mut padded = [const { Vec::new() }; 4];
-    let mut even = [const { Vec::new() }; 4];
-    let mut odd = [const { Vec::new() }; 4];
-    for i in 0..4 {
-        padded[i] = vec![0.0f32; width];
-        even[i] = vec![0.0f32; tw + 1];
-        odd[i] = vec![0.0f32; tw + 1];
-    }
+    let mut padded: [Vec<f32>; 4] = std::array::from_fn(|_| vec![0.0; width]);
+    let mut even: [Vec<f32>; 4] = std::array::from_fn(|_| vec![0.0; tw + 1]);
+    let mut odd = even.clone();
     let first_item = t0 / per_item;
     let last_item = (t0 + n - 1) / per_item;
     debug_assert!(last_item < b);
