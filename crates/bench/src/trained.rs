@@ -66,6 +66,7 @@ pub fn train_dataset(
         max_sh_degree: 3,
         random_points: 100_000,
         eval_every: 0,
+        ..Default::default()
     };
     let (mut trainer, _) = start(ds, &opts)?;
     let mut control = Control { cancel, ..Default::default() };

@@ -29,6 +29,9 @@ pub struct FitOptions {
     pub random_points: usize,
     /// Evaluate the test PSNR every this many steps (0 = only at the end).
     pub eval_every: u64,
+    /// Spacing in pixels of the sky dome's points ([`crate::init::sky_points`]); 0:
+    /// no dome.
+    pub sky_spacing: f32,
 }
 
 impl Default for FitOptions {
@@ -38,6 +41,7 @@ impl Default for FitOptions {
             max_sh_degree: 3,
             random_points: 100_000,
             eval_every: 1000,
+            sky_spacing: 0.0,
         }
     }
 }
@@ -62,6 +66,13 @@ pub fn initial_model(ds: &Dataset, opts: &FitOptions) -> (Model, InitSource) {
             (p, InitSource::Random { count: n })
         }
     };
+    let mut cloud = cloud;
+    if opts.sky_spacing > 0.0 {
+        let sky = crate::init::sky_points(&ds.train, &cloud, opts.sky_spacing);
+        tracing::info!("sky dome: {} points", sky.len());
+        cloud.positions.extend(sky.positions);
+        cloud.colors.extend(sky.colors);
+    }
     let mut g = gaussians_from_points(&cloud, opts.max_sh_degree, 0.01 * extent);
     if let Strategy::Mcmc(m) = opts.config.strategy {
         // gsplat's MCMC preset: more opaque, smaller initial Gaussians.

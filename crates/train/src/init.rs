@@ -184,15 +184,7 @@ fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
 
 /// Whether a world point projects inside a camera's image, in front of it.
 fn sees(cam: &Camera, p: [f32; 3]) -> bool {
-    let r = &cam.rotation;
-    let t = &cam.translation;
-    let c: [f32; 3] = std::array::from_fn(|i| r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + t[i]);
-    if c[2] <= 0.01 {
-        return false;
-    }
-    let u = cam.fx * c[0] / c[2] + cam.cx;
-    let v = cam.fy * c[1] / c[2] + cam.cy;
-    u >= 0.0 && v >= 0.0 && u < cam.width as f32 && v < cam.height as f32
+    pixel(cam, p).is_some()
 }
 
 /// Most random initial points a run may ask for (10 million: far more than any
@@ -244,6 +236,97 @@ pub fn random_points(cameras: &[Camera], n: usize, rng: &mut ChaCha8Rng) -> Poin
     cloud
 }
 
+/// Most sky points a run places (before keeping those a training view sees).
+pub const MAX_SKY_POINTS: usize = 200_000;
+
+/// A sky dome: points on a sphere about the cameras' centre, far enough that the
+/// training cameras' spread moves them by under a pixel, spaced `spacing_px` pixels
+/// apart at the largest focal length, kept where a training view sees them, each
+/// coloured by the mean of the training pixels it projects to.
+///
+/// The sky (and anything at infinity) has no SfM points, so without a dome it is
+/// grown by densification from the nearest surface points and ends tens of metres
+/// away, where the vertical spread of the cameras moves it by several pixels against
+/// the far floor: the horizon lands in the wrong row of a held-out view (docs/method.md
+/// T4). Hierarchical 3DGS (Kerbl et al. 2024) adds such a skybox of points to every
+/// scene for the same reason. The radius is the larger of 10 × the farthest point and
+/// `f · B` (B the largest distance between training cameras, so the parallax is at
+/// most a pixel).
+pub fn sky_points(views: &[crate::dataset::View], cloud: &PointCloud, spacing_px: f32) -> PointCloud {
+    let mut sky = PointCloud::default();
+    let cameras: Vec<&Camera> = views.iter().map(|v| &v.camera).collect();
+    if cameras.is_empty() || !(spacing_px > 0.0) {
+        return sky;
+    }
+    let n = cameras.len() as f32;
+    let centres: Vec<[f32; 3]> = cameras.iter().map(|c| c.centre()).collect();
+    let centre: [f32; 3] = std::array::from_fn(|k| centres.iter().map(|c| c[k]).sum::<f32>() / n);
+    let dist = |a: [f32; 3], b: [f32; 3]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+    let farthest_point = cloud.positions.iter().map(|&p| dist(p, centre)).fold(0.0f32, f32::max);
+    let spread = centres.iter().map(|&c| 2.0 * dist(c, centre)).fold(0.0f32, f32::max);
+    let focal = cameras.iter().map(|c| c.fx.max(c.fy)).fold(0.0f32, f32::max);
+    let radius = (10.0 * farthest_point).max(focal * spread).max(1.0);
+    if !radius.is_finite() || !(focal > 0.0) {
+        return sky;
+    }
+    // The cameras' up: the mean of their image-up axes (−y of OpenCV cameras, the
+    // second row of the world-to-camera rotation, negated). Without a consistent up
+    // there is no horizon to put the sky above, and no dome.
+    let up_sum: [f32; 3] = std::array::from_fn(|k| -cameras.iter().map(|c| c.rotation[1][k]).sum::<f32>());
+    let up_norm = (up_sum[0] * up_sum[0] + up_sum[1] * up_sum[1] + up_sum[2] * up_sum[2]).sqrt();
+    if !(up_norm > 0.5 * n) {
+        return sky;
+    }
+    let up = up_sum.map(|v| v / up_norm);
+    // Fibonacci sphere: N points whose spacing is about √(4π / N) radians.
+    let spacing = spacing_px / focal;
+    let total = ((4.0 * std::f32::consts::PI / (spacing * spacing)) as usize).clamp(2, MAX_SKY_POINTS);
+    let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
+    for i in 0..total {
+        let z = 1.0 - 2.0 * (i as f32 + 0.5) / total as f32;
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        let theta = golden * i as f32;
+        let dir = [r * theta.cos(), r * theta.sin(), z];
+        // Only above the horizon: below it, a far backdrop would stand in for the
+        // ground, right from the height of the views that trained it and wrong from
+        // any other.
+        if dir[0] * up[0] + dir[1] * up[1] + dir[2] * up[2] < 0.0 {
+            continue;
+        }
+        let p: [f32; 3] = std::array::from_fn(|k| centre[k] + radius * dir[k]);
+        let mut sum = [0.0f32; 3];
+        let mut seen = 0usize;
+        for view in views {
+            if let Some((u, v)) = pixel(&view.camera, p) {
+                let k = (v * view.camera.width as usize + u) * 3;
+                for ch in 0..3 {
+                    sum[ch] += view.image[k + ch];
+                }
+                seen += 1;
+            }
+        }
+        if seen > 0 {
+            sky.positions.push(p);
+            sky.colors.push(sum.map(|s| s / seen as f32));
+        }
+    }
+    sky
+}
+
+/// The pixel a world point projects to, when in front of the camera and inside its
+/// image.
+fn pixel(cam: &Camera, p: [f32; 3]) -> Option<(usize, usize)> {
+    let r = &cam.rotation;
+    let t = &cam.translation;
+    let c: [f32; 3] = std::array::from_fn(|i| r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + t[i]);
+    if c[2] <= 0.01 {
+        return None;
+    }
+    let u = cam.fx * c[0] / c[2] + cam.cx;
+    let v = cam.fy * c[1] / c[2] + cam.cy;
+    (u >= 0.0 && v >= 0.0 && u < cam.width as f32 && v < cam.height as f32).then_some((u as usize, v as usize))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -284,6 +367,70 @@ mod tests {
         assert!((transsplat_scene::sigmoid(g.opacity_logits[0]) - 0.1).abs() < 1e-6);
         assert!((g.sh[0] - 0.0).abs() < 1e-6 && (g.sh[1] - 0.5 / SH_C0).abs() < 1e-5);
         assert!(g.sh[3..48].iter().all(|&v| v == 0.0));
+    }
+
+    /// Four cameras on a ring of radius 4 about the origin at height 0, looking at it,
+    /// world up +y (the cameras' image-down axis is −y); `flip` turns the odd ones
+    /// upside down.
+    fn ring(flip: bool) -> Vec<Camera> {
+        (0..4)
+            .map(|k| {
+                let a = k as f32 * std::f32::consts::FRAC_PI_2;
+                let c = [4.0 * a.cos(), 0.0, 4.0 * a.sin()];
+                let z = [-a.cos(), 0.0, -a.sin()];
+                let y = if flip && k % 2 == 1 { [0.0, 1.0, 0.0] } else { [0.0, -1.0, 0.0] };
+                let x = [y[1] * z[2] - y[2] * z[1], y[2] * z[0] - y[0] * z[2], y[0] * z[1] - y[1] * z[0]];
+                let r = [[x[0], y[0], z[0]], [x[1], y[1], z[1]], [x[2], y[2], z[2]]];
+                Camera::from_c2w(format!("{k}"), 64, 48, 50.0, 50.0, 32.0, 24.0, r, c)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn sky_dome_lies_far_above_the_horizon_in_the_views_colours() {
+        let colour = |k: usize| [k as f32 / 4.0, 0.5, 1.0 - k as f32 / 4.0];
+        let views: Vec<crate::dataset::View> = ring(false)
+            .into_iter()
+            .enumerate()
+            .map(|(k, camera)| crate::dataset::View {
+                image: colour(k).repeat(64 * 48),
+                camera,
+                weights: None,
+                path: Default::default(),
+            })
+            .collect();
+        let cloud = PointCloud { positions: vec![[0.0, 0.0, 2.0]], colors: vec![[0.0; 3]] };
+        let sky = sky_points(&views, &cloud, 2.0);
+        // Radius: max(10 × the farthest point (2), f · B (50 × 8)) = 400.
+        assert!(sky.len() > 100, "{} points", sky.len());
+        for (p, c) in sky.positions.iter().zip(&sky.colors) {
+            let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+            assert!((r - 400.0).abs() < 1e-2, "radius {r}");
+            assert!(p[1] >= 0.0, "below the horizon: {p:?}");
+            let seen: Vec<usize> = (0..4).filter(|&k| sees(&views[k].camera, *p)).collect();
+            assert!(!seen.is_empty(), "{p:?} is seen by no view");
+            for ch in 0..3 {
+                let want = seen.iter().map(|&k| colour(k)[ch]).sum::<f32>() / seen.len() as f32;
+                assert!((c[ch] - want).abs() < 1e-6, "{p:?}: {c:?}, views {seen:?}");
+            }
+        }
+        // Spacing: 2 px at f = 50, i.e. 0.04 rad, 16 units at the radius.
+        let d2 = knn_mean_sq_dist(&sky.positions, 3, 0.0);
+        let mut d: Vec<f32> = d2.iter().map(|v| v.sqrt()).collect();
+        d.sort_by(f32::total_cmp);
+        let median = d[d.len() / 2];
+        assert!((12.0..20.0).contains(&median), "median neighbour distance {median}");
+        // Cameras with no common up: no horizon, no dome.
+        let flipped: Vec<crate::dataset::View> = ring(true)
+            .into_iter()
+            .map(|camera| crate::dataset::View {
+                image: vec![0.5; 64 * 48 * 3],
+                camera,
+                weights: None,
+                path: Default::default(),
+            })
+            .collect();
+        assert!(sky_points(&flipped, &cloud, 2.0).is_empty());
     }
 
     #[test]

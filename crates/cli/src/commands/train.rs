@@ -45,6 +45,10 @@ pub struct TrainArgs {
     /// Random points when the dataset has no point cloud (at most 10 million).
     #[arg(long, default_value_t = 100_000)]
     pub random_points: usize,
+    /// A sky dome: points on a far sphere where the training views see, this many
+    /// pixels apart (0: none).
+    #[arg(long, value_parser = super::common::finite_f32, default_value_t = 0.0)]
+    pub sky_spacing: f32,
     /// Train only inside these masks: DIR/<image stem>.png (or .jpg) for every view, grey
     /// in [0, 1], a per-pixel loss weight. Without it, only masks the dataset declares per
     /// frame (transforms.json mask_path) are used; a masks/ folder alone is not.
@@ -173,6 +177,9 @@ fn train_request(args: &TrainArgs) -> Result<TrainRequest> {
     if args.downscales > 0 && args.downscale_every == 0 {
         bail!("--downscale-every must be at least 1 with --downscales {}", args.downscales);
     }
+    if args.sky_spacing < 0.0 {
+        bail!("--sky-spacing must be at least 0 (0: no sky dome), got {}", args.sky_spacing);
+    }
     if args.random_points > MAX_RANDOM_POINTS {
         bail!("--random-points must be at most {MAX_RANDOM_POINTS}, got {}", args.random_points);
     }
@@ -201,6 +208,7 @@ fn train_request(args: &TrainArgs) -> Result<TrainRequest> {
         max_sh_degree: args.sh_degree,
         random_points: args.random_points,
         eval_every: args.eval_every,
+        sky_spacing: args.sky_spacing,
     };
     opts.config.validate().map_err(|e| anyhow::anyhow!("{} {}", flag_of(e.key), e.problem))?;
     let masks = match (&args.masks, args.no_masks) {
