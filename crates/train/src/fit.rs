@@ -68,7 +68,7 @@ pub fn initial_model(ds: &Dataset, opts: &FitOptions) -> (Model, InitSource) {
     };
     let mut cloud = cloud;
     if opts.sky_spacing > 0.0 {
-        let sky = crate::init::sky_points(&ds.train, &cloud, opts.sky_spacing);
+        let sky = crate::init::sky_points(&ds.train, &cloud, opts.sky_spacing, opts.config.background);
         tracing::info!("sky dome: {} points", sky.len());
         cloud.positions.extend(sky.positions);
         cloud.colors.extend(sky.colors);

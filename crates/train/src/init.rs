@@ -242,7 +242,10 @@ pub const MAX_SKY_POINTS: usize = 200_000;
 /// A sky dome: points on a sphere about the cameras' centre, far enough that the
 /// training cameras' spread moves them by under a pixel, spaced `spacing_px` pixels
 /// apart at the largest focal length, kept where a training view sees them, each
-/// coloured by the mean of the training pixels it projects to.
+/// coloured by the mean of the training pixels it projects to. A direction where every
+/// view that sees it shows the training `background` (within 2/255 in every channel)
+/// gets no point: the background already draws it, and a dome there would replace the
+/// background a user renders over (an object shot against white, say).
 ///
 /// The sky (and anything at infinity) has no SfM points, so without a dome it is
 /// grown by densification from the nearest surface points and ends tens of metres
@@ -252,7 +255,12 @@ pub const MAX_SKY_POINTS: usize = 200_000;
 /// scene for the same reason. The radius is the larger of 10 × the farthest point and
 /// `f · B` (B the largest distance between training cameras, so the parallax is at
 /// most a pixel).
-pub fn sky_points(views: &[crate::dataset::View], cloud: &PointCloud, spacing_px: f32) -> PointCloud {
+pub fn sky_points(
+    views: &[crate::dataset::View],
+    cloud: &PointCloud,
+    spacing_px: f32,
+    background: [f32; 3],
+) -> PointCloud {
     let mut sky = PointCloud::default();
     let cameras: Vec<&Camera> = views.iter().map(|v| &v.camera).collect();
     if cameras.is_empty() || !(spacing_px > 0.0) {
@@ -261,7 +269,9 @@ pub fn sky_points(views: &[crate::dataset::View], cloud: &PointCloud, spacing_px
     let n = cameras.len() as f32;
     let centres: Vec<[f32; 3]> = cameras.iter().map(|c| c.centre()).collect();
     let centre: [f32; 3] = std::array::from_fn(|k| centres.iter().map(|c| c[k]).sum::<f32>() / n);
-    let dist = |a: [f32; 3], b: [f32; 3]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+    let dist = |a: [f32; 3], b: [f32; 3]| {
+        ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+    };
     let farthest_point = cloud.positions.iter().map(|&p| dist(p, centre)).fold(0.0f32, f32::max);
     let spread = centres.iter().map(|&c| 2.0 * dist(c, centre)).fold(0.0f32, f32::max);
     let focal = cameras.iter().map(|c| c.fx.max(c.fy)).fold(0.0f32, f32::max);
@@ -296,16 +306,18 @@ pub fn sky_points(views: &[crate::dataset::View], cloud: &PointCloud, spacing_px
         let p: [f32; 3] = std::array::from_fn(|k| centre[k] + radius * dir[k]);
         let mut sum = [0.0f32; 3];
         let mut seen = 0usize;
+        let mut shows_more_than_background = false;
         for view in views {
             if let Some((u, v)) = pixel(&view.camera, p) {
                 let k = (v * view.camera.width as usize + u) * 3;
                 for ch in 0..3 {
                     sum[ch] += view.image[k + ch];
+                    shows_more_than_background |= (view.image[k + ch] - background[ch]).abs() > 2.0 / 255.0;
                 }
                 seen += 1;
             }
         }
-        if seen > 0 {
+        if seen > 0 && shows_more_than_background {
             sky.positions.push(p);
             sky.colors.push(sum.map(|s| s / seen as f32));
         }
@@ -324,7 +336,8 @@ fn pixel(cam: &Camera, p: [f32; 3]) -> Option<(usize, usize)> {
     }
     let u = cam.fx * c[0] / c[2] + cam.cx;
     let v = cam.fy * c[1] / c[2] + cam.cy;
-    (u >= 0.0 && v >= 0.0 && u < cam.width as f32 && v < cam.height as f32).then_some((u as usize, v as usize))
+    (u >= 0.0 && v >= 0.0 && u < cam.width as f32 && v < cam.height as f32)
+        .then_some((u as usize, v as usize))
 }
 
 #[cfg(test)]
@@ -400,7 +413,7 @@ mod tests {
             })
             .collect();
         let cloud = PointCloud { positions: vec![[0.0, 0.0, 2.0]], colors: vec![[0.0; 3]] };
-        let sky = sky_points(&views, &cloud, 2.0);
+        let sky = sky_points(&views, &cloud, 2.0, [0.0; 3]);
         // Radius: max(10 × the farthest point (2), f · B (50 × 8)) = 400.
         assert!(sky.len() > 100, "{} points", sky.len());
         for (p, c) in sky.positions.iter().zip(&sky.colors) {
@@ -430,7 +443,13 @@ mod tests {
                 path: Default::default(),
             })
             .collect();
-        assert!(sky_points(&flipped, &cloud, 2.0).is_empty());
+        assert!(sky_points(&flipped, &cloud, 2.0, [0.0; 3]).is_empty());
+        // Where every view shows the background, the background draws the sky.
+        assert!(sky_points(&flipped[..1], &cloud, 2.0, [0.5; 3]).is_empty());
+        let one_view = sky_points(&views[..1], &cloud, 2.0, colour(0));
+        assert!(one_view.is_empty(), "{} points where the only view shows the background", one_view.len());
+        let two_views = sky_points(&views[..2], &cloud, 2.0, colour(0));
+        assert!(!two_views.is_empty() && two_views.positions.iter().all(|&p| sees(&views[1].camera, p)));
     }
 
     #[test]
