@@ -104,7 +104,9 @@ pub fn run(
         let ply = write_output(dir, &trainer, &ds.cameras)?;
         let ply = out.join(ply.strip_prefix(dir).unwrap_or(&ply));
         write_test_renders(&dir.join(TEST_RENDERS), &trainer, &ds.test)?;
-        let summary = summary(&trainer, &eval, train_psnr, &low_views, started.elapsed().as_secs_f64(), ply);
+        let mut summary =
+            summary(&trainer, &eval, train_psnr, &low_views, started.elapsed().as_secs_f64(), ply);
+        summary.sky_spacing = (opts.sky_spacing > 0.0).then_some(opts.sky_spacing);
         summary.write(dir)?;
         Ok(summary)
     })?;
@@ -195,6 +197,7 @@ fn summary(
         camera_reach: config.densify.camera_reach,
         strategy: config.strategy.name().into(),
         filter_3d: (config.filter_3d > 0.0).then_some(config.filter_3d),
+        sky_spacing: None,
     }
 }
 

@@ -191,8 +191,8 @@ pub const TRAIN_FILE: &str = "train.ckpt";
 /// the dataset (cameras, images, masks, points).
 pub fn train_run_id(ds: &Dataset, opts: &FitOptions, load: &LoadOptions) -> RunId {
     let settings = format!(
-        "{:#?}\nmax_sh_degree: {}\nrandom_points: {}\n{load:#?}",
-        opts.config, opts.max_sh_degree, opts.random_points
+        "{:#?}\nmax_sh_degree: {}\nrandom_points: {}\nsky_spacing: {}\n{load:#?}",
+        opts.config, opts.max_sh_degree, opts.random_points, opts.sky_spacing
     );
     let view_hash = |v: &View| {
         let mut h = Hasher::default();
@@ -364,6 +364,9 @@ pub struct TrainSummary {
     /// The 3D filter's variance factor (`filter3d`), absent when off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub filter_3d: Option<f32>,
+    /// The sky dome's spacing in pixels ([`crate::init::sky_points`]), absent when off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sky_spacing: Option<f32>,
 }
 
 /// The lowest-scoring test view.
