@@ -41,7 +41,7 @@ impl Default for FitOptions {
             max_sh_degree: 3,
             random_points: 100_000,
             eval_every: 1000,
-            sky_spacing: 0.0,
+            sky_spacing: crate::init::DEFAULT_SKY_SPACING,
         }
     }
 }

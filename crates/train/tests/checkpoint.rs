@@ -46,7 +46,7 @@ fn options() -> FitOptions {
         max_sh_degree: 2,
         random_points: 0,
         eval_every: 0,
-        sky_spacing: 0.0,
+        ..Default::default()
     }
 }
 

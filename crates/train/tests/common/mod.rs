@@ -23,7 +23,7 @@ pub fn densify(from_step: u64, until_step: u64, reset: u64, sh_interval: u64) ->
 /// A short run of `config`: SH degree at most 1, no random points, no evaluation
 /// during the run.
 pub fn options(config: TrainConfig) -> FitOptions {
-    FitOptions { config, max_sh_degree: 1, random_points: 0, eval_every: 0, sky_spacing: 0.0 }
+    FitOptions { config, max_sh_degree: 1, random_points: 0, eval_every: 0, ..Default::default() }
 }
 
 /// The quick tabletop scene and a dataset of its renders at `width × height`, every
