@@ -256,8 +256,8 @@ pub const MAX_SKY_POINTS: usize = 200_000;
 /// grown by densification from the nearest surface points and ends tens of metres
 /// away, where the vertical spread of the cameras moves it by several pixels against
 /// the far floor: the horizon lands in the wrong row of a held-out view (docs/method.md
-/// T4). Hierarchical 3DGS (Kerbl et al. 2024) adds such a skybox of points to every
-/// scene for the same reason. The radius is the larger of 10 × the farthest point and
+/// T4). Hierarchical 3DGS (Kerbl et al. 2024) initialises a skybox of points for the
+/// same reason. The radius is the larger of 10 × the farthest point and
 /// `f · B` (B the largest distance between training cameras, so the parallax is at
 /// most a pixel).
 pub fn sky_points(
