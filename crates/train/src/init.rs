@@ -236,11 +236,6 @@ pub fn random_points(cameras: &[Camera], n: usize, rng: &mut ChaCha8Rng) -> Poin
     cloud
 }
 
-/// The default spacing of the sky dome's points, in pixels at the largest focal
-/// length: coarse for a smooth sky, and each point's initial scale (its neighbour
-/// distance, about the spacing) makes the dome a covering from the start.
-pub const DEFAULT_SKY_SPACING: f32 = 4.0;
-
 /// Most sky points a run places (before keeping those a training view sees).
 pub const MAX_SKY_POINTS: usize = 200_000;
 

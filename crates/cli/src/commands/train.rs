@@ -8,7 +8,7 @@ use std::sync::atomic::AtomicBool;
 use transsplat_raster::ClampGrad;
 use transsplat_session::train::TrainRequest;
 use transsplat_train::dataset::Masks;
-use transsplat_train::init::{DEFAULT_SKY_SPACING, MAX_RANDOM_POINTS};
+use transsplat_train::init::MAX_RANDOM_POINTS;
 use transsplat_train::{
     AdamRule, DensifyConfig, Downscale, FitOptions, LearningRates, LoadOptions, Strategy, TrainConfig,
 };
@@ -46,8 +46,8 @@ pub struct TrainArgs {
     #[arg(long, default_value_t = 100_000)]
     pub random_points: usize,
     /// A sky dome: points on a far sphere above the cameras' horizon where the
-    /// training views see, this many pixels apart (0: none).
-    #[arg(long, value_parser = super::common::finite_f32, default_value_t = DEFAULT_SKY_SPACING)]
+    /// training views see, this many pixels apart (0: none, as INRIA; 4 was measured).
+    #[arg(long, value_parser = super::common::finite_f32, default_value_t = 0.0)]
     pub sky_spacing: f32,
     /// Train only inside these masks: DIR/<image stem>.png (or .jpg) for every view, grey
     /// in [0, 1], a per-pixel loss weight. Without it, only masks the dataset declares per
