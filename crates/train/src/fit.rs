@@ -56,7 +56,7 @@ pub enum InitSource {
 /// The initial model for a dataset (see [`crate::init`]).
 pub fn initial_model(ds: &Dataset, opts: &FitOptions) -> (Model, InitSource) {
     let extent = scene_extent(&ds.cameras);
-    let (cloud, source) = match &ds.points {
+    let (mut cloud, source) = match &ds.points {
         Some(p) if !p.is_empty() => (p.clone(), InitSource::Points { count: p.len() }),
         _ => {
             let mut rng = ChaCha8Rng::seed_from_u64(opts.config.seed ^ 0x1417);
@@ -66,7 +66,6 @@ pub fn initial_model(ds: &Dataset, opts: &FitOptions) -> (Model, InitSource) {
             (p, InitSource::Random { count: n })
         }
     };
-    let mut cloud = cloud;
     if opts.sky_spacing > 0.0 {
         let sky = crate::init::sky_points(&ds.train, &cloud, opts.sky_spacing, opts.config.background);
         tracing::info!("sky dome: {} points", sky.len());
