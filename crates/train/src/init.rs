@@ -241,8 +241,9 @@ pub const MAX_SKY_POINTS: usize = 200_000;
 
 /// A sky dome: points on a sphere about the cameras' centre, far enough that the
 /// training cameras' spread moves them by under a pixel, spaced `spacing_px` pixels
-/// apart at the largest focal length, kept where a training view sees them, each
-/// coloured by the mean of the training pixels it projects to. A direction where every
+/// apart at the largest focal length, kept where a training view sees them and the
+/// cloud does not already reach the sky ([`sky_reached`]), each coloured by the mean of
+/// the training pixels it projects to. A direction where every
 /// view that sees it shows the training `background` (within 2/255 in every channel)
 /// gets no point: the background already draws it, and a dome there would replace the
 /// background a user renders over (an object shot against white, say).
@@ -292,15 +293,20 @@ pub fn sky_points(
     let spacing = spacing_px / focal;
     let total = ((4.0 * std::f32::consts::PI / (spacing * spacing)) as usize).clamp(2, MAX_SKY_POINTS);
     let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
-    for i in 0..total {
-        let z = 1.0 - 2.0 * (i as f32 + 0.5) / total as f32;
-        let r = (1.0 - z * z).max(0.0).sqrt();
-        let theta = golden * i as f32;
-        let dir = [r * theta.cos(), r * theta.sin(), z];
+    let directions: Vec<[f32; 3]> = (0..total)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f32 + 0.5) / total as f32;
+            let r = (1.0 - z * z).max(0.0).sqrt();
+            let theta = golden * i as f32;
+            [r * theta.cos(), r * theta.sin(), z]
+        })
+        .collect();
+    let reached = sky_reached(cloud, centre, &centres, up, spacing, &directions);
+    for (dir, reached) in directions.into_iter().zip(reached) {
         // Only above the horizon: below it, a far backdrop would stand in for the
         // ground, right from the height of the views that trained it and wrong from
         // any other.
-        if dir[0] * up[0] + dir[1] * up[1] + dir[2] * up[2] < 0.0 {
+        if dir[0] * up[0] + dir[1] * up[1] + dir[2] * up[2] < 0.0 || reached {
             continue;
         }
         let p: [f32; 3] = std::array::from_fn(|k| centre[k] + radius * dir[k]);
@@ -323,6 +329,57 @@ pub fn sky_points(
         }
     }
     sky
+}
+
+/// The directions, seen from the cameras' centre, where the cloud already reaches
+/// the sky: each cloud point above the horizon and outside the rig (farther from the
+/// centre than twice the farthest camera) covers the cap of its neighbour spacing as
+/// seen from the centre (at least the dome's own spacing). Densification grows what
+/// lies there from those points, at their depth, so a dome behind them would only add
+/// a second sky at the wrong distance: the built-in open scenes' sky is a sphere 30 m
+/// out that the cloud samples, with 40 px of parallax across their orbit (docs/method.md
+/// T4). Points inside the rig (the table, the objects) cover nothing: from the other
+/// cameras they move off the directions they hide from the centre.
+fn sky_reached(
+    cloud: &PointCloud,
+    centre: [f32; 3],
+    cameras: &[[f32; 3]],
+    up: [f32; 3],
+    spacing: f32,
+    directions: &[[f32; 3]],
+) -> Vec<bool> {
+    let norm = |a: [f32; 3]| (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+    let dot = |a: [f32; 3], b: [f32; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let rig = cameras.iter().map(|&c| norm(std::array::from_fn(|k| c[k] - centre[k]))).fold(0.0f32, f32::max);
+    let outside: Vec<[f32; 3]> = cloud
+        .positions
+        .iter()
+        .map(|&p| std::array::from_fn(|k| p[k] - centre[k]))
+        .filter(|&d: &[f32; 3]| norm(d) > 2.0 * rig && dot(d, up) >= 0.0)
+        .collect();
+    let mut reached = vec![false; directions.len()];
+    if outside.is_empty() {
+        return reached;
+    }
+    let neighbour = knn_mean_sq_dist(&outside, 3, 0.0);
+    let n = directions.len() as f32;
+    for (d, sq) in outside.iter().zip(neighbour) {
+        let r = norm(*d);
+        let cap = (sq.sqrt() / r).max(spacing).min(std::f32::consts::FRAC_PI_2);
+        let axis = d.map(|v| v / r);
+        // The Fibonacci directions are ordered by z: only the band of z the cap spans
+        // needs testing.
+        let polar = axis[2].clamp(-1.0, 1.0).acos();
+        let z_high = (polar - cap).max(0.0).cos();
+        let z_low = (polar + cap).min(std::f32::consts::PI).cos();
+        let first = (((1.0 - z_high) * n / 2.0 - 0.5).floor().max(0.0)) as usize;
+        let last = (((1.0 - z_low) * n / 2.0 - 0.5).ceil().max(0.0) as usize).min(directions.len() - 1);
+        let cos_cap = cap.cos();
+        for i in first..=last {
+            reached[i] |= dot(directions[i], axis) >= cos_cap;
+        }
+    }
+    reached
 }
 
 /// The pixel a world point projects to, when in front of the camera and inside its
@@ -433,6 +490,28 @@ mod tests {
         d.sort_by(f32::total_cmp);
         let median = d[d.len() / 2];
         assert!((12.0..20.0).contains(&median), "median neighbour distance {median}");
+        // A cloud that reaches the sky on one side (a shell 30 units out, about 2
+        // apart, where x > 0) keeps the dome off that side and leaves the other whole.
+        let shell_count = 2800;
+        let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
+        let mut shell = cloud.clone();
+        for i in 0..shell_count {
+            let y = 1.0 - 2.0 * (i as f32 + 0.5) / shell_count as f32;
+            let (r, a) = ((1.0 - y * y).sqrt(), golden * i as f32);
+            if a.cos() > 0.0 {
+                shell.positions.push([30.0 * r * a.cos(), 30.0 * y, 30.0 * r * a.sin()]);
+                shell.colors.push([0.5; 3]);
+            }
+        }
+        let half = sky_points(&views, &shell, 2.0, [0.0; 3]);
+        let far_side = |pc: &PointCloud| pc.positions.iter().filter(|p| p[0] < -0.1 * 400.0).count();
+        assert!(half.positions.iter().all(|p| p[0] < 0.1 * 400.0), "a dome point behind the shell");
+        assert!(
+            far_side(&sky) > 20 && far_side(&half) == far_side(&sky),
+            "{} / {}",
+            far_side(&half),
+            far_side(&sky)
+        );
         // Cameras with no common up: no horizon, no dome.
         let flipped: Vec<crate::dataset::View> = ring(true)
             .into_iter()
