@@ -236,11 +236,6 @@ pub fn random_points(cameras: &[Camera], n: usize, rng: &mut ChaCha8Rng) -> Poin
     cloud
 }
 
-/// The sky dome's default spacing, in pixels at the largest focal length: coarse
-/// enough to be few (a sky is smooth), fine enough that densification starts from a
-/// covering (each point's initial scale is about the spacing, and a splat reaches 3 σ).
-pub const DEFAULT_SKY_SPACING: f32 = 4.0;
-
 /// Most sky points a run places (before keeping those a training view sees).
 pub const MAX_SKY_POINTS: usize = 200_000;
 

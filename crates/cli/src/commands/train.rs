@@ -46,9 +46,8 @@ pub struct TrainArgs {
     #[arg(long, default_value_t = 100_000)]
     pub random_points: usize,
     /// A sky dome: points on a far sphere above the cameras' horizon where the
-    /// training views see a sky the point cloud does not reach, this many pixels apart
-    /// (0: none, as INRIA).
-    #[arg(long, value_parser = super::common::finite_f32, default_value_t = transsplat_train::init::DEFAULT_SKY_SPACING)]
+    /// training views see, this many pixels apart (0: none, as INRIA; 4 was measured).
+    #[arg(long, value_parser = super::common::finite_f32, default_value_t = 0.0)]
     pub sky_spacing: f32,
     /// Train only inside these masks: DIR/<image stem>.png (or .jpg) for every view, grey
     /// in [0, 1], a per-pixel loss weight. Without it, only masks the dataset declares per
