@@ -292,16 +292,8 @@ pub fn sky_points(
     // Fibonacci sphere: N points whose spacing is about √(4π / N) radians.
     let spacing = spacing_px / focal;
     let total = ((4.0 * std::f32::consts::PI / (spacing * spacing)) as usize).clamp(2, MAX_SKY_POINTS);
-    let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
-    let directions: Vec<[f32; 3]> = (0..total)
-        .map(|i| {
-            let z = 1.0 - 2.0 * (i as f32 + 0.5) / total as f32;
-            let r = (1.0 - z * z).max(0.0).sqrt();
-            let theta = golden * i as f32;
-            [r * theta.cos(), r * theta.sin(), z]
-        })
-        .collect();
-    let reached = sky_reached(cloud, centre, &centres, up, spacing, &directions);
+    let directions = fibonacci_sphere(total);
+    let reached = sky_reached(cloud, centre, spread / 2.0, up, spacing, &directions);
     for (dir, reached) in directions.into_iter().zip(reached) {
         // Only above the horizon: below it, a far backdrop would stand in for the
         // ground, right from the height of the views that trained it and wrong from
@@ -331,9 +323,23 @@ pub fn sky_points(
     sky
 }
 
+/// `n` unit vectors spread evenly over the sphere (a Fibonacci lattice), ordered by
+/// decreasing z: z_i = 1 − 2 (i + ½) / n, azimuth i × the golden angle.
+fn fibonacci_sphere(n: usize) -> Vec<[f32; 3]> {
+    let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
+    (0..n)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
+            let r = (1.0 - z * z).max(0.0).sqrt();
+            let theta = golden * i as f32;
+            [r * theta.cos(), r * theta.sin(), z]
+        })
+        .collect()
+}
+
 /// The directions, seen from the cameras' centre, where the cloud already reaches
 /// the sky: each cloud point above the horizon and outside the rig (farther from the
-/// centre than twice the farthest camera) covers the cap of its neighbour spacing as
+/// centre than twice `rig`, the farthest camera's distance) covers the cap of its neighbour spacing as
 /// seen from the centre (at least the dome's own spacing). Densification grows what
 /// lies there from those points, at their depth, so a dome behind them would only add
 /// a second sky at the wrong distance: the built-in open scenes' sky is a sphere 30 m
@@ -343,14 +349,13 @@ pub fn sky_points(
 fn sky_reached(
     cloud: &PointCloud,
     centre: [f32; 3],
-    cameras: &[[f32; 3]],
+    rig: f32,
     up: [f32; 3],
     spacing: f32,
     directions: &[[f32; 3]],
 ) -> Vec<bool> {
     let norm = |a: [f32; 3]| (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
     let dot = |a: [f32; 3], b: [f32; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let rig = cameras.iter().map(|&c| norm(std::array::from_fn(|k| c[k] - centre[k]))).fold(0.0f32, f32::max);
     let outside: Vec<[f32; 3]> = cloud
         .positions
         .iter()
@@ -492,16 +497,10 @@ mod tests {
         assert!((12.0..20.0).contains(&median), "median neighbour distance {median}");
         // A cloud that reaches the sky on one side (a shell 30 units out, about 2
         // apart, where x > 0) keeps the dome off that side and leaves the other whole.
-        let shell_count = 2800;
-        let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
         let mut shell = cloud.clone();
-        for i in 0..shell_count {
-            let y = 1.0 - 2.0 * (i as f32 + 0.5) / shell_count as f32;
-            let (r, a) = ((1.0 - y * y).sqrt(), golden * i as f32);
-            if a.cos() > 0.0 {
-                shell.positions.push([30.0 * r * a.cos(), 30.0 * y, 30.0 * r * a.sin()]);
-                shell.colors.push([0.5; 3]);
-            }
+        for d in fibonacci_sphere(2800).into_iter().filter(|d| d[0] > 0.0) {
+            shell.positions.push(d.map(|v| 30.0 * v));
+            shell.colors.push([0.5; 3]);
         }
         let half = sky_points(&views, &shell, 2.0, [0.0; 3]);
         let far_side = |pc: &PointCloud| pc.positions.iter().filter(|p| p[0] < -0.1 * 400.0).count();
