@@ -67,6 +67,9 @@ pub fn trainer(
         background,
         seed: cfg.seed,
         clamp_grad: cfg.clamp_grad,
+        // The scene already has a trainer's 3D filter baked into its scales and
+        // opacities; the edit refines it as a plain 3DGS scene.
+        filter_3d: 0.0,
         ..TrainConfig::default()
     };
     let model = Model::with_features(g.clone(), s, cfg.semantic_dim).map_err(EditError::Train)?;

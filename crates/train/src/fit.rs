@@ -29,8 +29,9 @@ pub struct FitOptions {
     pub random_points: usize,
     /// Evaluate the test PSNR every this many steps (0 = only at the end).
     pub eval_every: u64,
-    /// Spacing in pixels of the sky dome's points ([`crate::init::sky_points`]); 0
-    /// (the default): no dome, as INRIA.
+    /// Spacing in pixels of the sky dome's points ([`crate::init::sky_points`]); by
+    /// default [`crate::init::DEFAULT_SKY_SPACING`] (docs/method.md T4, T5); 0: no
+    /// dome, as INRIA.
     pub sky_spacing: f32,
 }
 
@@ -41,7 +42,7 @@ impl Default for FitOptions {
             max_sh_degree: 3,
             random_points: 100_000,
             eval_every: 1000,
-            sky_spacing: 0.0,
+            sky_spacing: crate::init::DEFAULT_SKY_SPACING,
         }
     }
 }
@@ -66,7 +67,9 @@ pub fn initial_model(ds: &Dataset, opts: &FitOptions) -> (Model, InitSource) {
             (p, InitSource::Random { count: n })
         }
     };
-    if opts.sky_spacing > 0.0 {
+    // The dome completes a cloud; alone it is no initialisation (an empty cloud stays
+    // the error it is).
+    if opts.sky_spacing > 0.0 && !cloud.is_empty() {
         let sky = crate::init::sky_points(&ds.train, &cloud, opts.sky_spacing, opts.config.background);
         tracing::info!("sky dome: {} points", sky.len());
         cloud.positions.extend(sky.positions);

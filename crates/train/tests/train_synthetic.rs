@@ -237,7 +237,9 @@ fn the_reused_gradient_buffer_changes_nothing_and_selective_adam_still_learns() 
         let r = reused.step(&v.camera, &v.image, None).unwrap();
         densified += r.densified.is_some() as usize;
         split.begin_step();
-        let pass = split.forward_backward(&v.camera, &v.image, None).unwrap();
+        let mut pass = split.forward_backward(&v.camera, &v.image, None).unwrap();
+        // Through the 3D filter (on by default) to the raw parameters, as `step` does.
+        split.pull_back(&mut pass.grads, None);
         split.finish_step(&pass.grads, None, Some(&pass.frame), None).unwrap();
         selective.step(&v.camera, &v.image, None).unwrap();
     }
