@@ -72,5 +72,6 @@ pub fn train_dataset(
     let mut control = Control { cancel, ..Default::default() };
     let eval =
         fit_with(ds, &mut trainer, &mut FitState::new(seed), 0, &mut control, |p| on_step(p.step, steps))?;
-    Ok((trainer.model.gaussians, eval.psnr))
+    // What a renderer draws: with the trainer's 3D filter baked in, as `train` writes it.
+    Ok((trainer.exported().into_owned(), eval.psnr))
 }

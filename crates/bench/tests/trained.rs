@@ -4,8 +4,10 @@
 
 use transsplat_bench::demo::{self, DemoOptions};
 use transsplat_bench::trained::train_from_renders;
-use transsplat_builtin::{build, SceneConfig};
+use transsplat_builtin::{build, is_test, SceneConfig};
 use transsplat_edit::{EditConfig, Method};
+use transsplat_raster::{render, RenderOptions, Splats};
+use transsplat_train::psnr as psnr_of;
 
 #[test]
 fn a_scene_trained_from_its_renders_matches_the_truth_on_test_views() {
@@ -14,6 +16,20 @@ fn a_scene_trained_from_its_renders_matches_the_truth_on_test_views() {
     let (g, psnr) = train_from_renders(&scene, 600, 0, work.path(), None, &mut |_, _| {}).unwrap();
     assert!(psnr > 20.0, "test PSNR {psnr}");
     assert!(!g.is_empty() && g.len() != scene.gaussians.len());
+    // The returned scene is what the trainer scored (its 3D filter baked in): rendered
+    // at the held-out views it reaches the same PSNR against the truth.
+    let opts = RenderOptions { background: scene.background };
+    let tests: Vec<f32> = (scene.cameras.iter().enumerate().filter(|(k, _)| is_test(*k)))
+        .map(|(_, cam)| {
+            let truth = render(&Splats::new(&scene.gaussians), cam, &opts).0.rgb;
+            psnr_of(&render(&Splats::new(&g), cam, &opts).0.rgb, &truth, None)
+        })
+        .collect();
+    let rendered = tests.iter().sum::<f32>() / tests.len() as f32;
+    assert!(
+        (rendered - psnr).abs() < 0.02,
+        "the returned scene renders {rendered:.2} dB, the trainer scored {psnr:.2}"
+    );
     assert_eq!(std::fs::read_dir(work.path()).unwrap().count(), 0, "the dataset is removed");
 }
 
