@@ -67,8 +67,8 @@ pub fn trainer(
         background,
         seed: cfg.seed,
         clamp_grad: cfg.clamp_grad,
-        // The scene already has a trainer's 3D filter baked into its scales and
-        // opacities; the edit refines it as a plain 3DGS scene.
+        // A trainer's 3D filter is baked into the scene's scales and opacities; the
+        // edit refines it as a plain 3DGS scene, whatever the training default.
         filter_3d: 0.0,
         ..TrainConfig::default()
     };

@@ -29,9 +29,8 @@ pub struct FitOptions {
     pub random_points: usize,
     /// Evaluate the test PSNR every this many steps (0 = only at the end).
     pub eval_every: u64,
-    /// Spacing in pixels of the sky dome's points ([`crate::init::sky_points`]); by
-    /// default [`crate::init::DEFAULT_SKY_SPACING`] (docs/method.md T4, T5); 0: no
-    /// dome, as INRIA.
+    /// Spacing in pixels of the sky dome's points ([`crate::init::sky_points`]); 0 (the
+    /// default): no dome, as INRIA (docs/method.md T4, T5).
     pub sky_spacing: f32,
 }
 
@@ -42,7 +41,7 @@ impl Default for FitOptions {
             max_sh_degree: 3,
             random_points: 100_000,
             eval_every: 1000,
-            sky_spacing: crate::init::DEFAULT_SKY_SPACING,
+            sky_spacing: 0.0,
         }
     }
 }

@@ -239,10 +239,6 @@ pub fn random_points(cameras: &[Camera], n: usize, rng: &mut ChaCha8Rng) -> Poin
 /// Most sky points a run places (before keeping those a training view sees).
 pub const MAX_SKY_POINTS: usize = 200_000;
 
-/// The sky dome's spacing in pixels at the largest focal length when a run does not
-/// choose one: 4, the spacing measured on the mesh captures (docs/method.md T4).
-pub const DEFAULT_SKY_SPACING: f32 = 4.0;
-
 /// A sky dome: points on a sphere about the cameras' centre, far enough that the
 /// training cameras' spread moves them by under a pixel, spaced `spacing_px` pixels
 /// apart at the largest focal length, kept where a training view sees them and the

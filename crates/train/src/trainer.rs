@@ -58,8 +58,8 @@ pub struct TrainConfig {
     /// How the Gaussians grow: INRIA's adaptive density control (default) or MCMC.
     pub strategy: Strategy,
     /// Mip-Splatting's 3D smoothing filter ([`crate::filter3d`]): the variance factor s
-    /// in squared pixels; by default Mip-Splatting's 0.2 (docs/method.md T3, T5); 0 =
-    /// off, as INRIA. Needs the training cameras ([`Trainer::for_cameras`]).
+    /// in squared pixels (Mip-Splatting: 0.2); 0 = off (default, as INRIA; docs/method.md
+    /// T3, T5). Needs the training cameras ([`Trainer::for_cameras`]).
     pub filter_3d: f32,
 }
 
@@ -136,7 +136,7 @@ impl Default for TrainConfig {
             downscale: Downscale::default(),
             clamp_grad: ClampGrad::Exact,
             strategy: Strategy::Adaptive,
-            filter_3d: crate::filter3d::DEFAULT_VARIANCE,
+            filter_3d: 0.0,
         }
     }
 }

@@ -47,8 +47,9 @@ pub struct TrainArgs {
     pub random_points: usize,
     /// A sky dome: points on a far sphere above the cameras' horizon where the
     /// training views see a sky the point cloud does not reach, this many pixels apart
-    /// (0: none, as INRIA). SfM finds no points at infinity; without the dome the sky
-    /// grows from the nearest surfaces and sits too near (docs/method.md T4).
+    /// (default 0: none, as INRIA; 4 was measured). SfM finds no points at infinity;
+    /// without the dome an open sky grows from the nearest surfaces and sits too near
+    /// (docs/method.md T4). Not for enclosed scenes: behind walls it costs (T5).
     #[arg(long, value_parser = super::common::finite_f32, default_value_t = FitOptions::default().sky_spacing)]
     pub sky_spacing: f32,
     /// Train only inside these masks: DIR/<image stem>.png (or .jpg) for every view, grey
@@ -88,7 +89,7 @@ pub struct TrainArgs {
     pub camera_reach: f32,
     /// Mip-Splatting's 3D smoothing filter: every Gaussian is low-passed by the finest
     /// sampling interval of the training cameras that see it, this factor times its
-    /// square (Mip-Splatting's 0.2; 0 = off, as INRIA). The written scene has the
+    /// square (Mip-Splatting: 0.2; default 0 = off, as INRIA). The written scene has the
     /// filter baked in, so any renderer draws what training saw (docs/method.md T3).
     #[arg(long, value_parser = super::common::finite_f32, default_value_t = TrainConfig::default().filter_3d)]
     pub filter_3d: f32,
