@@ -294,6 +294,7 @@ pub fn sky_points(
     let total = ((4.0 * std::f32::consts::PI / (spacing * spacing)) as usize).clamp(2, MAX_SKY_POINTS);
     let directions = fibonacci_sphere(total);
     let reached = sky_reached(cloud, centre, spread / 2.0, up, spacing, &directions);
+    let walled = walled_pixels(views, cloud, centre, up, spacing_px);
     for (dir, reached) in directions.into_iter().zip(reached) {
         // Only above the horizon: below it, a far backdrop would stand in for the
         // ground, right from the height of the views that trained it and wrong from
@@ -302,15 +303,21 @@ pub fn sky_points(
             continue;
         }
         let p: [f32; 3] = std::array::from_fn(|k| centre[k] + radius * dir[k]);
+        // Coloured by, and kept for, the views that see the direction open (not
+        // behind a wall of the cloud's, [`walled_pixels`]).
         let mut sum = [0.0f32; 3];
         let mut seen = 0usize;
         let mut shows_more_than_background = false;
-        for view in views {
+        for (view, walled) in views.iter().zip(&walled) {
             if let Some((u, v)) = pixel(&view.camera, p) {
-                let k = (v * view.camera.width as usize + u) * 3;
+                let q = v * view.camera.width as usize + u;
+                if walled[q] {
+                    continue;
+                }
                 for ch in 0..3 {
-                    sum[ch] += view.image[k + ch];
-                    shows_more_than_background |= (view.image[k + ch] - background[ch]).abs() > 2.0 / 255.0;
+                    sum[ch] += view.image[q * 3 + ch];
+                    shows_more_than_background |=
+                        (view.image[q * 3 + ch] - background[ch]).abs() > 2.0 / 255.0;
                 }
                 seen += 1;
             }
@@ -386,6 +393,74 @@ fn sky_reached(
     }
     reached
 }
+
+/// Per training view, the pixels where a cloud point above the horizon stands in front
+/// of the sky: each such point, at any distance, drawn as a disc of its neighbour
+/// spacing (at least half a pixel, at most [`WALL_DISC_SPACINGS`] dome spacings: a wider
+/// disc would be a lone point's, not a surface's). A room's walls and a
+/// building's façade rise above the cameras' horizon all round them, so from every view
+/// the sky they hide is behind them: a dome there is a second backdrop at the wrong
+/// depth, and cost the built-in tabletop, a room without a ceiling, 1.7 dB (docs/method.md
+/// T5). Below the horizon the far floor lies in front of no sky. An object above the
+/// horizon inside the rig hides a direction from some views only; the others keep it.
+fn walled_pixels(
+    views: &[crate::dataset::View],
+    cloud: &PointCloud,
+    centre: [f32; 3],
+    up: [f32; 3],
+    spacing_px: f32,
+) -> Vec<Vec<bool>> {
+    let max_radius = (WALL_DISC_SPACINGS * spacing_px).max(0.5);
+    let above: Vec<[f32; 3]> = cloud
+        .positions
+        .iter()
+        .copied()
+        .filter(|p| (0..3).map(|k| (p[k] - centre[k]) * up[k]).sum::<f32>() >= 0.0)
+        .collect();
+    if above.is_empty() {
+        return views
+            .iter()
+            .map(|v| vec![false; v.camera.width as usize * v.camera.height as usize])
+            .collect();
+    }
+    let spacing: Vec<f32> = knn_mean_sq_dist(&above, 3, 0.0).into_iter().map(f32::sqrt).collect();
+    views
+        .par_iter()
+        .map(|view| {
+            let cam = &view.camera;
+            let (w, h) = (cam.width as usize, cam.height as usize);
+            let mut walled = vec![false; w * h];
+            for (p, s) in above.iter().zip(&spacing) {
+                let r = &cam.rotation;
+                let c: [f32; 3] = std::array::from_fn(|i| {
+                    r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + cam.translation[i]
+                });
+                if c[2] <= 0.01 {
+                    continue;
+                }
+                let (u, v) = (cam.fx * c[0] / c[2] + cam.cx, cam.fy * c[1] / c[2] + cam.cy);
+                let radius = (s * cam.fx.max(cam.fy) / c[2]).clamp(0.5, max_radius);
+                let (x0, x1) = ((u - radius).floor().max(0.0), (u + radius).ceil().min(w as f32 - 1.0));
+                let (y0, y1) = ((v - radius).floor().max(0.0), (v + radius).ceil().min(h as f32 - 1.0));
+                if x0 > x1 || y0 > y1 {
+                    continue;
+                }
+                for y in y0 as usize..=y1 as usize {
+                    for x in x0 as usize..=x1 as usize {
+                        let (dx, dy) = (x as f32 + 0.5 - u, y as f32 + 0.5 - v);
+                        if dx * dx + dy * dy <= radius * radius {
+                            walled[y * w + x] = true;
+                        }
+                    }
+                }
+            }
+            walled
+        })
+        .collect()
+}
+
+/// The largest disc a cloud point draws in [`walled_pixels`], in dome spacings.
+const WALL_DISC_SPACINGS: f32 = 4.0;
 
 /// The pixel a world point projects to, when in front of the camera and inside its
 /// image.
@@ -474,9 +549,9 @@ mod tests {
                 path: Default::default(),
             })
             .collect();
-        let cloud = PointCloud { positions: vec![[0.0, 0.0, 2.0]], colors: vec![[0.0; 3]] };
+        let cloud = PointCloud { positions: vec![[0.0, -0.5, 2.0]], colors: vec![[0.0; 3]] };
         let sky = sky_points(&views, &cloud, 2.0, [0.0; 3]);
-        // Radius: max(10 × the farthest point (2), f · B (50 × 8)) = 400.
+        // Radius: max(10 × the farthest point (2.06), f · B (50 × 8)) = 400.
         assert!(sky.len() > 100, "{} points", sky.len());
         for (p, c) in sky.positions.iter().zip(&sky.colors) {
             let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
@@ -510,6 +585,31 @@ mod tests {
             "{} / {}",
             far_side(&half),
             far_side(&sky)
+        );
+        // Walls all round the ring, rising above every view's frame (a room without a
+        // ceiling, 0.25 apart): the sky above the horizon is behind them from every view,
+        // and there is no dome; with one wall gone, the dome is back on that side only.
+        let mut room = cloud.clone();
+        let steps = |a: f32, b: f32| (0..=((b - a) / 0.25) as usize).map(move |i| a + 0.25 * i as f32);
+        for along in steps(-6.0, 6.0) {
+            for y in steps(-1.0, 8.0) {
+                for wall in [[along, y, -6.0], [along, y, 6.0], [-6.0, y, along], [6.0, y, along]] {
+                    room.positions.push(wall);
+                    room.colors.push([0.5; 3]);
+                }
+            }
+        }
+        let behind = sky_points(&views, &room, 2.0, [0.0; 3]);
+        assert!(behind.is_empty(), "a dome behind the walls");
+        let open_side = PointCloud {
+            positions: room.positions.iter().copied().filter(|p| p[0] > -5.9).collect(),
+            colors: vec![[0.5; 3]; room.positions.iter().filter(|p| p[0] > -5.9).count()],
+        };
+        let three_walls = sky_points(&views, &open_side, 2.0, [0.0; 3]);
+        assert!(
+            !three_walls.is_empty() && three_walls.positions.iter().all(|p| p[0] < -0.3 * 400.0),
+            "{} dome points, some not beyond the missing wall",
+            three_walls.len()
         );
         // Cameras with no common up: no horizon, no dome.
         let flipped: Vec<crate::dataset::View> = ring(true)
