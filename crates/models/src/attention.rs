@@ -212,9 +212,9 @@ mod tests {
             (1, 3, 70_000, 8, 2),
             (2, 200, 9, 12, 3),
         ] {
-            let q = Tensor::randn(0f32, 1.0, (b, n, c), &dev).unwrap();
-            let k = Tensor::randn(0f32, 1.0, (b, m, c), &dev).unwrap();
-            let v = Tensor::randn(0f32, 1.0, (b, m, c), &dev).unwrap();
+            let q = crate::testing::randn(0f32, 1.0, (b, n, c), &dev).unwrap();
+            let k = crate::testing::randn(0f32, 1.0, (b, m, c), &dev).unwrap();
+            let v = crate::testing::randn(0f32, 1.0, (b, m, c), &dev).unwrap();
             let scale = 1.0 / ((c / heads) as f64).sqrt();
             let want = direct(&q, &k, &v, heads, scale);
             let got = multi_head_attention(&q, &k, &v, heads, scale).unwrap();
@@ -222,9 +222,9 @@ mod tests {
             let d = max_diff(&got, &want);
             assert!(d < 2e-5, "{b}×{n}×{c}, {m} keys, {heads} heads: {d}");
         }
-        let q = Tensor::randn(0f32, 1.0, (2, 8, 6), &dev).unwrap().transpose(1, 2).unwrap();
-        let k = Tensor::randn(0f32, 1.0, (2, 5, 8), &dev).unwrap();
-        let v = Tensor::randn(0f32, 1.0, (2, 5, 8), &dev).unwrap();
+        let q = crate::testing::randn(0f32, 1.0, (2, 8, 6), &dev).unwrap().transpose(1, 2).unwrap();
+        let k = crate::testing::randn(0f32, 1.0, (2, 5, 8), &dev).unwrap();
+        let v = crate::testing::randn(0f32, 1.0, (2, 5, 8), &dev).unwrap();
         let d = max_diff(&multi_head_attention(&q, &k, &v, 2, 0.5).unwrap(), &direct(&q, &k, &v, 2, 0.5));
         assert!(d < 2e-5, "transposed q: {d}");
     }
@@ -233,9 +233,9 @@ mod tests {
     #[test]
     fn sliced_attention_equals_whole() {
         let d = Device::Cpu;
-        let q = Tensor::randn(0f32, 1.0, (6, 10, 4), &d).unwrap();
-        let k = Tensor::randn(0f32, 1.0, (6, 7, 4), &d).unwrap();
-        let v = Tensor::randn(0f32, 1.0, (6, 7, 4), &d).unwrap();
+        let q = crate::testing::randn(0f32, 1.0, (6, 10, 4), &d).unwrap();
+        let k = crate::testing::randn(0f32, 1.0, (6, 7, 4), &d).unwrap();
+        let v = crate::testing::randn(0f32, 1.0, (6, 7, 4), &d).unwrap();
         let whole = sliced_attention(&q, &k, &v, 0.5, usize::MAX).unwrap();
         for budget in [1, 7, 20, 70, 140, 300] {
             let sliced = sliced_attention(&q, &k, &v, 0.5, budget).unwrap();

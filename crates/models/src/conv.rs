@@ -370,7 +370,7 @@ mod tests {
                     .set(&(bias + 0.5).unwrap())
                     .unwrap();
             }
-            let x = Tensor::randn(0f32, 1.0, (b, cin, h, w), &dev).unwrap();
+            let x = crate::testing::randn(0f32, 1.0, (b, cin, h, w), &dev).unwrap();
             let want = layer.forward(&x).unwrap();
             let ours = from_candle(layer.clone(), cfg).unwrap();
             assert!(matches!(ours, Conv2d::Cpu(_)), "case {i}: the CPU path applies");
@@ -408,7 +408,7 @@ mod tests {
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
         let cfg = Conv2dConfig { padding: 1, ..Default::default() };
         let layer = candle_nn::conv2d(3, 4, 3, cfg, vb).unwrap();
-        let x = Tensor::randn(0f32, 1.0, (1, 3, 6, 5), &dev).unwrap().transpose(2, 3).unwrap();
+        let x = crate::testing::randn(0f32, 1.0, (1, 3, 6, 5), &dev).unwrap().transpose(2, 3).unwrap();
         let want = layer.forward(&x).unwrap();
         let got = from_candle(layer, cfg).unwrap().forward(&x).unwrap();
         let diff = (got - want).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();

@@ -29,6 +29,8 @@ pub mod norm;
 pub mod resample;
 pub mod sam;
 pub mod softmax;
+#[cfg(test)]
+mod testing;
 pub mod tokenizer;
 pub mod weights;
 mod winograd;

@@ -194,7 +194,7 @@ mod tests {
             let Linear::Cpu(op) = &ours else { panic!("the CPU path applies") };
             let candle = op.to_candle(&dev).unwrap();
             for shape in [vec![3, 7], vec![2, 4, 7], vec![1, 1, 2, 7]] {
-                let x = Tensor::randn(0f32, 1.0, shape.as_slice(), &dev).unwrap();
+                let x = crate::testing::randn(0f32, 1.0, shape.as_slice(), &dev).unwrap();
                 let (got, want) = (ours.forward(&x).unwrap(), candle.forward(&x).unwrap());
                 assert_eq!(got.dims(), want.dims());
                 assert!(max_diff(&got, &want) < 1e-5, "bias {bias} {shape:?}");
@@ -205,7 +205,7 @@ mod tests {
     #[test]
     fn geglu_matches_candle_and_erf_is_accurate() {
         let dev = Device::Cpu;
-        let h = Tensor::randn(0f32, 2.0, (3, 5, 2 * 37), &dev).unwrap();
+        let h = crate::testing::randn(0f32, 2.0, (3, 5, 2 * 37), &dev).unwrap();
         let halves = h.chunk(2, D::Minus1).unwrap();
         let want = (&halves[0] * halves[1].gelu_erf().unwrap()).unwrap();
         let got = geglu(&h).unwrap();

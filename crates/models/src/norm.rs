@@ -159,13 +159,13 @@ mod tests {
             let groups = if channels == 6 { 3 } else { 4 };
             let norm = group_norm(groups, channels, 1e-5, vb.pp(format!("n{i}"))).unwrap();
             // make γ and β non-trivial
-            let w = Tensor::randn(1f32, 0.5, channels, &dev).unwrap();
-            let b = Tensor::randn(0f32, 0.5, channels, &dev).unwrap();
+            let w = crate::testing::randn(1f32, 0.5, channels, &dev).unwrap();
+            let b = crate::testing::randn(0f32, 0.5, channels, &dev).unwrap();
             let norm = GroupNorm {
                 candle: candle_nn::GroupNorm::new(w.clone(), b.clone(), channels, groups, 1e-5).unwrap(),
                 op: GroupNormOp { weight: w.to_vec1().unwrap(), bias: b.to_vec1().unwrap(), ..norm.op },
             };
-            let x = (Tensor::randn(0f32, 2.0, shape.as_slice(), &dev).unwrap() + 3.0).unwrap();
+            let x = (crate::testing::randn(0f32, 2.0, shape.as_slice(), &dev).unwrap() + 3.0).unwrap();
             let close = |a: &Tensor, b: &Tensor, what: &str| {
                 let d = (a - b).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
                 assert!(d < 2e-5, "case {i} {what}: {d}");

@@ -144,35 +144,11 @@ mod tests {
         assert!(exp_row_in_place(&mut masked).is_nan(), "a fully masked row has no softmax");
     }
 
-    /// `n` standard normals from a seeded 64-bit LCG (Knuth's MMIX constants) through
-    /// Box–Muller.
-    fn normals(n: usize, seed: u64) -> Vec<f32> {
-        let mut state = seed;
-        let mut uniform = move || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        };
-        (0..n)
-            .map(|_| {
-                let (u, v) = (uniform(), uniform());
-                ((-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()) as f32
-            })
-            .collect()
-    }
-
     #[test]
     fn matches_candle_softmax() {
         let dev = Device::Cpu;
         for shape in [vec![3, 5, 17], vec![2, 4096], vec![7, 1], vec![1, 3, 2, 33]] {
-            // Seeded normals (σ 4, mean 1.5): candle cannot seed its CPU generator, and an
-            // unseeded input made the test fail now and then.
-            let n: usize = shape.iter().product();
-            let x = Tensor::from_vec(
-                normals(n, 7).into_iter().map(|v| 4.0 * v + 1.5).collect::<Vec<f32>>(),
-                shape.as_slice(),
-                &dev,
-            )
-            .unwrap();
+            let x = (crate::testing::randn(0f32, 4.0, shape.as_slice(), &dev).unwrap() + 1.5).unwrap();
             let want = candle_nn::ops::softmax_last_dim(&x).unwrap();
             let got = softmax_last_dim(&x).unwrap();
             let scale = want.max_all().unwrap().to_scalar::<f32>().unwrap();
@@ -181,7 +157,7 @@ mod tests {
             assert!(d < 1e-5 * scale, "{shape:?}: {d} (largest weight {scale})");
         }
         // a transposed input is made contiguous first
-        let x = Tensor::from_vec(normals(24, 11), (4, 6), &dev).unwrap().t().unwrap();
+        let x = crate::testing::randn(0f32, 1.0, (4, 6), &dev).unwrap().t().unwrap();
         let d = (softmax_last_dim(&x).unwrap()
             - candle_nn::ops::softmax_last_dim(&x.contiguous().unwrap()).unwrap())
         .unwrap()
