@@ -241,9 +241,10 @@ pub const MAX_SKY_POINTS: usize = 200_000;
 
 /// A sky dome: points on a sphere about the cameras' centre, far enough that the
 /// training cameras' spread moves them by under a pixel, spaced `spacing_px` pixels
-/// apart at the largest focal length, kept where a training view sees them and the
-/// cloud does not already reach the sky ([`sky_reached`]), each coloured by the mean of
-/// the training pixels it projects to. A direction where every
+/// apart at the largest focal length, kept where a training view sees them past the
+/// cloud's walls ([`walled`]) and the cloud does not already reach the sky
+/// ([`sky_reached`]), each coloured by the mean of the training pixels it projects to in
+/// those views. A direction where every
 /// view that sees it shows the training `background` (within 2/255 in every channel)
 /// gets no point: the background already draws it, and a dome there would replace the
 /// background a user renders over (an object shot against white, say).
@@ -294,30 +295,27 @@ pub fn sky_points(
     let total = ((4.0 * std::f32::consts::PI / (spacing * spacing)) as usize).clamp(2, MAX_SKY_POINTS);
     let directions = fibonacci_sphere(total);
     let reached = sky_reached(cloud, centre, spread / 2.0, up, spacing, &directions);
-    let walled = walled_pixels(views, cloud, centre, up, spacing_px);
-    for (dir, reached) in directions.into_iter().zip(reached) {
-        // Only above the horizon: below it, a far backdrop would stand in for the
-        // ground, right from the height of the views that trained it and wrong from
-        // any other.
-        if dir[0] * up[0] + dir[1] * up[1] + dir[2] * up[2] < 0.0 || reached {
-            continue;
-        }
-        let p: [f32; 3] = std::array::from_fn(|k| centre[k] + radius * dir[k]);
+    // Only above the horizon: below it, a far backdrop would stand in for the ground,
+    // right from the height of the views that trained it and wrong from any other.
+    let candidates: Vec<[f32; 3]> = directions
+        .into_iter()
+        .zip(reached)
+        .filter(|(dir, reached)| dir[0] * up[0] + dir[1] * up[1] + dir[2] * up[2] >= 0.0 && !reached)
+        .map(|(dir, _)| std::array::from_fn(|k| centre[k] + radius * dir[k]))
+        .collect();
+    let walled = walled(views, cloud, centre, up, spacing_px, &candidates);
+    for (i, &p) in candidates.iter().enumerate() {
         // Coloured by, and kept for, the views that see the direction open (not
-        // behind a wall of the cloud's, [`walled_pixels`]).
+        // behind a wall of the cloud's, [`walled`]).
         let mut sum = [0.0f32; 3];
         let mut seen = 0usize;
         let mut shows_more_than_background = false;
         for (view, walled) in views.iter().zip(&walled) {
-            if let Some((u, v)) = pixel(&view.camera, p) {
-                let q = v * view.camera.width as usize + u;
-                if walled[q] {
-                    continue;
-                }
+            if let Some((u, v)) = pixel(&view.camera, p).filter(|_| !walled[i]) {
+                let k = (v * view.camera.width as usize + u) * 3;
                 for ch in 0..3 {
-                    sum[ch] += view.image[q * 3 + ch];
-                    shows_more_than_background |=
-                        (view.image[q * 3 + ch] - background[ch]).abs() > 2.0 / 255.0;
+                    sum[ch] += view.image[k + ch];
+                    shows_more_than_background |= (view.image[k + ch] - background[ch]).abs() > 2.0 / 255.0;
                 }
                 seen += 1;
             }
@@ -394,21 +392,24 @@ fn sky_reached(
     reached
 }
 
-/// Per training view, the pixels where a cloud point above the horizon stands in front
-/// of the sky: each such point, at any distance, drawn as a disc of its neighbour
-/// spacing (at least half a pixel, at most [`WALL_DISC_SPACINGS`] dome spacings: a wider
-/// disc would be a lone point's, not a surface's). A room's walls and a
-/// building's façade rise above the cameras' horizon all round them, so from every view
-/// the sky they hide is behind them: a dome there is a second backdrop at the wrong
-/// depth, and cost the built-in tabletop, a room without a ceiling, 1.7 dB (docs/method.md
-/// T5). Below the horizon the far floor lies in front of no sky. An object above the
-/// horizon inside the rig hides a direction from some views only; the others keep it.
-fn walled_pixels(
+/// Per training view, which of the dome's `points` a wall of the cloud's hides: each
+/// cloud point above the horizon, at any distance, drawn into the view as a disc of its
+/// neighbour spacing (at least half a pixel, at most [`WALL_DISC_SPACINGS`] dome
+/// spacings: a wider disc would be a lone point's, not a surface's), hides the dome
+/// points that project inside it. A room's walls and a building's façade rise above the
+/// cameras' horizon all round them, so from every view the sky they hide is behind them:
+/// a dome there is a second backdrop at the wrong depth, and cost the built-in tabletop,
+/// a room without a ceiling, 1.7 dB (docs/method.md T5). Below the horizon the far floor
+/// lies in front of no sky. An object above the horizon inside the rig hides a direction
+/// from some views only; the others keep it. A view's discs live only while its answer
+/// is computed, so the memory is one image per thread.
+fn walled(
     views: &[crate::dataset::View],
     cloud: &PointCloud,
     centre: [f32; 3],
     up: [f32; 3],
     spacing_px: f32,
+    points: &[[f32; 3]],
 ) -> Vec<Vec<bool>> {
     let max_radius = (WALL_DISC_SPACINGS * spacing_px).max(0.5);
     let above: Vec<[f32; 3]> = cloud
@@ -418,10 +419,7 @@ fn walled_pixels(
         .filter(|p| (0..3).map(|k| (p[k] - centre[k]) * up[k]).sum::<f32>() >= 0.0)
         .collect();
     if above.is_empty() {
-        return views
-            .iter()
-            .map(|v| vec![false; v.camera.width as usize * v.camera.height as usize])
-            .collect();
+        return vec![vec![false; points.len()]; views.len()];
     }
     let spacing: Vec<f32> = knn_mean_sq_dist(&above, 3, 0.0).into_iter().map(f32::sqrt).collect();
     views
@@ -429,17 +427,10 @@ fn walled_pixels(
         .map(|view| {
             let cam = &view.camera;
             let (w, h) = (cam.width as usize, cam.height as usize);
-            let mut walled = vec![false; w * h];
-            for (p, s) in above.iter().zip(&spacing) {
-                let r = &cam.rotation;
-                let c: [f32; 3] = std::array::from_fn(|i| {
-                    r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + cam.translation[i]
-                });
-                if c[2] <= 0.01 {
-                    continue;
-                }
-                let (u, v) = (cam.fx * c[0] / c[2] + cam.cx, cam.fy * c[1] / c[2] + cam.cy);
-                let radius = (s * cam.fx.max(cam.fy) / c[2]).clamp(0.5, max_radius);
+            let mut discs = vec![false; w * h];
+            for (&p, s) in above.iter().zip(&spacing) {
+                let Some((u, v, depth)) = project(cam, p) else { continue };
+                let radius = (s * cam.fx.max(cam.fy) / depth).clamp(0.5, max_radius);
                 let (x0, x1) = ((u - radius).floor().max(0.0), (u + radius).ceil().min(w as f32 - 1.0));
                 let (y0, y1) = ((v - radius).floor().max(0.0), (v + radius).ceil().min(h as f32 - 1.0));
                 if x0 > x1 || y0 > y1 {
@@ -449,30 +440,32 @@ fn walled_pixels(
                     for x in x0 as usize..=x1 as usize {
                         let (dx, dy) = (x as f32 + 0.5 - u, y as f32 + 0.5 - v);
                         if dx * dx + dy * dy <= radius * radius {
-                            walled[y * w + x] = true;
+                            discs[y * w + x] = true;
                         }
                     }
                 }
             }
-            walled
+            points.iter().map(|&p| pixel(cam, p).is_some_and(|(u, v)| discs[v * w + u])).collect()
         })
         .collect()
 }
 
-/// The largest disc a cloud point draws in [`walled_pixels`], in dome spacings.
+/// The largest disc a cloud point draws in [`walled`], in dome spacings.
 const WALL_DISC_SPACINGS: f32 = 4.0;
+
+/// Where a world point lands in a camera's image, (u, v) in pixels, and its depth, when
+/// it lies in front of the camera.
+fn project(cam: &Camera, p: [f32; 3]) -> Option<(f32, f32, f32)> {
+    let r = &cam.rotation;
+    let t = &cam.translation;
+    let c: [f32; 3] = std::array::from_fn(|i| r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + t[i]);
+    (c[2] > 0.01).then(|| (cam.fx * c[0] / c[2] + cam.cx, cam.fy * c[1] / c[2] + cam.cy, c[2]))
+}
 
 /// The pixel a world point projects to, when in front of the camera and inside its
 /// image.
 fn pixel(cam: &Camera, p: [f32; 3]) -> Option<(usize, usize)> {
-    let r = &cam.rotation;
-    let t = &cam.translation;
-    let c: [f32; 3] = std::array::from_fn(|i| r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + t[i]);
-    if c[2] <= 0.01 {
-        return None;
-    }
-    let u = cam.fx * c[0] / c[2] + cam.cx;
-    let v = cam.fy * c[1] / c[2] + cam.cy;
+    let (u, v, _) = project(cam, p)?;
     (u >= 0.0 && v >= 0.0 && u < cam.width as f32 && v < cam.height as f32)
         .then_some((u as usize, v as usize))
 }
