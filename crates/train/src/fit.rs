@@ -18,6 +18,11 @@ use std::path::{Path, PathBuf};
 use transsplat_scene::archive::{Hasher, Writer};
 use transsplat_scene::{cameras::inria, ply, Camera, Error};
 
+/// The sky dome's default spacing in pixels: 4 px at the largest focal length, a
+/// point per 16 squared pixels of sky, which the trainer's densification refines where
+/// the sky has detail (docs/method.md T4).
+pub const DEFAULT_SKY_SPACING: f32 = 4.0;
+
 /// Options of a run beyond the optimiser's [`TrainConfig`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct FitOptions {
@@ -29,8 +34,9 @@ pub struct FitOptions {
     pub random_points: usize,
     /// Evaluate the test PSNR every this many steps (0 = only at the end).
     pub eval_every: u64,
-    /// Spacing in pixels of the sky dome's points ([`crate::init::sky_points`]); 0 (the
-    /// default): no dome, as INRIA (docs/method.md T4, T5).
+    /// Spacing in pixels of the sky dome's points ([`crate::init::sky_points`]); 0: no
+    /// dome, as INRIA. The default, [`DEFAULT_SKY_SPACING`], is the measured one
+    /// (docs/method.md T4, T5).
     pub sky_spacing: f32,
 }
 
@@ -41,7 +47,7 @@ impl Default for FitOptions {
             max_sh_degree: 3,
             random_points: 100_000,
             eval_every: 1000,
-            sky_spacing: 0.0,
+            sky_spacing: DEFAULT_SKY_SPACING,
         }
     }
 }

@@ -241,7 +241,8 @@ pub const MAX_SKY_POINTS: usize = 200_000;
 
 /// A sky dome: points on a sphere about the cameras' centre, far enough that the
 /// training cameras' spread moves them by under a pixel, spaced `spacing_px` pixels
-/// apart at the largest focal length, kept where a training view sees them past the
+/// apart at the largest focal length, above the horizon the cameras give
+/// ([`cameras_up`]), kept where a training view sees them past the
 /// cloud's walls ([`walled`]) and the cloud does not already reach the sky
 /// ([`sky_reached`]), each coloured by the mean of the training pixels it projects to in
 /// those views. A direction where every
@@ -281,15 +282,10 @@ pub fn sky_points(
     if !radius.is_finite() || !(focal > 0.0) {
         return sky;
     }
-    // The cameras' up: the mean of their image-up axes (−y of OpenCV cameras, the
-    // second row of the world-to-camera rotation, negated). Without a consistent up
-    // there is no horizon to put the sky above, and no dome.
-    let up_sum: [f32; 3] = std::array::from_fn(|k| -cameras.iter().map(|c| c.rotation[1][k]).sum::<f32>());
-    let up_norm = (up_sum[0] * up_sum[0] + up_sum[1] * up_sum[1] + up_sum[2] * up_sum[2]).sqrt();
-    if !(up_norm > 0.5 * n) {
+    // Without a consistent up there is no horizon to put the sky above, and no dome.
+    let Some(up) = cameras_up(&cameras) else {
         return sky;
-    }
-    let up = up_sum.map(|v| v / up_norm);
+    };
     // Fibonacci sphere: N points whose spacing is about √(4π / N) radians.
     let spacing = spacing_px / focal;
     let total = ((4.0 * std::f32::consts::PI / (spacing * spacing)) as usize).clamp(2, MAX_SKY_POINTS);
@@ -326,6 +322,112 @@ pub fn sky_points(
         }
     }
     sky
+}
+
+/// Largest share of the cameras' image-right axes' spread, off their main direction,
+/// below which the right axes are taken as one direction (sin² 10°: every camera turned
+/// within about 10° of the same way) and do not fix the up on their own ([`cameras_up`]).
+const LEVEL_SPREAD: f64 = 0.03;
+
+/// The world's up as the cameras give it, for the dome's horizon (docs/method.md T4):
+/// a camera held without roll has a level image-right axis (its rotation's first row),
+/// so the up is the direction most nearly perpendicular to all of them, the
+/// eigenvector of the smallest eigenvalue of `Σ x_i x_iᵀ`, signed to agree with the
+/// mean image-up (−y of OpenCV cameras, the rotation's second row, negated). The mean
+/// image-up alone tilts towards the cameras' common viewing direction by their mean
+/// pitch when they all look down at a subject from one side (an arc, a forward-facing
+/// capture); the right axes do not. When the right axes are nearly one direction (the
+/// middle eigenvalue under [`LEVEL_SPREAD`] of the count: every camera faces the same
+/// way), the two smallest eigenvectors span both the up and that viewing direction, and
+/// the mean image-up's part in their plane is all there is to go by. `None` when the
+/// image-up axes do not agree (their mean shorter than half a unit), as cameras turned
+/// every way round have no common up.
+fn cameras_up(cameras: &[&Camera]) -> Option<[f32; 3]> {
+    let n = cameras.len() as f64;
+    let mean_up: [f64; 3] =
+        std::array::from_fn(|k| -cameras.iter().map(|c| f64::from(c.rotation[1][k])).sum::<f64>() / n);
+    if !(norm64(mean_up) > 0.5) {
+        return None;
+    }
+    let mut scatter = vec![0.0f64; 9];
+    for c in cameras {
+        let right = c.rotation[0].map(f64::from);
+        for i in 0..3 {
+            for j in 0..3 {
+                scatter[i * 3 + j] += right[i] * right[j];
+            }
+        }
+    }
+    let (values, vectors) = symmetric_eigen3(&scatter);
+    // Columns of `vectors` in ascending order of `values`.
+    let column = |k: usize| -> [f64; 3] { std::array::from_fn(|i| vectors[i * 3 + k]) };
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let up = if values[1] >= LEVEL_SPREAD * n {
+        column(0)
+    } else {
+        let (a, b) = (column(0), column(1));
+        let (pa, pb) = (dot(mean_up, a), dot(mean_up, b));
+        std::array::from_fn(|i| pa * a[i] + pb * b[i])
+    };
+    let length = norm64(up);
+    if !(length > 1e-6) {
+        return None;
+    }
+    let sign = if dot(up, mean_up) < 0.0 { -1.0 } else { 1.0 };
+    Some(up.map(|v| (sign * v / length) as f32))
+}
+
+fn norm64(v: [f64; 3]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+/// Eigenvalues (ascending) and unit eigenvectors (the columns of a row-major 3 × 3) of
+/// a symmetric 3 × 3 matrix, by cyclic Jacobi rotations (Golub & Van Loan, §8.5).
+fn symmetric_eigen3(matrix: &[f64]) -> ([f64; 3], Vec<f64>) {
+    let mut a = matrix.to_vec();
+    let mut v = vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+    for _sweep in 0..50 {
+        let off: f64 = (0..3)
+            .flat_map(|i| (0..3).filter(move |&j| j != i).map(move |j| (i, j)))
+            .map(|(i, j)| a[i * 3 + j].powi(2))
+            .sum();
+        if off < 1e-24 {
+            break;
+        }
+        for p in 0..2 {
+            for q in p + 1..3 {
+                let apq = a[p * 3 + q];
+                if apq.abs() < 1e-300 {
+                    continue;
+                }
+                let theta = (a[q * 3 + q] - a[p * 3 + p]) / (2.0 * apq);
+                let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+                let c = 1.0 / (t * t + 1.0).sqrt();
+                let s = t * c;
+                // A ← Jᵀ A J, V ← V J, with J the rotation in the (p, q) plane.
+                for k in 0..3 {
+                    let (akp, akq) = (a[k * 3 + p], a[k * 3 + q]);
+                    a[k * 3 + p] = c * akp - s * akq;
+                    a[k * 3 + q] = s * akp + c * akq;
+                }
+                for k in 0..3 {
+                    let (apk, aqk) = (a[p * 3 + k], a[q * 3 + k]);
+                    a[p * 3 + k] = c * apk - s * aqk;
+                    a[q * 3 + k] = s * apk + c * aqk;
+                }
+                for k in 0..3 {
+                    let (vkp, vkq) = (v[k * 3 + p], v[k * 3 + q]);
+                    v[k * 3 + p] = c * vkp - s * vkq;
+                    v[k * 3 + q] = s * vkp + c * vkq;
+                }
+            }
+        }
+    }
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&i, &j| a[i * 3 + i].total_cmp(&a[j * 3 + j]));
+    let values = order.map(|k| a[k * 3 + k]);
+    let vectors = (0..9).map(|idx| v[(idx / 3) * 3 + order[idx % 3]]).collect();
+    (values, vectors)
 }
 
 /// `n` unit vectors spread evenly over the sphere (a Fibonacci lattice), ordered by
@@ -621,6 +723,83 @@ mod tests {
         assert!(one_view.is_empty(), "{} points where the only view shows the background", one_view.len());
         let two_views = sky_points(&views[..2], &cloud, 2.0, colour(0));
         assert!(!two_views.is_empty() && two_views.positions.iter().all(|&p| sees(&views[1].camera, p)));
+    }
+
+    #[test]
+    fn symmetric_eigen3_diagonalises_a_known_matrix() {
+        // Eigenvalues 1, 2, 4 along a rotated frame.
+        let a = [3.0, 1.0, 0.0, 1.0, 3.0, 0.0, 0.0, 0.0, 1.0];
+        let (values, vectors) = symmetric_eigen3(&a);
+        for (k, want) in [1.0, 2.0, 4.0].into_iter().enumerate() {
+            assert!((values[k] - want).abs() < 1e-12, "{values:?}");
+            let v: [f64; 3] = std::array::from_fn(|i| vectors[i * 3 + k]);
+            assert!((norm64(v) - 1.0).abs() < 1e-12);
+            for i in 0..3 {
+                let av: f64 = (0..3).map(|j| a[i * 3 + j] * v[j]).sum();
+                assert!((av - want * v[i]).abs() < 1e-12, "column {k}: {v:?}");
+            }
+        }
+    }
+
+    /// A camera at `eye` looking at `target`, world up +z, image-right level.
+    fn looking(eye: [f32; 3], target: [f32; 3]) -> Camera {
+        let unit = |v: [f32; 3]| {
+            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            v.map(|x| x / l)
+        };
+        let cross = |a: [f32; 3], b: [f32; 3]| {
+            [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+        };
+        let z = unit(std::array::from_fn(|k| target[k] - eye[k]));
+        let x = unit(cross(z, [0.0, 0.0, 1.0]));
+        let y = cross(z, x);
+        let r = [[x[0], y[0], z[0]], [x[1], y[1], z[1]], [x[2], y[2], z[2]]];
+        Camera::from_c2w("c".into(), 64, 48, 50.0, 50.0, 32.0, 24.0, r, eye)
+    }
+
+    #[test]
+    fn the_up_is_level_with_cameras_on_an_arc_looking_down() {
+        // An arc of 120° at radius 3 and height 2 about a subject at the origin: every
+        // camera pitches down 34°, and the mean image-up tilts towards the arc's middle
+        // viewing direction (−x); the right axes give the true up.
+        let cams: Vec<Camera> = (0..7)
+            .map(|k| {
+                let a = (-60.0 + 20.0 * k as f32).to_radians();
+                looking([3.0 * a.cos(), 3.0 * a.sin(), 2.0], [0.0; 3])
+            })
+            .collect();
+        let refs: Vec<&Camera> = cams.iter().collect();
+        let mean_up: [f32; 3] = std::array::from_fn(|k| -cams.iter().map(|c| c.rotation[1][k]).sum::<f32>());
+        let tilt = (mean_up[2] / (mean_up.iter().map(|v| v * v).sum::<f32>()).sqrt()).acos().to_degrees();
+        assert!(tilt > 20.0, "the mean image-up tilts {tilt}°");
+        let up = cameras_up(&refs).unwrap();
+        assert!((up[2] - 1.0).abs() < 1e-5 && up[0].abs() < 1e-3 && up[1].abs() < 1e-3, "{up:?}");
+        // All facing the same way (a forward-facing grid of eyes): the right axes are one
+        // direction, and the up is the mean image-up, tilted as it is.
+        let grid: Vec<Camera> = (0..6)
+            .map(|k| {
+                let eye = [3.0, (k % 3) as f32 - 1.0, 1.5 + (k / 3) as f32 * 0.5];
+                looking(eye, [eye[0] - 3.0, eye[1], eye[2] - 2.0])
+            })
+            .collect();
+        let up = cameras_up(&grid.iter().collect::<Vec<_>>()).unwrap();
+        let y = -grid[0].rotation[1][2];
+        assert!((up[2] - y).abs() < 1e-5 && (up[0] + grid[0].rotation[1][0]).abs() < 1e-5, "{up:?}");
+        // Upside-down cameras flip the sign of the right axes without changing the
+        // scatter; the sign follows the image-up.
+        let flipped: Vec<Camera> = cams
+            .iter()
+            .map(|c| {
+                let mut c = c.clone();
+                for k in 0..3 {
+                    c.rotation[0][k] = -c.rotation[0][k];
+                    c.rotation[1][k] = -c.rotation[1][k];
+                }
+                c
+            })
+            .collect();
+        let up = cameras_up(&flipped.iter().collect::<Vec<_>>()).unwrap();
+        assert!((up[2] + 1.0).abs() < 1e-5, "{up:?}");
     }
 
     #[test]
