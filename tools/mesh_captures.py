@@ -11,6 +11,8 @@ paths, each a layout users shoot:
   orbit    one ring around the table (the classic 360 capture)
   rings    three rings at low, middle and high elevation
   forward  eyes on a plane in front of the table, all looking the same way (LLFF-like)
+  room     an arc of 200° around the table inside a room whose papered walls rise above
+           every view's frame (an indoor capture: no sky; not in the default set)
 
 Each dataset is a nerfstudio `transforms.json` (OpenGL camera-to-world, `camera_angle_x`)
 with `images/`, a sparse point cloud `points3d.ply` standing in for SfM (surface points
@@ -61,16 +63,18 @@ TABLE_TOP = 0.625
 SCRATCH = "/tmp/mesh_captures_assets"  # pybullet_data's table.urdf: a 1.5 x 1 top at z = 0.6 +- 0.025
 
 
-def build_world(variant):
+def build_world(variant, room=False):
     """Loads the floor, the table and the objects; returns {name: body id}.
 
     `variant` picks the object arrangement, so the three captures do not share one
-    layout. The floor is plane100 (200 m square) with pybullet's checker texture
+    layout; `room` stands walls round the table (the `room` path). The floor is plane100 (200 m square) with pybullet's checker texture
     tiled by its UVs; the table is the textured table.urdf."""
     data = pybullet_data.getDataPath()
     pb.setAdditionalSearchPath(data)
     bodies = {}
     bodies["floor"] = floor_body(variant)
+    if room:
+        bodies["walls"] = walls_body(variant)
     bodies["table"] = pb.loadURDF("table/table.urdf", [0, 0, 0], useFixedBase=True)
     top = TABLE_TOP
     quat = pb.getQuaternionFromEuler
@@ -135,6 +139,40 @@ def floor_body(variant):
     return body
 
 
+def walls_body(variant, half=3.0, height=3.2):
+    """Four walls facing inwards round the table, `half` m from its centre and `height`
+    m high: a papered texture (vertical stripes with noise and a dado band, 0.5 m
+    repeat) that a feature matcher would find points on, as on a real room's walls."""
+    rng = np.random.default_rng(200 + variant)
+    n = 128
+    yy, xx = np.mgrid[0:n, 0:n]
+    base = np.array([[0.80, 0.74, 0.62], [0.62, 0.70, 0.78], [0.78, 0.66, 0.66]][variant % 3])
+    stripe = 0.85 + 0.15 * (((xx // 16) % 2) == 0)[..., None]
+    tex = base * stripe * (1 + 0.10 * rng.standard_normal((n, n, 1)))
+    folder = os.path.join(SCRATCH, f"walls{variant}")
+    os.makedirs(folder, exist_ok=True)
+    Image.fromarray(np.clip(tex * 255, 0, 255).astype(np.uint8)).save(os.path.join(folder, "walls.png"))
+    reps_u, reps_v = 2 * half / 0.5, height / 0.5
+    corners = [(-half, -half), (half, -half), (half, half), (-half, half)]
+    with open(os.path.join(folder, "walls.obj"), "w") as fh:
+        for k in range(4):
+            (x0, y0), (x1, y1) = corners[k], corners[(k + 1) % 4]
+            fh.write(f"v {x0} {y0} 0\nv {x1} {y1} 0\nv {x1} {y1} {height}\nv {x0} {y0} {height}\n")
+            # Inward normal: the wall's direction turned towards the centre.
+            nx, ny = -(y1 - y0) / (2 * half), (x1 - x0) / (2 * half)
+            fh.write(f"vn {nx} {ny} 0\n")
+        fh.write(f"vt 0 0\nvt {reps_u} 0\nvt {reps_u} {reps_v}\nvt 0 {reps_v}\n")
+        for k in range(4):
+            a = 4 * k
+            # Wound clockwise seen from inside the room's outside, so the faces look in.
+            fh.write(f"f {a + 1}/1/{k + 1} {a + 3}/3/{k + 1} {a + 2}/2/{k + 1}\n")
+            fh.write(f"f {a + 1}/1/{k + 1} {a + 4}/4/{k + 1} {a + 3}/3/{k + 1}\n")
+    shape = pb.createVisualShape(pb.GEOM_MESH, fileName=os.path.join(folder, "walls.obj"))
+    body = pb.createMultiBody(baseMass=0, baseVisualShapeIndex=shape)
+    pb.changeVisualShape(body, -1, textureUniqueId=pb.loadTexture(os.path.join(folder, "walls.png")))
+    return body
+
+
 def look_at(eye, target, up=(0.0, 0.0, 1.0)):
     """Camera-to-world (OpenGL: x right, y up, looking down -z) for an eye at `eye`."""
     eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
@@ -175,6 +213,12 @@ def camera_path(kind, views, rng):
                 eye = np.array([x, -2.0, z])
                 poses.append(look_at(eye, eye + np.array([0.0, 2.3, -0.45])))
         poses = poses[:views]
+    elif kind == "room":
+        # An arc of 200° in front of the back wall, every camera pitched down at the table.
+        for i in range(views):
+            a = math.radians(-100 + 200 * i / max(views - 1, 1)) + rng.uniform(-0.03, 0.03)
+            r, z = 1.75 + rng.uniform(-0.1, 0.1), 1.4 + rng.uniform(-0.1, 0.1)
+            poses.append(look_at([r * math.cos(a), r * math.sin(a), z], centre))
     else:
         raise ValueError(kind)
     return poses
@@ -255,7 +299,7 @@ def save_png(path, rgb):
 def capture(kind, variant, out, size, views, seed, points_max):
     rng = np.random.default_rng(seed + 17 * variant)
     pb.resetSimulation()
-    bodies, target = build_world(variant)
+    bodies, target = build_world(variant, room=kind == "room")
     poses = camera_path(kind, views, rng)
     if os.path.exists(out):
         shutil.rmtree(out)
@@ -264,8 +308,8 @@ def capture(kind, variant, out, size, views, seed, points_max):
     frames, cloud_xyz, cloud_rgb = [], [], []
     # Edited appearance: the target recoloured (texture removed, a plain colour).
     edit_colour = [0.15, 0.35, 0.95, 1.0]
-    # Object labels: 0 the floor and the sky, 1 the table, then the objects.
-    objects = [n for n in bodies if n not in ("floor", "table")]
+    # Object labels: 0 the floor, the walls and the sky, 1 the table, then the objects.
+    objects = [n for n in bodies if n not in ("floor", "walls", "table")]
     label_of_body = {bodies["table"]: 1}
     label_of_body.update({bodies[n]: 2 + k for k, n in enumerate(objects)})
     for i, c2w in enumerate(poses):
