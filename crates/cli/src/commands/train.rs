@@ -48,8 +48,9 @@ pub struct TrainArgs {
     /// A sky dome: points on a far sphere above the cameras' horizon where the
     /// training views see a sky the point cloud does not reach, this many pixels apart
     /// (0: none, as INRIA). SfM finds no points at infinity; without the dome an open
-    /// sky grows from the nearest surfaces and sits too near (docs/method.md T4). Behind
-    /// the cloud's walls and below the horizon it adds nothing (T5).
+    /// sky grows from the nearest surfaces and sits too near (docs/method.md T4). Below
+    /// the horizon and behind walls the cloud samples densely it adds nothing; a room
+    /// sampled sparsely keeps some behind its walls, so pass 0 for an indoor capture (T5).
     #[arg(long, value_parser = super::common::finite_f32, default_value_t = FitOptions::default().sky_spacing)]
     pub sky_spacing: f32,
     /// Train only inside these masks: DIR/<image stem>.png (or .jpg) for every view, grey
