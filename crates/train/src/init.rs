@@ -358,11 +358,13 @@ fn cameras_up(cameras: &[&Camera]) -> Option<[f32; 3]> {
             }
         }
     }
-    let (values, vectors) = symmetric_eigen3(&scatter);
-    // Columns of `vectors` in ascending order of `values`.
-    let column = |k: usize| -> [f64; 3] { std::array::from_fn(|i| vectors[i * 3 + k]) };
+    let (values, vectors) = crate::linalg::symmetric_eigen(&scatter, 3);
+    let mut ascending = [0usize, 1, 2];
+    ascending.sort_by(|&i, &j| values[i].total_cmp(&values[j]));
+    // The k-th smallest eigenvalue's eigenvector.
+    let column = |k: usize| -> [f64; 3] { std::array::from_fn(|i| vectors[i * 3 + ascending[k]]) };
     let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let up = if values[1] >= LEVEL_SPREAD * n {
+    let up = if values[ascending[1]] >= LEVEL_SPREAD * n {
         column(0)
     } else {
         let (a, b) = (column(0), column(1));
@@ -379,55 +381,6 @@ fn cameras_up(cameras: &[&Camera]) -> Option<[f32; 3]> {
 
 fn norm64(v: [f64; 3]) -> f64 {
     (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
-}
-
-/// Eigenvalues (ascending) and unit eigenvectors (the columns of a row-major 3 × 3) of
-/// a symmetric 3 × 3 matrix, by cyclic Jacobi rotations (Golub & Van Loan, §8.5).
-fn symmetric_eigen3(matrix: &[f64]) -> ([f64; 3], Vec<f64>) {
-    let mut a = matrix.to_vec();
-    let mut v = vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
-    for _sweep in 0..50 {
-        let off: f64 = (0..3)
-            .flat_map(|i| (0..3).filter(move |&j| j != i).map(move |j| (i, j)))
-            .map(|(i, j)| a[i * 3 + j].powi(2))
-            .sum();
-        if off < 1e-24 {
-            break;
-        }
-        for p in 0..2 {
-            for q in p + 1..3 {
-                let apq = a[p * 3 + q];
-                if apq.abs() < 1e-300 {
-                    continue;
-                }
-                let theta = (a[q * 3 + q] - a[p * 3 + p]) / (2.0 * apq);
-                let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-                let c = 1.0 / (t * t + 1.0).sqrt();
-                let s = t * c;
-                // A ← Jᵀ A J, V ← V J, with J the rotation in the (p, q) plane.
-                for k in 0..3 {
-                    let (akp, akq) = (a[k * 3 + p], a[k * 3 + q]);
-                    a[k * 3 + p] = c * akp - s * akq;
-                    a[k * 3 + q] = s * akp + c * akq;
-                }
-                for k in 0..3 {
-                    let (apk, aqk) = (a[p * 3 + k], a[q * 3 + k]);
-                    a[p * 3 + k] = c * apk - s * aqk;
-                    a[q * 3 + k] = s * apk + c * aqk;
-                }
-                for k in 0..3 {
-                    let (vkp, vkq) = (v[k * 3 + p], v[k * 3 + q]);
-                    v[k * 3 + p] = c * vkp - s * vkq;
-                    v[k * 3 + q] = s * vkp + c * vkq;
-                }
-            }
-        }
-    }
-    let mut order = [0usize, 1, 2];
-    order.sort_by(|&i, &j| a[i * 3 + i].total_cmp(&a[j * 3 + j]));
-    let values = order.map(|k| a[k * 3 + k]);
-    let vectors = (0..9).map(|idx| v[(idx / 3) * 3 + order[idx % 3]]).collect();
-    (values, vectors)
 }
 
 /// `n` unit vectors spread evenly over the sphere (a Fibonacci lattice), ordered by
@@ -723,22 +676,6 @@ mod tests {
         assert!(one_view.is_empty(), "{} points where the only view shows the background", one_view.len());
         let two_views = sky_points(&views[..2], &cloud, 2.0, colour(0));
         assert!(!two_views.is_empty() && two_views.positions.iter().all(|&p| sees(&views[1].camera, p)));
-    }
-
-    #[test]
-    fn symmetric_eigen3_diagonalises_a_known_matrix() {
-        // Eigenvalues 1, 2, 4 along a rotated frame.
-        let a = [3.0, 1.0, 0.0, 1.0, 3.0, 0.0, 0.0, 0.0, 1.0];
-        let (values, vectors) = symmetric_eigen3(&a);
-        for (k, want) in [1.0, 2.0, 4.0].into_iter().enumerate() {
-            assert!((values[k] - want).abs() < 1e-12, "{values:?}");
-            let v: [f64; 3] = std::array::from_fn(|i| vectors[i * 3 + k]);
-            assert!((norm64(v) - 1.0).abs() < 1e-12);
-            for i in 0..3 {
-                let av: f64 = (0..3).map(|j| a[i * 3 + j] * v[j]).sum();
-                assert!((av - want * v[i]).abs() < 1e-12, "column {k}: {v:?}");
-            }
-        }
     }
 
     /// A camera at `eye` looking at `target`, world up +z, image-right level.

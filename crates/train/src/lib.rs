@@ -35,6 +35,7 @@ pub mod diagnose;
 pub mod filter3d;
 pub mod fit;
 pub mod init;
+pub mod linalg;
 pub mod loss;
 pub mod mcmc;
 pub mod model;
