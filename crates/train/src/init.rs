@@ -716,7 +716,8 @@ mod tests {
                 .iter()
                 .filter(|p| {
                     let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-                    let (azimuth, elevation) = (p[0].atan2(p[1]).to_degrees(), (p[2] / r).asin().to_degrees());
+                    let (azimuth, elevation) =
+                        (p[0].atan2(p[1]).to_degrees(), (p[2] / r).asin().to_degrees());
                     azimuth.abs() < 8.0 && (8.0..18.0).contains(&elevation)
                 })
                 .count()
