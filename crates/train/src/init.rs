@@ -247,8 +247,7 @@ pub const MAX_SKY_POINTS: usize = 200_000;
 /// ([`sky_reached`]), each coloured by the mean of the training pixels it projects to in
 /// those views. The sky is open from nearly every view that frames it; a gap between
 /// the points a sparse cloud puts on a wall lines up with a direction from a few views
-/// only, as the views' parallax moves the wall's points across it (a room shot on an
-/// arc kept 699 dome points behind its walls with one view enough, 208 with half).
+/// only, as the views' parallax moves the wall's points across it (docs/method.md T4).
 /// A direction where every
 /// view that sees it shows the training `background` (within 2/255 in every channel)
 /// gets no point: the background already draws it, and a dome there would replace the
