@@ -3,6 +3,7 @@
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use transsplat_train::linalg::symmetric_eigen;
 
 /// A fitted projection `y = (x − mean) · basis`, `basis` is `d_in × d` (columns are
 /// the leading principal directions, padded with zeros when `d > d_in`).
@@ -15,8 +16,6 @@ pub struct Pca {
     /// Variance along each kept direction.
     pub variance: Vec<f32>,
 }
-
-pub use transsplat_train::linalg::symmetric_eigen;
 
 impl Pca {
     /// Fits on feature planes (`pixels × d_in` each), using up to `samples` pixels
