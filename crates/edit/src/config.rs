@@ -156,7 +156,7 @@ pub struct LossConfig {
     pub leak: f32,
     /// The image loss's colour gradients are kept only where the aggregated support
     /// 1 − r_i is at least this (the gated region, TransSplat's colour mask; 0.5: a
-    /// majority of the views that see the Gaussian, by source mass), and L_leak acts
+    /// majority of the views that see the Gaussian, by `fusion.view_weight`), and L_leak acts
     /// only outside it ([`EditConfig::colour_gate_gamma`]); 0 = off (the paper).
     pub colour_gate: f32,
 }

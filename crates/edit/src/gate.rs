@@ -5,8 +5,9 @@
 //! Two ways to aggregate it across views ([`Agreement`]):
 //!
 //! - [`Agreement::Visibility`] (default): every view that sees the Gaussian has a say
-//!   in proportion to the source mass it has there,
-//!   r_i = 1 − Σ_{v∈Vis(i)} σ̃_i^v a_i^v / Σ_{v∈Vis(i)} a_i^v, with σ̃ the view's
+//!   in proportion to its blend weight W_i^v = Σ_p T_i(p) α_i(p) there (the weight
+//!   L_img gives the view; [`ViewWeight`]),
+//!   r_i = 1 − Σ_{v∈Vis(i)} σ̃_i^v W_i^v / Σ_{v∈Vis(i)} W_i^v, with σ̃ the view's
 //!   support ([`ViewTransport::view_support`]: the plan's relative support, bounded
 //!   by the Gaussian's coverage with `fusion.coverage`),
 //!   so support in one view cannot outvote the views that see the Gaussian well and
@@ -29,7 +30,7 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Agreement {
-    /// Weighted by the source mass in each view that sees the Gaussian.
+    /// Every view that sees the Gaussian has its say ([`ViewWeight`]).
     #[default]
     Visibility,
     /// Weighted by the transported mass over the supported views (the paper).
@@ -42,10 +43,12 @@ pub enum Agreement {
 pub enum ViewWeight {
     /// The Gaussian's source mass a_i^v in the view (its visibility × opacity as a
     /// share of the view's).
-    #[default]
     Mass,
     /// The Gaussian's blend weight in the view, Σ_p T_i(p) α_i(p) over its pixels: the
-    /// weight the image loss gives the view when it recolours the Gaussian.
+    /// weight the image loss gives the view when it recolours the Gaussian. The default:
+    /// the colour gate opens L_img on a Gaussian, so the views that carry most of
+    /// L_img's pull on it must support it (docs/method.md#m6-residual-and-gate).
+    #[default]
     Blend,
 }
 

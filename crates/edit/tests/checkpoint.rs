@@ -165,7 +165,7 @@ fn with_frozen_geometry_rendering_the_colour_change_alone_gives_the_full_render_
 fn a_resumed_edit_with_frozen_geometry_is_bit_identical() {
     let scene = scene();
     let dir = tempfile::tempdir().unwrap();
-    // Each view's say by source mass (the default) and by blend weight. Stopped at 35,
+    // Each view's say by source mass and by blend weight (the default). Stopped at 35,
     // after the last transport round (rounds every 10 of 40 steps), the reported support
     // comes from the checkpointed plans, so they must carry their blend weights.
     for (view_weight, stop) in [(ViewWeight::Mass, 23), (ViewWeight::Blend, 35)] {

@@ -94,7 +94,7 @@ impl TransSplat {
     /// spilled colour. The paper's γ is meant to make weakly supported Gaussians "more
     /// conservative"; a Gaussian outside the gated region now does not respond to the
     /// edit at all. The default threshold, support ≥ 1/2, is a majority vote of the
-    /// views that see the Gaussian (by source mass).
+    /// views that see the Gaussian (each by `fusion.view_weight`).
     fn gate_changed(&mut self, trainer: Option<&Trainer>) {
         let Some(open) = self.cfg.colour_gate_gamma() else { return };
         self.open = self.transport.gamma.iter().map(|&g| g >= open).collect();
