@@ -38,6 +38,9 @@ dependency of the project or CI. Usage:
         [--views 48] [--seed 0]
 
 then, for example, `transsplat train --data DIR/orbit --out trained --iters 3000 --no-masks`.
+The k-th path of `--paths` gets the k-th layout (objects, edit target, floor and wall colours),
+so a reordered list (`--paths rings,forward,orbit`) with another `--seed` (camera jitter and
+points) renders captures the defaults were not measured on.
 """
 
 import argparse
