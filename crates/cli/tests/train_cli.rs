@@ -57,6 +57,36 @@ fn train_on_a_built_in_scene_writes_an_inria_folder() {
     assert!(renders.join("view_001.png").is_file());
 }
 
+/// A test PSNR far below the training views' with no test view far below the others
+/// (every test image brightened alike, as an exposure change between the held-out
+/// photos and the rest would): the warning diagnoses the worst test view, and
+/// train.json records that diagnosis on its entry only.
+#[test]
+fn a_gap_every_test_view_shares_is_diagnosed_by_the_worst() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = quick_scene_in(dir.path(), "data");
+    for stem in ["view_000", "view_008"] {
+        let path = data.join("images").join(format!("{stem}.png"));
+        let img = transsplat_scene::image::read(&path).unwrap();
+        let brighter: Vec<f32> = img.data.iter().map(|v| (v + 0.3).min(1.0)).collect();
+        transsplat_scene::image::write_png(&path, img.width, img.height, &brighter).unwrap();
+    }
+    let out = dir.path().join("out");
+    let st = train(&data, &out, &["--iters", "60", "--resolution", "4", "--eval-every", "0"]);
+    ok(&st);
+    let typed = transsplat_train::fit::TrainSummary::read(&out).unwrap();
+    let (test, train) = (typed.test_psnr.unwrap(), typed.train_psnr_sample.unwrap());
+    assert!(train - test > 3.0, "{typed:?}");
+    let worst = typed.worst_test_view.as_ref().unwrap();
+    assert!(typed.per_test_view.iter().all(|v| v.psnr > test - 3.0), "no view is an outlier: {typed:?}");
+    for v in &typed.per_test_view {
+        assert_eq!(v.cause.is_some(), v.name == worst.name, "{v:?}");
+    }
+    let stderr = String::from_utf8_lossy(&st.stderr);
+    let line = stderr.lines().find(|l| l.contains("below the training views'")).expect("the gap warning");
+    assert!(line.contains(&worst.name), "{line}");
+}
+
 /// `--filter-3d` is recorded in train.json, and the written scene is an ordinary INRIA PLY
 /// (the filter baked in, no carried column) whose render of a test view is the one
 /// training wrote in `test_renders/`.

@@ -6,7 +6,8 @@
 //! anything is written, so a bad setting or dataset leaves nothing behind. A test view
 //! more than [`FLOATER_WARN_DB`] below the mean is named in a warning with its
 //! diagnosis (`transsplat_train::diagnose`: floaters or extrapolation), also recorded
-//! in `train.json`.
+//! in `train.json`; so is the worst test view when the test PSNR lies that far below the
+//! training views' (a gap every test view shares need not be floaters).
 
 use crate::checkpoints::{self, Checkpoints};
 use crate::output::Output;
@@ -99,13 +100,13 @@ pub fn run(
         Err(TrainError::Interrupted { step }) => return Err(checkpoints::interrupted(step, &control, &out)),
         Err(e) => return Err(checkpoints::failed(format!("training stopped: {e}"), &control, &out)),
     };
-    let (train_psnr, low_views) = warn_on_floaters(&trainer, &ds, &eval);
+    let (train_psnr, diagnosed) = warn_on_floaters(&trainer, &ds, &eval);
     let summary = staged.write(|dir| {
         let ply = write_output(dir, &trainer, &ds.cameras)?;
         let ply = out.join(ply.strip_prefix(dir).unwrap_or(&ply));
         write_test_renders(&dir.join(TEST_RENDERS), &trainer, &ds.test)?;
         let mut summary =
-            summary(&trainer, &eval, train_psnr, &low_views, started.elapsed().as_secs_f64(), ply);
+            summary(&trainer, &eval, train_psnr, &diagnosed, started.elapsed().as_secs_f64(), ply);
         summary.sky_spacing = (opts.sky_spacing > 0.0).then_some(opts.sky_spacing);
         summary.write(dir)?;
         Ok(summary)
@@ -161,7 +162,7 @@ fn summary(
     trainer: &Trainer,
     eval: &Eval,
     train_psnr: Option<f32>,
-    low_views: &[(String, Diagnosis)],
+    diagnosed: &[(String, Diagnosis)],
     seconds: f64,
     scene: PathBuf,
 ) -> TrainSummary {
@@ -169,7 +170,7 @@ fn summary(
         .per_view
         .iter()
         .map(|v| {
-            let diagnosis = low_views.iter().find(|(name, _)| *name == v.name).map(|(_, d)| d);
+            let diagnosis = diagnosed.iter().find(|(name, _)| *name == v.name).map(|(_, d)| d);
             TestView {
                 name: v.name.clone(),
                 psnr: v.psnr,
@@ -221,7 +222,9 @@ fn write_test_renders(
 }
 
 /// Warns about test views more than [`FLOATER_WARN_DB`] below the mean, each with its
-/// diagnosis, and about a test PSNR that far below the training views'. Returns the
+/// diagnosis, and about a test PSNR that far below the training views', with the
+/// diagnosis of the worst test view (a gap every test view shares is not floaters when
+/// even the worst sees nothing in front of the training views' depths). Returns the
 /// PSNR of every 8th training view and the diagnosed views.
 fn warn_on_floaters(
     trainer: &Trainer,
@@ -232,41 +235,65 @@ fn warn_on_floaters(
         return (None, Vec::new());
     }
     let train_cameras: Vec<_> = ds.train.iter().map(|v| v.camera.clone()).collect();
-    let mut low = Vec::new();
+    let mut diagnosed = Vec::new();
     for (view, score) in ds.test.iter().zip(&eval.per_view) {
         if score.psnr >= eval.psnr - FLOATER_WARN_DB {
             continue;
         }
         let d = diagnose(trainer, &view.camera, &train_cameras);
+        tracing::warn!(
+            "test view {} is at {:.2} dB, {:.1} dB below the mean test PSNR: {} ({TEST_RENDERS}/)",
+            score.name,
+            score.psnr,
+            eval.psnr - score.psnr,
+            verdict(&d)
+        );
+        diagnosed.push((score.name.clone(), d));
+    }
+    let sample: Vec<_> = ds.train.iter().step_by(8).cloned().collect();
+    let train = transsplat_train::evaluate(trainer, &sample);
+    let worst = ds.test.iter().zip(&eval.per_view).min_by(|a, b| a.1.psnr.total_cmp(&b.1.psnr));
+    if let (true, Some((view, score))) = (train.psnr - eval.psnr > FLOATER_WARN_DB, worst) {
+        let d = match diagnosed.iter().find(|(name, _)| *name == score.name) {
+            Some((_, d)) => *d,
+            None => {
+                let d = diagnose(trainer, &view.camera, &train_cameras);
+                diagnosed.push((score.name.clone(), d));
+                d
+            }
+        };
         let why = match d.cause {
-            Cause::Floaters => format!(
-                "floaters: {:.0} % of what it sees lies nearer than a quarter of the depth at which any \
-                 training view sees those splats",
-                100.0 * d.near_share
-            ),
+            Cause::Floaters => format!("the worst test view, {}, sees floaters", score.name),
             Cause::Extrapolation => format!(
-                "extrapolation: it sees what the training views saw, at their depths, from an angle they \
-                 did not constrain; only {:.0} % of what it sees lies in front of where they see it",
+                "not floaters: the worst test view, {}, sees what the training views saw, at their depths \
+                 (only {:.0} % in front of them); the training views are fitted closer than the views \
+                 between them are constrained",
+                score.name,
                 100.0 * d.near_share
             ),
         };
         tracing::warn!(
-            "test view {} is at {:.2} dB, {:.1} dB below the mean test PSNR: {why} ({TEST_RENDERS}/)",
-            score.name,
-            score.psnr,
-            eval.psnr - score.psnr
-        );
-        low.push((score.name.clone(), d));
-    }
-    let sample: Vec<_> = ds.train.iter().step_by(8).cloned().collect();
-    let train = transsplat_train::evaluate(trainer, &sample);
-    if train.psnr - eval.psnr > FLOATER_WARN_DB {
-        tracing::warn!(
-            "test PSNR {:.2} dB is {:.1} dB below the training views' {:.2} dB: the test views may see floaters",
+            "test PSNR {:.2} dB is {:.1} dB below the training views' {:.2} dB: {why}",
             eval.psnr,
             train.psnr - eval.psnr,
             train.psnr
         );
     }
-    (Some(train.psnr), low)
+    (Some(train.psnr), diagnosed)
+}
+
+/// A diagnosis in words, for the warnings.
+fn verdict(d: &Diagnosis) -> String {
+    match d.cause {
+        Cause::Floaters => format!(
+            "floaters: {:.0} % of what it sees lies nearer than a quarter of the depth at which any \
+             training view sees those splats",
+            100.0 * d.near_share
+        ),
+        Cause::Extrapolation => format!(
+            "extrapolation: it sees what the training views saw, at their depths, from an angle they \
+             did not constrain; only {:.0} % of what it sees lies in front of where they see it",
+            100.0 * d.near_share
+        ),
+    }
 }

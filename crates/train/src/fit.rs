@@ -383,7 +383,8 @@ pub struct WorstView {
     pub psnr: f32,
 }
 
-/// One test view's scores and, for a view far below the mean, its diagnosis.
+/// One test view's scores and, for a view far below the mean (or the worst view when the
+/// test PSNR is far below the training views'), its diagnosis.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TestView {
     pub name: String,
