@@ -25,8 +25,8 @@ use transsplat_train::{
 pub const TEST_RENDERS: &str = "test_renders";
 
 /// A test view this far (dB) below the mean test PSNR, or a mean test PSNR this far
-/// below the training views', is warned about: the floater symptom (haze in front of
-/// cameras the training views do not constrain).
+/// below the training views', is warned about with a diagnosis (floaters or
+/// extrapolation, `transsplat_train::diagnose`).
 pub const FLOATER_WARN_DB: f32 = 3.0;
 
 /// Training checkpoints are written every this many steps unless asked otherwise.
@@ -100,7 +100,7 @@ pub fn run(
         Err(TrainError::Interrupted { step }) => return Err(checkpoints::interrupted(step, &control, &out)),
         Err(e) => return Err(checkpoints::failed(format!("training stopped: {e}"), &control, &out)),
     };
-    let (train_psnr, diagnosed) = warn_on_floaters(&trainer, &ds, &eval);
+    let (train_psnr, diagnosed) = warn_on_low_test_views(&trainer, &ds, &eval);
     let summary = staged.write(|dir| {
         let ply = write_output(dir, &trainer, &ds.cameras)?;
         let ply = out.join(ply.strip_prefix(dir).unwrap_or(&ply));
@@ -223,10 +223,11 @@ fn write_test_renders(
 
 /// Warns about test views more than [`FLOATER_WARN_DB`] below the mean, each with its
 /// diagnosis, and about a test PSNR that far below the training views', with the
-/// diagnosis of the worst test view (a gap every test view shares is not floaters when
-/// even the worst sees nothing in front of the training views' depths). Returns the
+/// low views' floaters if any, else the diagnosis of the worst test view (a gap every
+/// test view shares is not floaters when even the worst sees nothing in front of the
+/// training views' depths). Returns the
 /// PSNR of every 8th training view and the diagnosed views.
-fn warn_on_floaters(
+fn warn_on_low_test_views(
     trainer: &Trainer,
     ds: &dataset::Dataset,
     eval: &Eval,
@@ -252,28 +253,40 @@ fn warn_on_floaters(
     }
     let sample: Vec<_> = ds.train.iter().step_by(8).cloned().collect();
     let train = transsplat_train::evaluate(trainer, &sample);
-    let worst = ds.test.iter().zip(&eval.per_view).min_by(|a, b| a.1.psnr.total_cmp(&b.1.psnr));
-    if let (true, Some((view, score))) = (train.psnr - eval.psnr > FLOATER_WARN_DB, worst) {
-        let d = match diagnosed.iter().find(|(name, _)| *name == score.name) {
-            Some((_, d)) => *d,
-            None => {
-                let d = diagnose(trainer, &view.camera, &train_cameras);
-                diagnosed.push((score.name.clone(), d));
-                d
+    if train.psnr - eval.psnr > FLOATER_WARN_DB {
+        let floaters: Vec<&str> =
+            diagnosed.iter().filter(|(_, d)| d.cause == Cause::Floaters).map(|(n, _)| n.as_str()).collect();
+        let why = if !floaters.is_empty() {
+            format!("floaters in {}", floaters.join(", "))
+        } else if let Some((view, score)) = eval.worst().and_then(|w| {
+            // `per_view` is in the test views' order.
+            let k = eval.per_view.iter().position(|v| std::ptr::eq(v, w))?;
+            Some((ds.test.get(k)?, w))
+        }) {
+            // The worst test view, diagnosed once (it may be among the low views above).
+            let d = match diagnosed.iter().find(|(name, _)| *name == score.name) {
+                Some((_, d)) => *d,
+                None => {
+                    let d = diagnose(trainer, &view.camera, &train_cameras);
+                    diagnosed.push((score.name.clone(), d));
+                    d
+                }
+            };
+            match d.cause {
+                Cause::Floaters => format!("the worst test view, {}, sees floaters", score.name),
+                Cause::Extrapolation => format!(
+                    "not floaters: even the worst test view, {}, sees what the training views saw, at their \
+                     depths (only {:.0} % in front of them): the scene fits its training views more closely \
+                     than it is constrained between them",
+                    score.name,
+                    100.0 * d.near_share
+                ),
             }
-        };
-        let why = match d.cause {
-            Cause::Floaters => format!("the worst test view, {}, sees floaters", score.name),
-            Cause::Extrapolation => format!(
-                "not floaters: the worst test view, {}, sees what the training views saw, at their depths \
-                 (only {:.0} % in front of them); the training views are fitted closer than the views \
-                 between them are constrained",
-                score.name,
-                100.0 * d.near_share
-            ),
+        } else {
+            String::new()
         };
         tracing::warn!(
-            "test PSNR {:.2} dB is {:.1} dB below the training views' {:.2} dB: {why}",
+            "test PSNR {:.2} dB is {:.1} dB below the training views' {:.2} dB: {why} ({TEST_RENDERS}/)",
             eval.psnr,
             train.psnr - eval.psnr,
             train.psnr
