@@ -256,34 +256,28 @@ fn warn_on_low_test_views(
     if train.psnr - eval.psnr > FLOATER_WARN_DB {
         let floaters: Vec<&str> =
             diagnosed.iter().filter(|(_, d)| d.cause == Cause::Floaters).map(|(n, _)| n.as_str()).collect();
-        let why = if !floaters.is_empty() {
-            format!("floaters in {}", floaters.join(", "))
-        } else if let Some((view, score)) = eval.worst().and_then(|w| {
-            // `per_view` is in the test views' order.
-            let k = eval.per_view.iter().position(|v| std::ptr::eq(v, w))?;
-            Some((ds.test.get(k)?, w))
-        }) {
-            // The worst test view, diagnosed once (it may be among the low views above).
-            let d = match diagnosed.iter().find(|(name, _)| *name == score.name) {
-                Some((_, d)) => *d,
-                None => {
-                    let d = diagnose(trainer, &view.camera, &train_cameras);
-                    diagnosed.push((score.name.clone(), d));
-                    d
-                }
-            };
-            match d.cause {
-                Cause::Floaters => format!("the worst test view, {}, sees floaters", score.name),
-                Cause::Extrapolation => format!(
-                    "not floaters: even the worst test view, {}, sees what the training views saw, at their \
-                     depths (only {:.0} % in front of them): the scene fits its training views more closely \
-                     than it is constrained between them",
-                    score.name,
-                    100.0 * d.near_share
-                ),
+        let worst = eval.worst_index().and_then(|k| Some((ds.test.get(k)?, &eval.per_view[k])));
+        let why = match worst {
+            Some((view, score)) if floaters.is_empty() => {
+                // The worst test view, diagnosed once (it may be among the low views above).
+                let d = match diagnosed.iter().find(|(name, _)| *name == score.name) {
+                    Some((_, d)) => *d,
+                    None => {
+                        let d = diagnose(trainer, &view.camera, &train_cameras);
+                        diagnosed.push((score.name.clone(), d));
+                        d
+                    }
+                };
+                let gap = match d.cause {
+                    Cause::Floaters => "",
+                    Cause::Extrapolation => {
+                        ", so not floaters: the scene fits its training views more closely than it is \
+                         constrained between them"
+                    }
+                };
+                format!("the worst test view, {}, {}{gap}", score.name, verdict(&d))
             }
-        } else {
-            String::new()
+            _ => format!("floaters in {}", floaters.join(", ")),
         };
         tracing::warn!(
             "test PSNR {:.2} dB is {:.1} dB below the training views' {:.2} dB: {why} ({TEST_RENDERS}/)",

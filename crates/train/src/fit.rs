@@ -125,7 +125,12 @@ impl Eval {
     /// The view with the lowest PSNR (a view far below the mean is the floater
     /// symptom: haze in front of that camera).
     pub fn worst(&self) -> Option<&ViewScore> {
-        self.per_view.iter().min_by(|a, b| a.psnr.total_cmp(&b.psnr))
+        self.worst_index().map(|k| &self.per_view[k])
+    }
+
+    /// The position of [`Self::worst`] in `per_view` (the order of the views evaluated).
+    pub fn worst_index(&self) -> Option<usize> {
+        (0..self.per_view.len()).min_by(|&a, &b| self.per_view[a].psnr.total_cmp(&self.per_view[b].psnr))
     }
 }
 
@@ -429,4 +434,22 @@ pub fn write_output(out: &Path, trainer: &Trainer, cameras: &[Camera]) -> transs
     ply::write(&ply_path, &trainer.exported())?;
     inria::write(&out.join("cameras.json"), cameras)?;
     Ok(ply_path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_worst_view_is_the_lowest_psnr_and_its_position() {
+        let score = |name: &str, psnr| ViewScore { name: name.into(), psnr, ssim: 0.5 };
+        let eval = Eval {
+            per_view: vec![score("a", 30.0), score("b", 21.0), score("c", 25.0)],
+            views: 3,
+            ..Default::default()
+        };
+        assert_eq!(eval.worst_index(), Some(1));
+        assert_eq!(eval.worst().map(|v| v.name.as_str()), Some("b"));
+        assert_eq!(Eval::default().worst_index(), None);
+    }
 }
