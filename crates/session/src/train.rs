@@ -108,6 +108,7 @@ pub fn run(
         let mut summary =
             summary(&trainer, &eval, train_psnr, &diagnosed, started.elapsed().as_secs_f64(), ply);
         summary.sky_spacing = (opts.sky_spacing > 0.0).then_some(opts.sky_spacing);
+        summary.isotropic_init = !opts.surface_init;
         summary.write(dir)?;
         Ok(summary)
     })?;
@@ -199,6 +200,7 @@ fn summary(
         strategy: config.strategy.name().into(),
         filter_3d: (config.filter_3d > 0.0).then_some(config.filter_3d),
         sky_spacing: None,
+        isotropic_init: false,
     }
 }
 

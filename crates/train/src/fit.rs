@@ -38,6 +38,10 @@ pub struct FitOptions {
     /// dome, as INRIA. The default, [`DEFAULT_SKY_SPACING`], is the measured one
     /// (docs/method.md T4, T5).
     pub sky_spacing: f32,
+    /// Start each Gaussian whose cloud neighbourhood is a surface flat on that surface
+    /// ([`crate::init::flatten_on_surfaces`]); false: INRIA's balls. On by default
+    /// (docs/method.md T6).
+    pub surface_init: bool,
 }
 
 impl Default for FitOptions {
@@ -48,6 +52,7 @@ impl Default for FitOptions {
             random_points: 100_000,
             eval_every: 1000,
             sky_spacing: DEFAULT_SKY_SPACING,
+            surface_init: true,
         }
     }
 }
@@ -81,6 +86,10 @@ pub fn initial_model(ds: &Dataset, opts: &FitOptions) -> (Model, InitSource) {
         cloud.colors.extend(sky.colors);
     }
     let mut g = gaussians_from_points(&cloud, opts.max_sh_degree, 0.01 * extent);
+    if opts.surface_init {
+        let n = crate::init::flatten_on_surfaces(&mut g, &cloud.positions);
+        tracing::info!("{n} of {} initial Gaussians start flat on their surfaces", g.len());
+    }
     if let Strategy::Mcmc(m) = opts.config.strategy {
         // gsplat's MCMC preset: more opaque, smaller initial Gaussians.
         g.opacity_logits.fill(crate::init::logit(m.init_opacity));
@@ -376,6 +385,10 @@ pub struct TrainSummary {
     /// The 3D filter's variance factor (`filter3d`), absent when off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub filter_3d: Option<f32>,
+    /// True when the initial Gaussians were INRIA's balls rather than flat on their
+    /// surfaces ([`FitOptions::surface_init`] off).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub isotropic_init: bool,
     /// The sky dome's spacing in pixels ([`crate::init::sky_points`]), absent when off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sky_spacing: Option<f32>,

@@ -1,7 +1,9 @@
 //! Initial Gaussians from a point cloud, as INRIA's `create_from_pcd`: one Gaussian
 //! per point, isotropic scale √(mean squared distance to the 3 nearest neighbours)
 //! (INRIA `distCUDA2`, clamped at 1e-7 squared), identity rotation, opacity 0.1,
-//! SH DC from the point colour (`(c − 0.5) / C0`), higher SH zero.
+//! SH DC from the point colour (`(c − 0.5) / C0`), higher SH zero. Then, by default,
+//! [`flatten_on_surfaces`] turns each Gaussian whose neighbourhood in the cloud is a
+//! surface flat onto it (the cloud samples surfaces; docs/method.md T6).
 //!
 //! The nearest neighbours come from a k-d tree (O(n log n)). Without a point cloud,
 //! [`random_points`] samples points inside the cameras' common view.
@@ -75,12 +77,18 @@ impl<'a> KdTree<'a> {
 
     /// Squared distances to the `k` nearest points other than `query` itself.
     fn nearest(&self, query: usize, k: usize) -> Vec<f32> {
-        let mut best: Vec<f32> = Vec::with_capacity(k + 1);
+        self.nearest_ids(query, k).into_iter().map(|(d, _)| d).collect()
+    }
+
+    /// The `k` nearest points other than `query` itself: (squared distance, index),
+    /// nearest first.
+    fn nearest_ids(&self, query: usize, k: usize) -> Vec<(f32, u32)> {
+        let mut best: Vec<(f32, u32)> = Vec::with_capacity(k + 1);
         self.visit(0, self.idx.len(), query, k, &mut best);
         best
     }
 
-    fn visit(&self, lo: usize, hi: usize, query: usize, k: usize, best: &mut Vec<f32>) {
+    fn visit(&self, lo: usize, hi: usize, query: usize, k: usize, best: &mut Vec<(f32, u32)>) {
         if lo >= hi || k == 0 {
             return;
         }
@@ -90,9 +98,9 @@ impl<'a> KdTree<'a> {
         let p = self.pts[id];
         if id != query {
             let d = (0..3).map(|a| (p[a] - q[a]).powi(2)).sum::<f32>();
-            if best.len() < k || d < best[best.len() - 1] {
-                let at = best.partition_point(|&b| b <= d);
-                best.insert(at, d);
+            if best.len() < k || d < best[best.len() - 1].0 {
+                let at = best.partition_point(|&(b, _)| b <= d);
+                best.insert(at, (d, id as u32));
                 best.truncate(k);
             }
         }
@@ -100,7 +108,7 @@ impl<'a> KdTree<'a> {
         let diff = q[a] - p[a];
         let (near, far) = if diff < 0.0 { ((lo, mid), (mid + 1, hi)) } else { ((mid + 1, hi), (lo, mid)) };
         self.visit(near.0, near.1, query, k, best);
-        if best.len() < k || diff * diff < best[best.len() - 1] {
+        if best.len() < k || diff * diff < best[best.len() - 1].0 {
             self.visit(far.0, far.1, query, k, best);
         }
     }
@@ -132,6 +140,107 @@ pub fn gaussians_from_points(cloud: &PointCloud, max_sh_degree: u32, fallback_sc
         sh,
         extra: Default::default(),
     }
+}
+
+/// Neighbours whose spread decides a point's surface ([`flatten_on_surfaces`]).
+pub const SURFACE_NEIGHBOURS: usize = 8;
+/// A neighbourhood is a surface when its spread off its best plane is under this share
+/// of its spread along the plane's shorter axis (standard deviations).
+const PLANAR: f64 = 0.2;
+/// The flattest initial Gaussian: its normal scale is at least this share of its
+/// in-plane scale.
+const MIN_FLATNESS: f32 = 0.1;
+
+/// Flattens each initial Gaussian whose cloud neighbourhood is a surface onto that
+/// surface: the cloud samples surfaces, so no point supports a Gaussian's extent off its
+/// surface. With INRIA's isotropic start, a far floor's sparse points (tens of
+/// centimetres apart) start as balls as tall as they are wide, and densification's splits,
+/// which sample the children inside the parent, scatter them above and below the floor,
+/// where views at grazing angles cannot tell their height (docs/method.md T6).
+///
+/// For each Gaussian whose point has [`SURFACE_NEIGHBOURS`] neighbours: the covariance of
+/// the point and its neighbours, eigenvalues λ₀ ≤ λ₁ ≤ λ₂ with axes e₀, e₁, e₂. When
+/// √λ₀ < [`PLANAR`] √λ₁ the Gaussian is turned to the axes (e₁, e₂, e₀) and its normal
+/// scale set to max(√λ₀, [`MIN_FLATNESS`] × its in-plane scale); its in-plane scales and
+/// everything else stay INRIA's. Returns how many were flattened.
+pub fn flatten_on_surfaces(g: &mut Gaussians, points: &[[f32; 3]]) -> usize {
+    assert_eq!(g.len(), points.len(), "one Gaussian per point");
+    let tree = KdTree::build(points);
+    let shapes: Vec<Option<([f32; 4], f32)>> = (0..points.len())
+        .into_par_iter()
+        .with_min_len(256)
+        .map(|i| {
+            let near = tree.nearest_ids(i, SURFACE_NEIGHBOURS);
+            (near.len() == SURFACE_NEIGHBOURS).then(|| surface_frame(points, i, &near)).flatten()
+        })
+        .collect();
+    let mut flattened = 0;
+    for (i, shape) in shapes.into_iter().enumerate() {
+        let Some((quat, normal_sd)) = shape else { continue };
+        let in_plane = g.log_scales[i][0];
+        let normal = normal_sd.max(MIN_FLATNESS * in_plane.exp()).max(1e-7).ln();
+        if normal < in_plane {
+            g.log_scales[i] = [in_plane, in_plane, normal];
+            g.rotations[i] = quat;
+            flattened += 1;
+        }
+    }
+    flattened
+}
+
+/// The quaternion whose rotation has columns (e₁, e₂, e₀) (e₀ the normal) and √λ₀, when
+/// the neighbourhood of point `i` is a surface ([`flatten_on_surfaces`]).
+fn surface_frame(points: &[[f32; 3]], i: usize, near: &[(f32, u32)]) -> Option<([f32; 4], f32)> {
+    let members: Vec<[f64; 3]> = std::iter::once(i)
+        .chain(near.iter().map(|&(_, j)| j as usize))
+        .map(|j| points[j].map(f64::from))
+        .collect();
+    let n = members.len() as f64;
+    let c: [f64; 3] = std::array::from_fn(|a| members.iter().map(|p| p[a]).sum::<f64>() / n);
+    let mut cov = [0.0f64; 9];
+    for p in &members {
+        for a in 0..3 {
+            for b in 0..3 {
+                cov[a * 3 + b] += (p[a] - c[a]) * (p[b] - c[b]) / n;
+            }
+        }
+    }
+    let (values, vectors) = crate::linalg::symmetric_eigen(&cov, 3);
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&a, &b| values[a].total_cmp(&values[b]));
+    let [l0, l1] = [values[order[0]].max(0.0), values[order[1]].max(0.0)];
+    if !(l1 > 0.0 && l0.sqrt() < PLANAR * l1.sqrt()) {
+        return None;
+    }
+    let axis = |k: usize| -> [f64; 3] { std::array::from_fn(|r| vectors[r * 3 + order[k]]) };
+    let (e1, e2, mut e0) = (axis(1), axis(2), axis(0));
+    // A right-handed frame: e₀ = e₁ × e₂ up to sign.
+    let cross = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]];
+    if cross.iter().zip(&e0).map(|(a, b)| a * b).sum::<f64>() < 0.0 {
+        e0 = e0.map(|v| -v);
+    }
+    let m = [[e1[0], e2[0], e0[0]], [e1[1], e2[1], e0[1]], [e1[2], e2[2], e0[2]]];
+    Some((quaternion_of(&m), l0.sqrt() as f32))
+}
+
+/// The (w, x, y, z) unit quaternion of a rotation matrix (Shepperd's method: the largest
+/// of the four squared components picks the stable formula).
+fn quaternion_of(m: &[[f64; 3]; 3]) -> [f32; 4] {
+    let t = m[0][0] + m[1][1] + m[2][2];
+    let q = if t > m[0][0].max(m[1][1]).max(m[2][2]) {
+        let s = (1.0 + t).sqrt() * 2.0;
+        [0.25 * s, (m[2][1] - m[1][2]) / s, (m[0][2] - m[2][0]) / s, (m[1][0] - m[0][1]) / s]
+    } else if m[0][0] >= m[1][1] && m[0][0] >= m[2][2] {
+        let s = (1.0 + m[0][0] - m[1][1] - m[2][2]).sqrt() * 2.0;
+        [(m[2][1] - m[1][2]) / s, 0.25 * s, (m[0][1] + m[1][0]) / s, (m[0][2] + m[2][0]) / s]
+    } else if m[1][1] >= m[2][2] {
+        let s = (1.0 + m[1][1] - m[0][0] - m[2][2]).sqrt() * 2.0;
+        [(m[0][2] - m[2][0]) / s, (m[0][1] + m[1][0]) / s, 0.25 * s, (m[1][2] + m[2][1]) / s]
+    } else {
+        let s = (1.0 + m[2][2] - m[0][0] - m[1][1]).sqrt() * 2.0;
+        [(m[1][0] - m[0][1]) / s, (m[0][2] + m[2][0]) / s, (m[1][2] + m[2][1]) / s, 0.25 * s]
+    };
+    q.map(|v| v as f32)
 }
 
 /// The point closest (least squares) to every camera's optical axis, pulled
@@ -555,6 +664,57 @@ mod tests {
         }
         assert_eq!(knn_mean_sq_dist(&[[0.0; 3]], 3, 0.25), vec![0.25]);
         assert_eq!(knn_mean_sq_dist(&[[0.0; 3], [0.0, 0.0, 2.0]], 3, 0.25), vec![4.0, 4.0]);
+    }
+
+    /// Points on a tilted plane: every Gaussian turns its third axis to the plane's normal
+    /// with a small scale there; a point inside a lattice is on no surface and stays a ball.
+    #[test]
+    fn gaussians_on_a_plane_are_flattened_onto_it() {
+        let normal = {
+            let v = [0.3f32, -0.2, 1.0];
+            let l = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+            v.map(|x| x / l)
+        };
+        // Two in-plane axes orthogonal to the normal.
+        let u = {
+            let v = [1.0f32, 0.0, -normal[0] / normal[2]];
+            let l = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+            v.map(|x| x / l)
+        };
+        let w = [
+            normal[1] * u[2] - normal[2] * u[1],
+            normal[2] * u[0] - normal[0] * u[2],
+            normal[0] * u[1] - normal[1] * u[0],
+        ];
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let points: Vec<[f32; 3]> = (0..400)
+            .map(|k| {
+                let (a, b) = ((k % 20) as f32 * 0.3, (k / 20) as f32 * 0.3);
+                let off = rng.gen_range(-0.002f32..0.002);
+                std::array::from_fn(|c| a * u[c] + b * w[c] + off * normal[c] + [1.0, 2.0, 3.0][c])
+            })
+            .collect();
+        let cloud = PointCloud { positions: points.clone(), colors: vec![[0.5; 3]; points.len()] };
+        let mut g = gaussians_from_points(&cloud, 0, 0.1);
+        let before = g.log_scales.clone();
+        assert_eq!(flatten_on_surfaces(&mut g, &points), points.len());
+        for i in 0..points.len() {
+            let r = transsplat_raster::project::rotation_matrix(g.rotations[i]);
+            let axis = [r[0][2], r[1][2], r[2][2]];
+            let along = axis.iter().zip(&normal).map(|(a, b)| a * b).sum::<f32>().abs();
+            assert!(along > 0.999, "point {i}: third axis {axis:?}, normal {normal:?}");
+            let [s0, s1, s2] = g.log_scales[i];
+            assert!(s0 == before[i][0] && s1 == before[i][1], "in-plane scales are INRIA's");
+            assert!((s2 - (s0.exp() * MIN_FLATNESS).ln()).abs() < 1e-4, "flattened to the floor: {s2} {s0}");
+        }
+        // The centre of a 3 × 3 × 3 lattice has neighbours on every side: no surface.
+        let lattice: Vec<[f32; 3]> =
+            (0..27).map(|k| [(k % 3) as f32, ((k / 3) % 3) as f32, (k / 9) as f32]).collect();
+        let cloud = PointCloud { positions: lattice.clone(), colors: vec![[0.5; 3]; lattice.len()] };
+        let mut g = gaussians_from_points(&cloud, 0, 0.1);
+        let before = g.log_scales[13];
+        flatten_on_surfaces(&mut g, &lattice);
+        assert_eq!(g.log_scales[13], before, "the lattice's centre stays a ball");
     }
 
     #[test]

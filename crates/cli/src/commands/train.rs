@@ -53,6 +53,13 @@ pub struct TrainArgs {
     /// sampled sparsely keeps some behind its walls, so pass 0 for an indoor capture (T5).
     #[arg(long, value_parser = super::common::finite_f32, default_value_t = FitOptions::default().sky_spacing)]
     pub sky_spacing: f32,
+    /// Start every Gaussian as a ball, as INRIA does. By default a Gaussian whose point
+    /// lies on a surface of the cloud (its 8 nearest points spread little off their best
+    /// plane) starts flat on that surface: a sparse far floor's balls, as tall as the
+    /// points are far apart, otherwise scatter their splits above and below the floor,
+    /// a fog that views at grazing angles cannot place (docs/method.md T6).
+    #[arg(long)]
+    pub isotropic_init: bool,
     /// Train only inside these masks: DIR/<image stem>.png (or .jpg) for every view, grey
     /// in [0, 1], a per-pixel loss weight. Without it, only masks the dataset declares per
     /// frame (transforms.json mask_path) are used; a masks/ folder alone is not.
@@ -213,6 +220,7 @@ fn train_request(args: &TrainArgs) -> Result<TrainRequest> {
         random_points: args.random_points,
         eval_every: args.eval_every,
         sky_spacing: args.sky_spacing,
+        surface_init: !args.isotropic_init,
     };
     opts.config.validate().map_err(|e| anyhow::anyhow!("{} {}", flag_of(e.key), e.problem))?;
     let masks = match (&args.masks, args.no_masks) {
