@@ -17,7 +17,10 @@
 //!
 //! Measured over seeds 4 / 5 / 6 / 7 (mean test PSNR where a training view sees, the
 //! worst view's distance below it; the whole views' mean after the semicolon):
-//! - the trainer's defaults (the camera-reach rule and the sky dome): 27.83 (1.36) /
+//! - the trainer's defaults (the camera-reach rule, the sky dome and Gaussians that start
+//!   flat on the cloud's surfaces, docs/method.md T6): 31.00 (2.67) / 30.28 (1.27) /
+//!   30.42 (2.42) / 31.20 (2.30) dB, mean 30.73; whole 27.90 / 26.59 / 29.19 / 29.73;
+//! - the same with INRIA's balls (`surface_init` off; the rows below start so too): 27.83 (1.36) /
 //!   28.39 (0.73) / 27.96 (0.86) / 27.81 (0.87) dB, mean 28.00; whole 26.51 / 27.23 /
 //!   26.05 / 25.61;
 //! - the camera-reach rule without the dome (`sky_spacing` 0, the default before the
@@ -35,8 +38,8 @@
 //! Where the training views see, no setting leaves a view 3 dB below its mean; what
 //! the whole-view scores called haze in view 0 was mostly its unseen sky. Single runs
 //! at this size (96×72, 1500 steps) vary by a dB or more, so the test checks the mean
-//! over four seeds against a floor between the defaults and INRIA's rules, and that at
-//! most one seed has a view more than 3 dB below its mean.
+//! over four seeds against a floor between the defaults and the defaults with INRIA's
+//! balls, and that at most one seed has a view more than 3 dB below its mean.
 
 mod common;
 
@@ -50,8 +53,9 @@ use transsplat_train::{
 /// The bound: no test view more than 3 dB below the mean.
 const MAX_BELOW_MEAN_DB: f32 = 3.0;
 /// A floor on the mean test PSNR where a training view sees, over the four seeds:
-/// between INRIA's rules (26.81 dB) and the trainer's defaults (28.00 dB).
-const MIN_TEST_PSNR: f32 = 27.6;
+/// between the defaults with INRIA's balls (28.00 dB) and the defaults (30.73 dB), so
+/// losing the flat start fails it.
+const MIN_TEST_PSNR: f32 = 29.3;
 
 /// The quick open tabletop at 96×72 (24 views, 3 held out) with a sparse cloud: every
 /// 12th true centre with its true colour, as `scene` writes `points3D.txt`.
