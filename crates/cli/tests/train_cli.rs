@@ -89,6 +89,36 @@ fn a_gap_every_test_view_shares_is_diagnosed_by_the_worst() {
     assert!(line.contains(&worst.name) && line.contains("not floaters"), "{line}");
 }
 
+/// By default the Gaussians on the cloud's surfaces start flat (one scale far below the
+/// other two); `--isotropic-init` starts them as INRIA's balls and says so in train.json.
+/// One step moves a log-scale by at most about Adam's step (0.005), so the shapes written
+/// after it are the initial ones.
+#[test]
+fn gaussians_start_flat_on_surfaces_unless_asked_for_balls() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = quick_scene_in(dir.path(), "data");
+    let flat_share = |extra: &[&str]| {
+        let out = dir.path().join(format!("out{}", extra.len()));
+        let mut args = vec!["--iters", "1", "--eval-every", "0"];
+        args.extend_from_slice(extra);
+        ok(&train(&data, &out, &args));
+        let typed = transsplat_train::fit::TrainSummary::read(&out).unwrap();
+        let scene = transsplat_scene::ply::read(&typed.scene).unwrap();
+        let flat = scene
+            .log_scales
+            .iter()
+            .filter(|s| {
+                s.iter().fold(f32::MIN, |a, &b| a.max(b)) - s.iter().fold(f32::MAX, |a, &b| a.min(b)) > 1.0
+            })
+            .count();
+        (flat as f32 / scene.len() as f32, typed.isotropic_init)
+    };
+    let (share, isotropic) = flat_share(&[]);
+    assert!(share > 0.5 && !isotropic, "{share} of the Gaussians start flat by default");
+    let (share, isotropic) = flat_share(&["--isotropic-init"]);
+    assert!(share == 0.0 && isotropic, "{share} of INRIA's balls are flat");
+}
+
 /// `--filter-3d` is recorded in train.json, and the written scene is an ordinary INRIA PLY
 /// (the filter baked in, no carried column) whose render of a test view is the one
 /// training wrote in `test_renders/`.
