@@ -54,14 +54,18 @@ fn demo_edits_the_trained_scene() {
     let trained = trained.expect("the trained source's fidelity");
     let retrained = trained.retrained.expect("the scene retrained from the true edit");
     assert!(retrained > 12.0 && retrained.is_finite(), "{retrained}");
-    assert_eq!(metrics["trained"]["retrained"].as_f64().unwrap(), retrained);
+    // serde_json's default parser may land one unit in the last place off the printed
+    // shortest form (it is not correctly rounded without its `float_roundtrip` feature).
+    let same = |a: f64, b: f64| (a - b).abs() <= 1e-12 * a.abs().max(b.abs());
+    assert!(same(metrics["trained"]["retrained"].as_f64().unwrap(), retrained));
     for (k, v) in [
         ("test_psnr", trained.test_psnr),
         ("target_psnr", trained.target_psnr),
         ("background_psnr", trained.background_psnr),
     ] {
         assert!(metrics["trained"][k].as_f64().unwrap() > 12.0, "{k}: {metrics}");
-        assert_eq!(metrics["trained"][k].as_f64().unwrap(), v, "{k}: metrics.json and the outcome agree");
+        let written = metrics["trained"][k].as_f64().unwrap();
+        assert!(same(written, v), "{k}: metrics.json has {written}, the outcome {v}");
     }
     let built_in = build("tabletop", &SceneConfig::quick()).unwrap().gaussians.len();
     assert_ne!(metrics["gaussians"].as_u64().unwrap() as usize, built_in, "the trained scene is edited");
