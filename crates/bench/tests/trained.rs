@@ -57,7 +57,8 @@ fn demo_edits_the_trained_scene() {
     // serde_json's default parser may land one unit in the last place off the printed
     // shortest form (it is not correctly rounded without its `float_roundtrip` feature).
     let same = |a: f64, b: f64| (a - b).abs() <= 1e-12 * a.abs().max(b.abs());
-    assert!(same(metrics["trained"]["retrained"].as_f64().unwrap(), retrained));
+    let written = metrics["trained"]["retrained"].as_f64().unwrap();
+    assert!(same(written, retrained), "retrained: metrics.json has {written}, the outcome {retrained}");
     for (k, v) in [
         ("test_psnr", trained.test_psnr),
         ("target_psnr", trained.target_psnr),

@@ -162,7 +162,8 @@ const MIN_FLATNESS: f32 = 0.1;
 /// the point and its neighbours, eigenvalues λ₀ ≤ λ₁ ≤ λ₂ with axes e₀, e₁, e₂. When
 /// √λ₀ < [`PLANAR`] √λ₁ the Gaussian is turned to the axes (e₁, e₂, e₀) and its normal
 /// scale set to max(√λ₀, [`MIN_FLATNESS`] × its in-plane scale); its in-plane scales and
-/// everything else stay INRIA's. Returns how many were flattened.
+/// everything else stay INRIA's. A Gaussian whose normal scale would not come out below
+/// its in-plane scale stays a ball. Returns how many were flattened.
 pub fn flatten_on_surfaces(g: &mut Gaussians, points: &[[f32; 3]]) -> usize {
     assert_eq!(g.len(), points.len(), "one Gaussian per point");
     let tree = KdTree::build(points);
@@ -664,6 +665,30 @@ mod tests {
         }
         assert_eq!(knn_mean_sq_dist(&[[0.0; 3]], 3, 0.25), vec![0.25]);
         assert_eq!(knn_mean_sq_dist(&[[0.0; 3], [0.0, 0.0, 2.0]], 3, 0.25), vec![4.0, 4.0]);
+    }
+
+    /// `quaternion_of` inverts the rasterizer's `rotation_matrix` (up to the sign of the
+    /// quaternion), in each of Shepperd's four branches: near the identity and near half
+    /// turns about x, y and z, and at random.
+    #[test]
+    fn quaternion_of_inverts_the_rotation_matrix() {
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let mut quats = vec![
+            [1.0f32, 0.01, -0.02, 0.03],
+            [0.02, 1.0, 0.05, -0.01],
+            [0.03, -0.02, 1.0, 0.04],
+            [0.01, 0.03, -0.05, 1.0],
+        ];
+        quats.extend((0..50).map(|_| std::array::from_fn(|_| rng.gen_range(-1.0f32..1.0))));
+        for q in quats {
+            let n = q.iter().map(|v| v * v).sum::<f32>().sqrt();
+            let q = q.map(|v| v / n);
+            let r = transsplat_raster::project::rotation_matrix(q);
+            let m = r.map(|row| row.map(f64::from));
+            let back = quaternion_of(&m);
+            let dot: f32 = back.iter().zip(&q).map(|(a, b)| a * b).sum();
+            assert!(dot.abs() > 1.0 - 1e-5, "{q:?} came back as {back:?}");
+        }
     }
 
     /// Points on a tilted plane: every Gaussian turns its third axis to the plane's normal
