@@ -50,25 +50,7 @@ pub(crate) fn normalize(a: [f32; 3]) -> [f32; 3] {
     }
 }
 
-/// Quaternion (w, x, y, z) of a proper rotation matrix (row-major).
-pub fn quat_from_matrix(r: [[f32; 3]; 3]) -> [f32; 4] {
-    let tr = r[0][0] + r[1][1] + r[2][2];
-    let q = if tr > 0.0 {
-        let s = (tr + 1.0).sqrt() * 2.0;
-        [0.25 * s, (r[2][1] - r[1][2]) / s, (r[0][2] - r[2][0]) / s, (r[1][0] - r[0][1]) / s]
-    } else if r[0][0] > r[1][1] && r[0][0] > r[2][2] {
-        let s = (1.0 + r[0][0] - r[1][1] - r[2][2]).sqrt() * 2.0;
-        [(r[2][1] - r[1][2]) / s, 0.25 * s, (r[0][1] + r[1][0]) / s, (r[0][2] + r[2][0]) / s]
-    } else if r[1][1] > r[2][2] {
-        let s = (1.0 + r[1][1] - r[0][0] - r[2][2]).sqrt() * 2.0;
-        [(r[0][2] - r[2][0]) / s, (r[0][1] + r[1][0]) / s, 0.25 * s, (r[1][2] + r[2][1]) / s]
-    } else {
-        let s = (1.0 + r[2][2] - r[0][0] - r[1][1]).sqrt() * 2.0;
-        [(r[1][0] - r[0][1]) / s, (r[0][2] + r[2][0]) / s, (r[1][2] + r[2][1]) / s, 0.25 * s]
-    };
-    let n = (q.iter().map(|v| v * v).sum::<f32>()).sqrt();
-    q.map(|v| v / n)
-}
+pub use transsplat_raster::project::quat_from_matrix;
 
 /// A unit vector orthogonal to `n`.
 fn any_tangent(n: [f32; 3]) -> [f32; 3] {

@@ -131,6 +131,28 @@ pub fn rotation_matrix(q: [f32; 4]) -> M3 {
     }
 }
 
+/// The (w, x, y, z) unit quaternion of a proper rotation matrix (row-major), the inverse
+/// of [`rotation_matrix`] up to the quaternion's sign (Shepperd's method: the largest of
+/// the four squared components picks the stable formula).
+pub fn quat_from_matrix(r: M3) -> [f32; 4] {
+    let tr = r[0][0] + r[1][1] + r[2][2];
+    let q = if tr > 0.0 {
+        let s = (tr + 1.0).sqrt() * 2.0;
+        [0.25 * s, (r[2][1] - r[1][2]) / s, (r[0][2] - r[2][0]) / s, (r[1][0] - r[0][1]) / s]
+    } else if r[0][0] > r[1][1] && r[0][0] > r[2][2] {
+        let s = (1.0 + r[0][0] - r[1][1] - r[2][2]).sqrt() * 2.0;
+        [(r[2][1] - r[1][2]) / s, 0.25 * s, (r[0][1] + r[1][0]) / s, (r[0][2] + r[2][0]) / s]
+    } else if r[1][1] > r[2][2] {
+        let s = (1.0 + r[1][1] - r[0][0] - r[2][2]).sqrt() * 2.0;
+        [(r[0][2] - r[2][0]) / s, (r[0][1] + r[1][0]) / s, 0.25 * s, (r[1][2] + r[2][1]) / s]
+    } else {
+        let s = (1.0 + r[2][2] - r[0][0] - r[1][1]).sqrt() * 2.0;
+        [(r[1][0] - r[0][1]) / s, (r[0][2] + r[2][0]) / s, (r[1][2] + r[2][1]) / s, 0.25 * s]
+    };
+    let n = (q.iter().map(|v| v * v).sum::<f32>()).sqrt();
+    q.map(|v| v / n)
+}
+
 #[inline(always)]
 fn quat_to_rotmat<T: Real>(q: [T; 4]) -> ([T; 4], T, M3<T>) {
     let (one, two) = (T::from(1.0), T::from(2.0));
@@ -591,6 +613,31 @@ mod tests {
     use transsplat_scene::Camera;
 
     const C0: f32 = 0.282_094_8;
+
+    /// `quat_from_matrix` inverts `rotation_matrix` (up to the quaternion's sign) in each
+    /// of Shepperd's four branches: near the identity, near half turns about x, y and z,
+    /// and at pseudo-random rotations.
+    #[test]
+    fn quat_from_matrix_inverts_rotation_matrix() {
+        let mut quats = vec![
+            [1.0f32, 0.01, -0.02, 0.03],
+            [0.02, 1.0, 0.05, -0.01],
+            [0.03, -0.02, 1.0, 0.04],
+            [0.01, 0.03, -0.05, 1.0],
+        ];
+        // A fixed spread of rotations (a low-discrepancy sequence, no rng needed).
+        quats.extend((1..60).map(|k| {
+            let f = |a: f32| ((k as f32 * a).fract() - 0.5) * 2.0;
+            [f(0.618_034), f(0.414_214), f(0.732_051), f(0.236_068)]
+        }));
+        for q in quats {
+            let n = q.iter().map(|v| v * v).sum::<f32>().sqrt();
+            let q = q.map(|v| v / n);
+            let back = quat_from_matrix(rotation_matrix(q));
+            let dot: f32 = back.iter().zip(&q).map(|(a, b)| a * b).sum();
+            assert!(dot.abs() > 1.0 - 1e-5, "{q:?} came back as {back:?}");
+        }
+    }
 
     fn view() -> View {
         View::new(&Camera::pinhole("c", 8, 8, 8.0))

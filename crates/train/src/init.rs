@@ -13,6 +13,7 @@ use crate::points::PointCloud;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
+use transsplat_raster::project::quat_from_matrix;
 use transsplat_scene::{sh_coeffs, Camera, Gaussians, SH_C0};
 
 /// Mean squared distance from each point to its `k` nearest other points (fewer
@@ -221,27 +222,7 @@ fn surface_frame(points: &[[f32; 3]], i: usize, near: &[(f32, u32)]) -> Option<(
         e0 = e0.map(|v| -v);
     }
     let m = [[e1[0], e2[0], e0[0]], [e1[1], e2[1], e0[1]], [e1[2], e2[2], e0[2]]];
-    Some((quaternion_of(&m), l0.sqrt() as f32))
-}
-
-/// The (w, x, y, z) unit quaternion of a rotation matrix (Shepperd's method: the largest
-/// of the four squared components picks the stable formula).
-fn quaternion_of(m: &[[f64; 3]; 3]) -> [f32; 4] {
-    let t = m[0][0] + m[1][1] + m[2][2];
-    let q = if t > m[0][0].max(m[1][1]).max(m[2][2]) {
-        let s = (1.0 + t).sqrt() * 2.0;
-        [0.25 * s, (m[2][1] - m[1][2]) / s, (m[0][2] - m[2][0]) / s, (m[1][0] - m[0][1]) / s]
-    } else if m[0][0] >= m[1][1] && m[0][0] >= m[2][2] {
-        let s = (1.0 + m[0][0] - m[1][1] - m[2][2]).sqrt() * 2.0;
-        [(m[2][1] - m[1][2]) / s, 0.25 * s, (m[0][1] + m[1][0]) / s, (m[0][2] + m[2][0]) / s]
-    } else if m[1][1] >= m[2][2] {
-        let s = (1.0 + m[1][1] - m[0][0] - m[2][2]).sqrt() * 2.0;
-        [(m[0][2] - m[2][0]) / s, (m[0][1] + m[1][0]) / s, 0.25 * s, (m[1][2] + m[2][1]) / s]
-    } else {
-        let s = (1.0 + m[2][2] - m[0][0] - m[1][1]).sqrt() * 2.0;
-        [(m[1][0] - m[0][1]) / s, (m[0][2] + m[2][0]) / s, (m[1][2] + m[2][1]) / s, 0.25 * s]
-    };
-    q.map(|v| v as f32)
+    Some((quat_from_matrix(m.map(|row| row.map(|v| v as f32))), l0.sqrt() as f32))
 }
 
 /// The point closest (least squares) to every camera's optical axis, pulled
@@ -665,30 +646,6 @@ mod tests {
         }
         assert_eq!(knn_mean_sq_dist(&[[0.0; 3]], 3, 0.25), vec![0.25]);
         assert_eq!(knn_mean_sq_dist(&[[0.0; 3], [0.0, 0.0, 2.0]], 3, 0.25), vec![4.0, 4.0]);
-    }
-
-    /// `quaternion_of` inverts the rasterizer's `rotation_matrix` (up to the sign of the
-    /// quaternion), in each of Shepperd's four branches: near the identity and near half
-    /// turns about x, y and z, and at random.
-    #[test]
-    fn quaternion_of_inverts_the_rotation_matrix() {
-        let mut rng = ChaCha8Rng::seed_from_u64(9);
-        let mut quats = vec![
-            [1.0f32, 0.01, -0.02, 0.03],
-            [0.02, 1.0, 0.05, -0.01],
-            [0.03, -0.02, 1.0, 0.04],
-            [0.01, 0.03, -0.05, 1.0],
-        ];
-        quats.extend((0..50).map(|_| std::array::from_fn(|_| rng.gen_range(-1.0f32..1.0))));
-        for q in quats {
-            let n = q.iter().map(|v| v * v).sum::<f32>().sqrt();
-            let q = q.map(|v| v / n);
-            let r = transsplat_raster::project::rotation_matrix(q);
-            let m = r.map(|row| row.map(f64::from));
-            let back = quaternion_of(&m);
-            let dot: f32 = back.iter().zip(&q).map(|(a, b)| a * b).sum();
-            assert!(dot.abs() > 1.0 - 1e-5, "{q:?} came back as {back:?}");
-        }
     }
 
     /// Points on a tilted plane: every Gaussian turns its third axis to the plane's normal
