@@ -11,6 +11,7 @@
 //! some view dependence.
 
 use crate::rng::{seeded, Rng};
+use transsplat_raster::project::quat_from_matrix;
 use transsplat_scene::{Gaussians, SH_C0};
 
 /// SH degree of every built-in scene.
@@ -49,8 +50,6 @@ pub(crate) fn normalize(a: [f32; 3]) -> [f32; 3] {
         [0.0, 0.0, 1.0]
     }
 }
-
-pub use transsplat_raster::project::quat_from_matrix;
 
 /// A unit vector orthogonal to `n`.
 fn any_tangent(n: [f32; 3]) -> [f32; 3] {

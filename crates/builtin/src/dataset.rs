@@ -24,12 +24,12 @@
 //! non-empty `DIR` is refused unless `force`, in which case the files are written into
 //! it in place (each file atomically; nothing else in it is touched or deleted).
 
-use crate::build::quat_from_matrix;
 use crate::catalog::{Scene, LABEL_PROPERTY};
 use crate::edit::dc_colour;
 use crate::rig::{is_test, LLFF_HOLD};
 use crate::Error;
 use std::path::{Path, PathBuf};
+use transsplat_raster::project::quat_from_matrix;
 use transsplat_scene::{atomic, cameras, image, ply};
 
 /// Options of [`write_dataset`].
