@@ -306,6 +306,10 @@ pub struct Average {
     pub background_cases: usize,
     /// Mean over the same cases of the worst test view's background PSNR.
     pub background_psnr_worst: f64,
+    /// Mean silhouette PSNR (the band about the target's outline, both sides) over
+    /// `silhouette_cases` cases (a global edit has none).
+    pub silhouette_psnr: f64,
+    pub silhouette_cases: usize,
     /// Over the cases with a gate.
     pub gate_auroc: Option<f64>,
     /// Cases where this method has the lowest target PSNR, background PSNR or worst
@@ -340,6 +344,10 @@ pub fn averages(results: &[CaseResult]) -> BTreeMap<String, Average> {
                 a.target_psnr += s.metrics.target_psnr;
                 a.target_cases += 1;
             }
+            if s.metrics.silhouette_psnr.is_finite() {
+                a.silhouette_psnr += s.metrics.silhouette_psnr;
+                a.silhouette_cases += 1;
+            }
             if s.metrics.background_psnr.is_finite() {
                 a.background_psnr += s.metrics.background_psnr;
                 a.background_psnr_worst += s.metrics.background_psnr_worst;
@@ -358,6 +366,7 @@ pub fn averages(results: &[CaseResult]) -> BTreeMap<String, Average> {
         a.target_psnr = mean(a.target_psnr, a.target_cases);
         a.background_psnr = mean(a.background_psnr, a.background_cases);
         a.background_psnr_worst = mean(a.background_psnr_worst, a.background_cases);
+        a.silhouette_psnr = mean(a.silhouette_psnr, a.silhouette_cases);
         a.gate_auroc = aurocs.get(name).map(|v| v.iter().sum::<f64>() / v.len() as f64);
     }
     out
@@ -375,12 +384,12 @@ fn db(v: f64) -> String {
 /// The suite as Markdown: one row per case and method, then the averages.
 pub fn table(results: &[CaseResult], avg: &BTreeMap<String, Average>) -> String {
     let mut s = String::from(
-        "| case | method | target PSNR | background PSNR | background, worst view | gate AUROC |\n|---|---|---|---|---|---|\n",
+        "| case | method | target PSNR | background PSNR | background, worst view | silhouette PSNR | gate AUROC |\n|---|---|---|---|---|---|---|\n",
     );
     for r in results {
         if let Some(why) = &r.failed {
             s += &format!(
-                "| {} | **failed** | {} | | | |\n",
+                "| {} | **failed** | {} | | | | |\n",
                 r.case.name,
                 why.replace('|', "\\|").replace('\n', " ")
             );
@@ -388,28 +397,31 @@ pub fn table(results: &[CaseResult], avg: &BTreeMap<String, Average>) -> String 
         }
         for m in &r.scores {
             s += &format!(
-                "| {} | {} | {} | {} | {} | {} |\n",
+                "| {} | {} | {} | {} | {} | {} | {} |\n",
                 r.case.name,
                 m.name,
                 db(m.metrics.target_psnr),
                 db(m.metrics.background_psnr),
                 db(m.metrics.background_psnr_worst),
+                db(m.metrics.silhouette_psnr),
                 m.gate_auroc.map_or("-".into(), |a| format!("{a:.4}"))
             );
         }
     }
     s += &fidelity_table(results);
     s += &ceiling_table(results);
-    s += "\n| method | cases | mean target PSNR (cases) | mean background PSNR (cases) | mean worst-view background PSNR | mean gate AUROC | worst on a case |\n|---|---|---|---|---|---|---|\n";
+    s += "\n| method | cases | mean target PSNR (cases) | mean background PSNR (cases) | mean worst-view background PSNR | mean silhouette PSNR (cases) | mean gate AUROC | worst on a case |\n|---|---|---|---|---|---|---|---|\n";
     for (name, a) in avg {
         s += &format!(
-            "| {name} | {} | {} ({}) | {} ({}) | {} | {} | {} |\n",
+            "| {name} | {} | {} ({}) | {} ({}) | {} | {} ({}) | {} | {} |\n",
             a.cases,
             db(a.target_psnr),
             a.target_cases,
             db(a.background_psnr),
             a.background_cases,
             db(a.background_psnr_worst),
+            db(a.silhouette_psnr),
+            a.silhouette_cases,
             a.gate_auroc.map_or("-".into(), |g| format!("{g:.4}")),
             a.worst_cases
         );

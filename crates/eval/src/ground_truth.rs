@@ -8,6 +8,11 @@
 //!   target labels, min(1, Σ w_l), below 1/255), against the original (unedited)
 //!   render — leakage. When the target includes label 0, the background itself (a
 //!   global edit), nothing lies outside the edit: the set is empty and the value NaN;
+//! - silhouette PSNR: within [`SILHOUETTE_RADIUS`] of the target mask's outline, on
+//!   both sides, against the ground-truth edit. The target PSNR counts the inside of
+//!   the outline only, so an edit that carries the new colour past the outline gains
+//!   there and pays outside it, where neither the target nor (below 1/255 of the
+//!   target's weight) the background set looks; this band scores both sides alike;
 //! - PSNR and SSIM: whole image against the ground-truth edit.
 //! - the background PSNR of each view, and of the worst view: a leak seen from a few
 //!   cameras (a halo the editor's spill left on the table, say) hides in the pooled
@@ -18,6 +23,7 @@
 //! [`PSNR_CAP`]: below 8-bit quantisation, differences are ties.
 
 use crate::metrics::{psnr_from_mse, squared_error, ssim};
+use transsplat_builtin::simulated::distance_to;
 use transsplat_builtin::{LabelRender, Scene};
 use transsplat_raster::{render, RenderOptions, Splats};
 use transsplat_scene::{Camera, Gaussians};
@@ -26,6 +32,23 @@ use transsplat_scene::{Camera, Gaussians};
 /// everywhere (a PSNR of about 54 dB) is no visible difference, so higher values are
 /// ties, and 60 dB leaves room above that for a few stray pixels.
 pub const PSNR_CAP: f64 = 60.0;
+
+/// Half-width of the silhouette band, as a fraction of the image diagonal (at least one
+/// pixel): about the blur of a trained scene's outline at the suite's sizes, and the
+/// scale the prototypes' closing works at (docs/method.md#m2-prototypes).
+pub const SILHOUETTE_RADIUS: f32 = 0.01;
+
+/// The silhouette band of a `w × h` target mask: the pixels within r =
+/// max(1, [`SILHOUETTE_RADIUS`] · diagonal) pixels (Euclidean) of the other side, inside
+/// the mask or outside it. Empty when the mask is empty or covers the whole image.
+pub fn silhouette_band(target: &[bool], w: usize, h: usize) -> Vec<bool> {
+    let r = (SILHOUETTE_RADIUS * ((w * w + h * h) as f32).sqrt()).max(1.0);
+    let outside: Vec<bool> = target.iter().map(|&t| !t).collect();
+    let (Some(to_target), Some(to_outside)) = (distance_to(target, w, h), distance_to(&outside, w, h)) else {
+        return vec![false; target.len()];
+    };
+    (0..target.len()).map(|p| if target[p] { to_outside[p] <= r } else { to_target[p] <= r }).collect()
+}
 
 /// The target mask (pixels labelled with one of `labels`) and the background set (the
 /// target's summed weight below 1/255; empty for a global edit, whose labels include 0)
@@ -53,6 +76,9 @@ pub struct GtMetrics {
     pub background_psnr_worst: f64,
     /// Each test view's background PSNR (NaN where it has no background pixel).
     pub background_psnr_views: Vec<f64>,
+    /// Inside the silhouette band ([`silhouette_band`]), against the ground-truth edit
+    /// (NaN when no test view has one).
+    pub silhouette_psnr: f64,
     pub psnr: f64,
     pub ssim: f64,
 }
@@ -68,6 +94,8 @@ pub struct Reference {
     /// Pixels where the target contributes no visible weight (< 1/255): the
     /// background set, so a correct edit of the target's outline is not leakage.
     pub background_mask: Vec<Vec<bool>>,
+    /// The target mask's silhouette band ([`silhouette_band`]).
+    pub silhouette_mask: Vec<Vec<bool>>,
     pub background: [f32; 3],
 }
 
@@ -84,6 +112,7 @@ impl Reference {
             truth: vec![],
             target_mask: vec![],
             background_mask: vec![],
+            silhouette_mask: vec![],
             background: scene.background,
         };
         for &v in &views {
@@ -92,6 +121,7 @@ impl Reference {
             r.truth.push(render(&ts, cam, &opts).0.rgb);
             let lr = scene.render_edited(truth, v).expect("test view exists");
             let (target, background) = target_sets(&lr, labels);
+            r.silhouette_mask.push(silhouette_band(&target, cam.width as usize, cam.height as usize));
             r.target_mask.push(target);
             r.background_mask.push(background);
         }
@@ -108,9 +138,15 @@ impl Reference {
         labels: &[u32],
         background: [f32; 3],
     ) -> Self {
-        let (target_mask, background_mask) = truth_labels.iter().map(|lr| target_sets(lr, labels)).unzip();
+        let (target_mask, background_mask): (Vec<_>, _) =
+            truth_labels.iter().map(|lr| target_sets(lr, labels)).unzip();
+        let silhouette_mask = target_mask
+            .iter()
+            .zip(truth_labels)
+            .map(|(t, lr)| silhouette_band(t, lr.width, lr.height))
+            .collect();
         let truth = truth_labels.iter().map(|lr| lr.rgb.clone()).collect();
-        Reference { views, source, truth, target_mask, background_mask, background }
+        Reference { views, source, truth, target_mask, background_mask, silhouette_mask, background }
     }
 
     /// How well `scene_like` (a scene trained from the built-in scene's renders)
@@ -147,6 +183,7 @@ impl Reference {
         let opts = RenderOptions { background: self.background };
         let s = Splats::new(edited);
         let (mut se_t, mut n_t, mut se_b, mut n_b) = (0.0, 0, 0.0, 0);
+        let (mut se_s, mut n_s) = (0.0, 0);
         let (mut psnr_sum, mut ssim_sum) = (0.0, 0.0);
         let mut background_views = Vec::with_capacity(self.views.len());
         for (k, &v) in self.views.iter().enumerate() {
@@ -161,6 +198,9 @@ impl Reference {
             se_b += a;
             n_b += b;
             background_views.push(if b == 0 { f64::NAN } else { capped(psnr_from_mse(a / b as f64)) });
+            let (a, b) = squared_error(&img, &self.truth[k], Some(&self.silhouette_mask[k]));
+            se_s += a;
+            n_s += b;
             let (a, b) = squared_error(&img, &self.truth[k], None);
             psnr_sum += capped(psnr_from_mse(a / b.max(1) as f64));
             ssim_sum += ssim(&img, &self.truth[k], cam.width as usize, cam.height as usize);
@@ -174,6 +214,7 @@ impl Reference {
             background_psnr: masked(se_b, n_b),
             background_psnr_worst: worst,
             background_psnr_views: background_views,
+            silhouette_psnr: masked(se_s, n_s),
             psnr: psnr_sum / nv,
             ssim: ssim_sum / nv,
         }
@@ -242,5 +283,62 @@ mod tests {
             "the unedited scene misses the style: {m:?}"
         );
         assert_eq!(g.score(&s.cameras, &autumn).target_psnr, PSNR_CAP);
+    }
+
+    /// A 4 × 4 square in a 10 × 10 image (diagonal 14.1, so r = 1 px): the band is the
+    /// square's 12 border pixels and the 16 pixels that touch it edge-on (the corners'
+    /// diagonal neighbours lie √2 away); an empty or full mask has no outline.
+    #[test]
+    fn the_silhouette_band_is_one_radius_on_either_side_of_the_outline() {
+        let (w, h) = (10, 10);
+        let inside = |x: usize, y: usize| (3..7).contains(&x) && (3..7).contains(&y);
+        let target: Vec<bool> = (0..w * h).map(|p| inside(p % w, p / w)).collect();
+        let band = silhouette_band(&target, w, h);
+        for p in 0..w * h {
+            let (x, y) = (p % w, p / w);
+            let (dx, dy) = (
+                3usize.saturating_sub(x).max(x.saturating_sub(6)),
+                3usize.saturating_sub(y).max(y.saturating_sub(6)),
+            );
+            let expected = if inside(x, y) {
+                x == 3 || x == 6 || y == 3 || y == 6
+            } else {
+                (dx == 1 && dy == 0) || (dx == 0 && dy == 1)
+            };
+            assert_eq!(band[p], expected, "pixel ({x}, {y})");
+        }
+        assert_eq!(band.iter().filter(|&&b| b).count(), 28);
+        assert!(silhouette_band(&[false; 100], w, h).iter().all(|&b| !b));
+        assert!(silhouette_band(&[true; 100], w, h).iter().all(|&b| !b));
+    }
+
+    /// The band sees both sides of the outline: a truth changed only on the band's
+    /// outer side (where an edit that carries its colour past the outline differs)
+    /// leaves the target PSNR perfect and costs silhouette PSNR.
+    #[test]
+    fn the_silhouette_scores_the_outline_outside_the_target() {
+        let s = build("tabletop", &SceneConfig::quick()).unwrap();
+        let ball = s.label_of("ball").unwrap();
+        let truth = s.recolor(ball, [0.1, 0.2, 0.9]).unwrap();
+        let r = Reference::new(&s, &truth, &[ball]);
+        let m = r.score(&s.cameras, &truth);
+        assert_eq!((m.target_psnr, m.silhouette_psnr), (PSNR_CAP, PSNR_CAP), "{m:?}");
+        let (mut shifted, mut inner, mut outer) = (r.clone(), 0, 0);
+        for k in 0..r.views.len() {
+            for p in 0..r.target_mask[k].len() {
+                match (r.silhouette_mask[k][p], r.target_mask[k][p]) {
+                    (true, true) => inner += 1,
+                    (true, false) => {
+                        outer += 1;
+                        shifted.truth[k][3 * p..3 * p + 3].iter_mut().for_each(|v| *v = 1.0 - *v);
+                    }
+                    _ => {}
+                }
+            }
+        }
+        assert!(inner > 0 && outer > 0, "{inner} {outer}");
+        let m = shifted.score(&s.cameras, &truth);
+        assert_eq!(m.target_psnr, PSNR_CAP, "{m:?}");
+        assert!(m.silhouette_psnr < 30.0, "{m:?}");
     }
 }
