@@ -630,6 +630,8 @@ mod tests {
                 target_psnr: t,
                 background_psnr: b,
                 background_psnr_worst: b,
+                // a global edit (no background) has no outline either
+                silhouette_psnr: b,
                 ..Default::default()
             },
             gate_auroc: None,
@@ -696,13 +698,13 @@ mod tests {
         // per case); b: worst target in case 0; no one is worst on a NaN background
         assert_eq!((avg["a"].worst_cases, avg["b"].worst_cases), (2, 1));
         let t = table(&results, &avg);
-        assert!(t.contains("| garden-built-global-s0 | a | 10.00 | - | - | - |"), "{t}");
-        assert!(t.contains("| a | 2 | 20.00 (2) | 40.00 (1) | 40.00 | - | 2 |"), "{t}");
+        assert!(t.contains("| garden-built-global-s0 | a | 10.00 | - | - | - | - |"), "{t}");
+        assert!(t.contains("| a | 2 | 20.00 (2) | 40.00 (1) | 40.00 | 40.00 (1) | - | 2 |"), "{t}");
         // a method without any value shows "-"
         let only_nan = vec![ran(c[1].clone(), vec![score("a", f64::NAN, f64::NAN)])];
         let avg = averages(&only_nan);
         assert!(avg["a"].target_psnr.is_nan() && avg["a"].worst_cases == 0);
-        assert!(table(&only_nan, &avg).contains("| a | 1 | - (0) | - (0) | - | - | 0 |"));
+        assert!(table(&only_nan, &avg).contains("| a | 1 | - (0) | - (0) | - | - (0) | - | 0 |"));
         // ties: both methods at the lowest value are worst; when all tie, none is
         let tied = vec![ran(
             c[1].clone(),

@@ -294,7 +294,7 @@ mod tests {
         let inside = |x: usize, y: usize| (3..7).contains(&x) && (3..7).contains(&y);
         let target: Vec<bool> = (0..w * h).map(|p| inside(p % w, p / w)).collect();
         let band = silhouette_band(&target, w, h);
-        for p in 0..w * h {
+        for (p, &in_band) in band.iter().enumerate() {
             let (x, y) = (p % w, p / w);
             let (dx, dy) = (
                 3usize.saturating_sub(x).max(x.saturating_sub(6)),
@@ -305,7 +305,7 @@ mod tests {
             } else {
                 (dx == 1 && dy == 0) || (dx == 0 && dy == 1)
             };
-            assert_eq!(band[p], expected, "pixel ({x}, {y})");
+            assert_eq!(in_band, expected, "pixel ({x}, {y})");
         }
         assert_eq!(band.iter().filter(|&&b| b).count(), 28);
         assert!(silhouette_band(&[false; 100], w, h).iter().all(|&b| !b));
