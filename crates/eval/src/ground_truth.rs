@@ -11,8 +11,9 @@
 //! - silhouette PSNR: within [`SILHOUETTE_RADIUS`] of the target mask's outline, on
 //!   both sides, against the ground-truth edit. The target PSNR counts the inside of
 //!   the outline only, so an edit that carries the new colour past the outline gains
-//!   there and pays outside it, where neither the target nor (below 1/255 of the
-//!   target's weight) the background set looks; this band scores both sides alike;
+//!   there and pays just outside it, which the target set does not see and the
+//!   background set sees at most in part, diluted over the frame; the band scores
+//!   both sides alike (docs/method.md#v2-ground-truth-metrics);
 //! - PSNR and SSIM: whole image against the ground-truth edit.
 //! - the background PSNR of each view, and of the worst view: a leak seen from a few
 //!   cameras (a halo the editor's spill left on the table, say) hides in the pooled
