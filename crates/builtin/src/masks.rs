@@ -7,8 +7,28 @@
 //! weight receive no contribution at all from its Gaussians.
 
 use crate::catalog::Scene;
+use crate::simulated::distance_to;
 use transsplat_raster::{render, RenderOptions, Splats};
 use transsplat_scene::{Camera, Gaussians};
+
+/// A `w × h` `mask` grown (d > 0) or shrunk (d < 0) by |d| pixels (Euclidean distance,
+/// [`distance_to`]); an empty mask, or a full one shrunk, is returned as it is.
+pub fn grow(mask: &[bool], w: usize, h: usize, d: f32) -> Vec<bool> {
+    if d > 0.0 {
+        match distance_to(mask, w, h) {
+            Some(dist) => dist.iter().map(|&x| x <= d).collect(),
+            None => mask.to_vec(),
+        }
+    } else if d < 0.0 {
+        let outside: Vec<bool> = mask.iter().map(|&m| !m).collect();
+        match distance_to(&outside, w, h) {
+            Some(dist) => dist.iter().map(|&x| x > -d).collect(),
+            None => mask.to_vec(),
+        }
+    } else {
+        mask.to_vec()
+    }
+}
 
 /// Alpha above which a pixel gets a label.
 pub const ALPHA_THRESHOLD: f32 = 0.5;

@@ -25,7 +25,7 @@
 //!
 //! A global edit (every label targeted) gets the whole image as its mask.
 
-use crate::simulated::distance_to;
+use crate::masks::grow;
 use crate::Scene;
 use transsplat_editors::segment::Segmenter;
 use transsplat_editors::{Error, SourceView};
@@ -88,24 +88,6 @@ impl SimulatedSegmenter {
             }
         }
         mask.into_iter().map(|m| if m { 1.0 } else { 0.0 }).collect()
-    }
-}
-
-/// `mask` grown (d > 0) or shrunk (d < 0) by |d| pixels.
-fn grow(mask: &[bool], w: usize, h: usize, d: f32) -> Vec<bool> {
-    if d > 0.0 {
-        match distance_to(mask, w, h) {
-            Some(dist) => dist.iter().map(|&x| x <= d).collect(),
-            None => mask.to_vec(),
-        }
-    } else if d < 0.0 {
-        let outside: Vec<bool> = mask.iter().map(|&m| !m).collect();
-        match distance_to(&outside, w, h) {
-            Some(dist) => dist.iter().map(|&x| x > -d).collect(),
-            None => mask.to_vec(),
-        }
-    } else {
-        mask.to_vec()
     }
 }
 

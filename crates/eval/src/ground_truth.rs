@@ -24,7 +24,7 @@
 //! [`PSNR_CAP`]: below 8-bit quantisation, differences are ties.
 
 use crate::metrics::{psnr_from_mse, squared_error, ssim};
-use transsplat_builtin::simulated::distance_to;
+use transsplat_builtin::masks::grow;
 use transsplat_builtin::{LabelRender, Scene};
 use transsplat_raster::{render, RenderOptions, Splats};
 use transsplat_scene::{Camera, Gaussians};
@@ -41,14 +41,12 @@ pub const SILHOUETTE_RADIUS: f32 = 0.01;
 
 /// The silhouette band of a `w × h` target mask: the pixels within r =
 /// max(1, [`SILHOUETTE_RADIUS`] · diagonal) pixels (Euclidean) of the other side, inside
-/// the mask or outside it. Empty when the mask is empty or covers the whole image.
+/// the mask or outside it: the mask grown by r and not in the mask shrunk by r. Empty
+/// when the mask is empty or covers the whole image.
 pub fn silhouette_band(target: &[bool], w: usize, h: usize) -> Vec<bool> {
     let r = (SILHOUETTE_RADIUS * ((w * w + h * h) as f32).sqrt()).max(1.0);
-    let outside: Vec<bool> = target.iter().map(|&t| !t).collect();
-    let (Some(to_target), Some(to_outside)) = (distance_to(target, w, h), distance_to(&outside, w, h)) else {
-        return vec![false; target.len()];
-    };
-    (0..target.len()).map(|p| if target[p] { to_outside[p] <= r } else { to_target[p] <= r }).collect()
+    let (grown, shrunk) = (grow(target, w, h, r), grow(target, w, h, -r));
+    grown.iter().zip(&shrunk).map(|(&g, &s)| g && !s).collect()
 }
 
 /// The target mask (pixels labelled with one of `labels`) and the background set (the
