@@ -73,6 +73,7 @@
 //! [`SimulatedEditor::ground_truth`], [`SimulatedEditor::target_labels`],
 //! [`SimulatedEditor::describe`].
 
+use crate::masks::distance_to;
 use crate::{edit::dc_colour, recolor, render_labels, retexture, LabelRender, Material, Scene, Style};
 use rayon::prelude::*;
 use transsplat_editors::features::gaussian_blur;
@@ -287,69 +288,6 @@ fn view_rng(seed: u64, index: usize) -> SplitMix64 {
     let mut r = SplitMix64::new(seed ^ (index as u64).wrapping_add(1).wrapping_mul(0xD1B5_4A32_D192_ED03));
     r.next_u64();
     r
-}
-
-/// Squared Euclidean distance transform of one line (Felzenszwalb & Huttenlocher):
-/// `d[q] = min_p (q − p)² + f[p]`.
-fn edt_line(f: &[f64], d: &mut [f64]) {
-    let n = f.len();
-    if n == 0 {
-        return;
-    }
-    let mut v = vec![0usize; n];
-    let mut z = vec![0.0f64; n + 1];
-    let mut k = 0usize;
-    z[0] = f64::NEG_INFINITY;
-    z[1] = f64::INFINITY;
-    let inter = |q: usize, p: usize| {
-        ((f[q] + (q * q) as f64) - (f[p] + (p * p) as f64)) / (2.0 * q as f64 - 2.0 * p as f64)
-    };
-    for q in 1..n {
-        let mut s = inter(q, v[k]);
-        while s <= z[k] {
-            k -= 1;
-            s = inter(q, v[k]);
-        }
-        k += 1;
-        v[k] = q;
-        z[k] = s;
-        z[k + 1] = f64::INFINITY;
-    }
-    k = 0;
-    for (q, dq) in d.iter_mut().enumerate() {
-        while z[k + 1] < q as f64 {
-            k += 1;
-        }
-        let p = v[k];
-        *dq = (q as f64 - p as f64).powi(2) + f[p];
-    }
-}
-
-/// Euclidean distance (pixels) from every pixel to the nearest `true` of `mask`;
-/// `None` when the mask is empty.
-pub fn distance_to(mask: &[bool], w: usize, h: usize) -> Option<Vec<f32>> {
-    if !mask.iter().any(|&m| m) {
-        return None;
-    }
-    const FAR: f64 = 1e18;
-    let mut g: Vec<f64> = mask.iter().map(|&m| if m { 0.0 } else { FAR }).collect();
-    let mut line = vec![0.0f64; w.max(h)];
-    let mut out = vec![0.0f64; w.max(h)];
-    for y in 0..h {
-        line[..w].copy_from_slice(&g[y * w..(y + 1) * w]);
-        edt_line(&line[..w], &mut out[..w]);
-        g[y * w..(y + 1) * w].copy_from_slice(&out[..w]);
-    }
-    for x in 0..w {
-        for y in 0..h {
-            line[y] = g[y * w + x];
-        }
-        edt_line(&line[..h], &mut out[..h]);
-        for y in 0..h {
-            g[y * w + x] = out[y];
-        }
-    }
-    Some(g.into_iter().map(|v| v.min(FAR).sqrt() as f32).collect())
 }
 
 /// A smooth noise field with zero mean and unit standard deviation.
