@@ -24,7 +24,7 @@ Per edit view v, with Δ_v = edited_mesh − image_mesh the true change of the v
   2. misregistration: the change shifted by (dx, dy), each ~ U(-2, 2) px, whole pixels;
   3. bleed: outside the shifted target the change is a Gaussian blur of the change,
      σ ~ U(1.5, 4) px, at strength k ~ U(0.4, 0.9) (a soft halo, not the suite's ring);
-  4. partial edits: with probability 0.2 only the image's upper half of the change;
+  4. partial edits: with probability 1/5 only the image's upper half of the change;
   5. decoder round trip: the whole image blurred (σ = 0.6 px), plus N(0, 1.5/255)
      noise, then 8-bit quantised (every pixel changes a little, as through a VAE).
 
@@ -34,7 +34,8 @@ map as its attention (docs/cli.md, Editors). `score` prints per edited scene the
 PSNR against the true edit (target pixels: label share ≥ 1/2), the background PSNR
 against the source scene's render where the target's label share is 0 (pooled, and in
 the worst view), and the silhouette PSNR (within 1 % of the diagonal of the target
-mask's outline, both sides), over the held-out views (every 8th), each capped at 60 dB.
+mask's outline, both sides), over the held-out views (every 8th), each capped at 60 dB:
+the target mask and the band as the quality suite draws them (`eval::ground_truth`).
 Needs numpy and pillow.
 """
 import argparse, json, os, sys
@@ -79,12 +80,17 @@ def shift(img, dx, dy):
 
 
 def frames(capture):
+    """The views' stems in the order `transsplat` sorts cameras (by image name), which
+    the held-out split counts in."""
     t = json.load(open(os.path.join(capture, "transforms.json")))
-    return [os.path.splitext(os.path.basename(f["file_path"]))[0] for f in t["frames"]]
+    names = sorted(os.path.basename(f["file_path"]) for f in t["frames"])
+    return [os.path.splitext(n)[0] for n in names]
 
 
-def target_share(capture, stem):
-    """The target label's share of each pixel's label samples."""
+def target_labels(capture, stem):
+    """The target label's share of each pixel's label samples, and the target mask: the
+    pixels whose most frequent label (the lowest among equals) is the target's, as the
+    suite's `LabelRender::from_samples` labels a pixel."""
     meta = json.load(open(os.path.join(capture, "capture.json")))
     label = next(o["label"] for o in meta["objects"] if o["name"] == meta["target"])
     s = meta["supersample"]
@@ -92,11 +98,18 @@ def target_share(capture, stem):
     if lab.ndim == 3:
         lab = lab[..., 0]
     h, w = lab.shape[0] // s, lab.shape[1] // s
-    return (lab[: h * s, : w * s] == label).reshape(h, s, w, s).mean(axis=(1, 3))
+    blocks = lab[: h * s, : w * s].reshape(h, s, w, s).transpose(0, 2, 1, 3).reshape(h, w, s * s)
+    counts = np.stack([(blocks == l).sum(axis=2) for l in range(int(lab.max()) + 1)], axis=2)
+    return (blocks == label).mean(axis=2), counts.argmax(axis=2) == label
 
 
 def make(a):
-    os.makedirs(a.out, exist_ok=False)
+    """Writes the edits into a staging folder renamed to `a.out` when every view is done,
+    so an interrupted run leaves no folder that `run` would take as finished."""
+    if os.path.exists(a.out):
+        sys.exit(f"{a.out}: already exists")
+    stage = f"{a.out}.partial-{os.getpid()}"
+    os.makedirs(stage)
     stems = frames(a.capture)
     for i, stem in enumerate(stems):
         if i % HOLD == 0:
@@ -105,7 +118,7 @@ def make(a):
         render = np.load(os.path.join(a.renders, stem + ".npy")).astype(np.float32)
         change = load_png(os.path.join(a.capture, "edited", stem + ".png")) - load_png(
             os.path.join(a.capture, "images", stem + ".png"))
-        inside = target_share(a.capture, stem) > 0
+        inside = target_labels(a.capture, stem)[0] > 0
         strength = rng.uniform(0.75, 1.05)
         dx, dy = rng.integers(-2, 3, size=2)
         sigma, k = rng.uniform(1.5, 4.0), rng.uniform(0.4, 0.9)
@@ -121,7 +134,8 @@ def make(a):
         if not a.clean:
             img = blur(img, 0.6) + rng.normal(0, 1.5 / 255, render.shape)
         img = np.round(np.clip(img, 0, 1) * 255).astype(np.uint8)
-        Image.fromarray(img).save(os.path.join(a.out, stem + ".png"))
+        Image.fromarray(img).save(os.path.join(stage, stem + ".png"))
+    os.rename(stage, a.out)
     print(f"wrote {a.out}")
 
 
@@ -129,15 +143,22 @@ def psnr(se, n):
     return 60.0 if n == 0 or se <= 0 else min(60.0, 10 * np.log10(n / se))
 
 
+def grow(mask, r):
+    """The pixels within Euclidean distance r of the mask (pixel centres), as the suite's
+    `builtin::masks::grow`."""
+    out = np.zeros_like(mask)
+    k = int(np.floor(r))
+    for dy in range(-k, k + 1):
+        for dx in range(-k, k + 1):
+            if dx * dx + dy * dy <= r * r:
+                out |= shift(mask, dx, dy)
+    return out
+
+
 def band(mask, r):
-    """Pixels within r (Chebyshev) of the mask's outline, on either side."""
-    grow, shrink = mask.copy(), mask.copy()
-    for dy in range(-r, r + 1):
-        for dx in range(-r, r + 1):
-            s = shift(mask.astype(np.float32), dx, dy) > 0.5
-            grow |= s
-            shrink &= s
-    return grow & ~shrink
+    """The silhouette band of the suite (`eval::ground_truth::silhouette_band`): within r
+    of the mask's outline, on either side (grown by r, and not the mask shrunk by r)."""
+    return grow(mask, r) & grow(~mask, r)
 
 
 def score(a):
@@ -150,9 +171,9 @@ def score(a):
             out = np.load(os.path.join(e, stem + ".npy"))
             src = np.load(os.path.join(a.source, stem + ".npy"))
             truth = load_png(os.path.join(a.capture, "edited", stem + ".png"))
-            share = target_share(a.capture, stem)
-            tm, bm = share >= 0.5, share == 0
-            r = max(1, round(0.01 * np.hypot(*share.shape)))
+            share, tm = target_labels(a.capture, stem)
+            bm = share == 0
+            r = max(1.0, 0.01 * np.hypot(*share.shape))
             sm = band(tm, r)
             err_t = ((np.clip(out, 0, 1) - truth) ** 2)
             err_b = ((np.clip(out, 0, 1) - np.clip(src, 0, 1)) ** 2)
@@ -170,7 +191,7 @@ def score(a):
                 continue
             img = load_png(os.path.join(a.evidence, stem + ".png"))
             truth = load_png(os.path.join(a.capture, "edited", stem + ".png"))
-            tm = target_share(a.capture, stem) >= 0.5
+            tm = target_labels(a.capture, stem)[1]
             t[0] += ((img - truth) ** 2)[tm].sum(); t[1] += tm.sum() * 3
         print(f"2D evidence inside the target (edit views): {psnr(*t):6.2f}")
 
