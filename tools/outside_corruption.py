@@ -107,7 +107,8 @@ def make(a):
     """Writes the edits into a staging folder renamed to `a.out` when every view is done,
     so an interrupted run leaves no folder that `run` would take as finished."""
     if os.path.exists(a.out):
-        sys.exit(f"{a.out}: already exists")
+        print(f"{a.out}: already exists; choose another --out", file=sys.stderr)
+        sys.exit(2)
     stage = f"{a.out}.partial-{os.getpid()}"
     os.makedirs(stage)
     stems = frames(a.capture)
