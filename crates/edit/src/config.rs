@@ -77,6 +77,7 @@ impl Method {
                 cfg.semantic_init = SemanticInit::Source;
                 cfg.prototypes.close_radius = 0.0;
                 cfg.prototypes.outside_mask = 0.0;
+                cfg.prototypes.normalise = crate::prototypes::Normalise::View;
                 // The colour lift is an initialisation of the optimisation, not part of
                 // the formulation: `paper` keeps it, so the row compares formulations
                 // (docs/method.md M9).

@@ -3,7 +3,7 @@
 //! returned, and gather each usable view's evidence for the method.
 
 use crate::error::EditError;
-use crate::prototypes::ViewEvidence;
+use crate::prototypes::{typical_peak, Normalise, ViewEvidence};
 use crate::semantic::SemanticSpace;
 use transsplat_editors::{EditedView, Editor, SourceView};
 use transsplat_raster::{render, RenderOptions, Splats};
@@ -84,17 +84,23 @@ pub fn check_outputs(
 }
 
 /// The usable edit views in order, each handed with its evidence (attention, mask,
-/// projected semantic and appearance planes) and camera index to `take`, which returns how many
+/// projected semantic and appearance planes, and with [`Normalise::Job`] the edited
+/// views' typical attention peak) and camera index to `take`, which returns how many
 /// prototypes it made of the view. Returns the views and the prototype count of every
 /// edit view (0 where the editor gave nothing).
 pub fn gather(
     views: &[usize],
     edited: &[Option<EditedView>],
+    normalise: crate::prototypes::Normalise,
     space: &mut SemanticSpace,
     mut take: impl FnMut(usize, &ViewEvidence) -> usize,
 ) -> (Vec<ViewData>, Vec<usize>) {
     let mut out = Vec::new();
     let mut counts = vec![0; views.len()];
+    let peak = match normalise {
+        Normalise::Job => typical_peak(edited.iter().flatten().map(|e| &e.attention[..])),
+        Normalise::View => 0.0,
+    };
     for (k, (e, &cam)) in edited.iter().zip(views).enumerate() {
         let (Some(e), Some(f)) = (e, space.edited[k].take()) else { continue };
         let semantic = space.pca.project(&f.semantic);
@@ -107,6 +113,7 @@ pub fn gather(
             d: space.pca.d,
             appearance: &f.appearance,
             d_app: f.d_app,
+            peak,
         };
         counts[k] = take(cam, &ev);
         out.push(ViewData { cam, target: e.image.clone(), appearance: f.appearance, d_app: f.d_app });

@@ -1,6 +1,7 @@
 //! Prompt-aware prototype extraction (paper Sec. 3.2 and appendix A.1).
 //!
-//! Ā = A / (max A + ε_a), closed (grey-level morphology, [`grey_closing`]) over a square
+//! Ā = A / (max(max A, P) + ε_a), P = 0 (each view by its own peak, as in the paper) or,
+//! opted into, the job's typical attention peak ([`typical_peak`]), closed (grey-level morphology, [`grey_closing`]) over a square
 //! of radius `close_radius` × the image diagonal; support Ω = {Ā ≥ δ_a} ∩ mask with
 //! connected components below a minimum area dropped; weighted k-means on pixel coordinates (k-means++ seeding,
 //! then Lloyd) with weights Ā partitions Ω into M regions; each region gives a
@@ -29,6 +30,23 @@ pub struct PrototypeConfig {
     /// above 0 the mask is a prior on Ā (docs/method.md#e7-the-segmentation-constraint),
     /// and 1 ignores it.
     pub outside_mask: f32,
+    /// What Ā is normalised by ([`Normalise`]).
+    pub normalise: Normalise,
+}
+
+/// What a view's attention is normalised by (docs/method.md#m2-prototypes).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Normalise {
+    /// The view's own peak (the paper; the default): every view's attention reaches 1
+    /// somewhere.
+    #[default]
+    View,
+    /// The larger of the view's own peak and the job's typical peak ([`typical_peak`]):
+    /// a view whose attention stays below the other views' does not see it as full
+    /// evidence. Opt-in: it also weakens the views that see a small target, whose blurred
+    /// attention peaks lower (docs/results.md, "Settings measured and not made default").
+    Job,
 }
 
 impl Default for PrototypeConfig {
@@ -40,8 +58,37 @@ impl Default for PrototypeConfig {
             close_radius: 0.01,
             lloyd_iters: 10,
             outside_mask: 0.0,
+            normalise: Normalise::View,
         }
     }
+}
+
+/// A view's attention peak: its largest finite value (0 when it has none).
+pub fn attention_peak(attention: &[f32]) -> f32 {
+    attention.iter().fold(0.0f32, |m, &v| if v.is_finite() { m.max(v) } else { m })
+}
+
+/// The job's typical attention peak (docs/method.md#m2-prototypes): the median of the
+/// edited views' peaks ([`attention_peak`]; the upper one of an even count), 0 for no
+/// view. With [`Normalise::Job`] a view's Ā divides by the larger of this and its own
+/// peak.
+///
+/// *Why:* normalised by its own peak, every view's attention reaches 1 somewhere,
+/// whatever the editor did there. A view the editor left unedited then turns its
+/// attention's noise into full evidence, and a folder edit's change map, in a view where
+/// the target's edit is missing, turns the texture a decoder blurred into it. The other
+/// views say what an edit's attention peaks at; the median is not moved by one view that
+/// peaks far above the rest, and views that reach it are normalised as before. *Why not
+/// the default:* a blurred attention peaks lower where the target is small, so the views
+/// that see a small or far target lose support with it (docs/results.md, "Settings
+/// measured and not made default").
+pub fn typical_peak<'a>(attentions: impl IntoIterator<Item = &'a [f32]>) -> f32 {
+    let mut peaks: Vec<f32> = attentions.into_iter().map(attention_peak).collect();
+    if peaks.is_empty() {
+        return 0.0;
+    }
+    let k = peaks.len() / 2;
+    *peaks.select_nth_unstable_by(k, f32::total_cmp).1
 }
 
 /// The prototypes of one view; `m = b.len()`.
@@ -85,6 +132,9 @@ pub struct ViewEvidence<'a> {
     /// Appearance features Φ_v, `H × W × d_a`.
     pub appearance: &'a [f32],
     pub d_app: usize,
+    /// The job's typical attention peak ([`typical_peak`]); Ā divides by the larger of
+    /// it and the view's own peak (0: the view's own peak alone, as in the paper).
+    pub peak: f32,
 }
 
 /// A view's support Ω and normalised attention Ā, computed once per view
@@ -117,7 +167,7 @@ pub fn support(
     outside_mask: f32,
 ) -> Support {
     let (w, h) = (ev.width, ev.height);
-    let max = ev.attention.iter().fold(0.0f32, |m, &v| if v.is_finite() { m.max(v) } else { m });
+    let max = attention_peak(ev.attention).max(ev.peak);
     let abar: Vec<f32> =
         ev.attention.iter().map(|&v| if v.is_finite() && v > 0.0 { v / (max + 1e-8) } else { 0.0 }).collect();
     let mut abar = if close > 0 { grey_closing(&abar, w, h, close) } else { abar };
@@ -417,6 +467,7 @@ mod tests {
             d: 2,
             appearance: app,
             d_app: 1,
+            peak: 0.0,
         }
     }
 
@@ -445,6 +496,7 @@ mod tests {
             close_radius: 0.0,
             lloyd_iters: 5,
             outside_mask: 0.0,
+            normalise: Normalise::View,
         };
         let ev = evidence(w, h, &att, &sem, &app);
         let p = extract(&ev, &view_support(&ev, &cfg), &cfg, 3);
@@ -524,6 +576,31 @@ mod tests {
         }
         let z = [0.0f32; 6];
         assert_eq!(evidence_plane(&view_support(&evidence(6, 1, &z, &sem, &app), &cfg)), vec![0.0; 6]);
+    }
+
+    /// The typical peak is the median of the views' peaks (the upper one of an even
+    /// count; a NaN is no peak). A view that peaks at 0.2 against a typical 1.0 keeps Ā =
+    /// A (all under δ_a = 0.3: no support), where its own peak would make 0.2 → 1; a view
+    /// that peaks above the typical peak is normalised by its own, as without it.
+    #[test]
+    fn a_view_is_normalised_by_the_larger_of_its_peak_and_the_typical_one() {
+        let views: [&[f32]; 4] = [&[0.2, f32::NAN], &[3.0, 0.1], &[0.9], &[1.0, 0.5]];
+        assert_eq!(typical_peak(views), 1.0);
+        assert_eq!(typical_peak([&[0.2f32][..], &[0.6]]), 0.6);
+        assert_eq!(typical_peak(std::iter::empty::<&[f32]>()), 0.0);
+        let (sem, app) = (vec![0.0f32; 8], vec![0.0f32; 4]);
+        let cfg = PrototypeConfig { threshold: 0.3, min_area_fraction: 0.0, ..Default::default() };
+        let weak = [0.0f32, 0.1, 0.2, 0.05];
+        let own = view_support(&evidence(4, 1, &weak, &sem, &app), &cfg);
+        assert_eq!(own.omega, vec![false, true, true, false]);
+        let typical = view_support(&ViewEvidence { peak: 1.0, ..evidence(4, 1, &weak, &sem, &app) }, &cfg);
+        assert_eq!(typical.omega, vec![false; 4]);
+        for (a, b) in typical.abar.iter().zip(weak) {
+            assert!((a - b).abs() < 1e-6, "{:?}", typical.abar);
+        }
+        let strong = [0.0f32, 1.0, 2.0, 0.5];
+        let with = view_support(&ViewEvidence { peak: 1.0, ..evidence(4, 1, &strong, &sem, &app) }, &cfg);
+        assert_eq!(with, view_support(&evidence(4, 1, &strong, &sem, &app), &cfg));
     }
 
     /// Closing by radius 1 on a 5 × 3 plane: a one-pixel dip inside a plateau is

@@ -34,7 +34,7 @@ use std::collections::HashMap;
 
 use crate::SessionError;
 use transsplat_edit::edits::render_sources;
-use transsplat_edit::prototypes::{view_support, PrototypeConfig, ViewEvidence};
+use transsplat_edit::prototypes::{typical_peak, view_support, Normalise, PrototypeConfig, ViewEvidence};
 use transsplat_editors::{EditedView, Editor, Error as EditorError, SourceView};
 use transsplat_raster::{gaussian_stats, Splats};
 use transsplat_scene::cameras::split_views;
@@ -224,9 +224,18 @@ pub fn auto(scene: &AutoScene, editor: &mut dyn Editor) -> Result<AutoChoice, Se
                 )));
             }
         }
+        // The typical attention peak over the views edited so far, as the engine takes it
+        // over all of them.
+        let peak = match scene.prototypes.normalise {
+            Normalise::Job => {
+                let so_far = edited.iter().filter_map(|(_, e)| e.as_ref()).chain(out.iter().flatten());
+                typical_peak(so_far.map(|e| &e.attention[..]))
+            }
+            Normalise::View => 0.0,
+        };
         for ((&v, source), e) in views.iter().zip(&sources).zip(out) {
             if let Some(e) = &e {
-                lifted.insert(v, lift_view(scene, &splats, v, source, e, on));
+                lifted.insert(v, lift_view(scene, &splats, v, source, e, peak, on));
             }
             edited.push((v, e));
         }
@@ -306,14 +315,16 @@ pub fn auto(scene: &AutoScene, editor: &mut dyn Editor) -> Result<AutoChoice, Se
     Ok(AutoChoice { views, edited, seeds: seeds.len() })
 }
 
-/// View `v`'s support Ω_v and change Δ_v = edit − render splatted back onto the
-/// Gaussians `on` (all when `None`).
+/// View `v`'s support Ω_v (its attention normalised with the typical peak `peak`,
+/// [`typical_peak`]) and change Δ_v = edit − render splatted back onto the Gaussians `on`
+/// (all when `None`).
 fn lift_view(
     scene: &AutoScene,
     splats: &Splats,
     v: usize,
     source: &[f32],
     e: &EditedView,
+    peak: f32,
     on: Option<&[usize]>,
 ) -> Lifted {
     let ev = ViewEvidence {
@@ -325,6 +336,7 @@ fn lift_view(
         d: 0,
         appearance: &[],
         d_app: 0,
+        peak,
     };
     let omega = view_support(&ev, scene.prototypes).omega;
     // Four channels: Ω, then the change.
