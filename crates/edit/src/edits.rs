@@ -91,7 +91,7 @@ pub fn check_outputs(
 pub fn gather(
     views: &[usize],
     edited: &[Option<EditedView>],
-    normalise: crate::prototypes::Normalise,
+    normalise: Normalise,
     space: &mut SemanticSpace,
     mut take: impl FnMut(usize, &ViewEvidence) -> usize,
 ) -> (Vec<ViewData>, Vec<usize>) {

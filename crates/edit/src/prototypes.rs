@@ -1,10 +1,11 @@
 //! Prompt-aware prototype extraction (paper Sec. 3.2 and appendix A.1).
 //!
-//! Ā = A / (max(max A, P) + ε_a), P = 0 (each view by its own peak, as in the paper) or,
-//! opted into, the job's typical attention peak ([`typical_peak`]), closed (grey-level morphology, [`grey_closing`]) over a square
-//! of radius `close_radius` × the image diagonal; support Ω = {Ā ≥ δ_a} ∩ mask with
-//! connected components below a minimum area dropped; weighted k-means on pixel coordinates (k-means++ seeding,
-//! then Lloyd) with weights Ā partitions Ω into M regions; each region gives a
+//! Ā = A / (max(max A, P) + ε_a), with P = 0 (each view by its own peak, as in the paper)
+//! or, opted into, the job's typical attention peak ([`typical_peak`]). Ā is closed
+//! (grey-level morphology, [`grey_closing`]) over a square of radius `close_radius` × the
+//! image diagonal; support Ω = {Ā ≥ δ_a} ∩ mask with connected components below a minimum
+//! area dropped; weighted k-means on pixel coordinates (k-means++ seeding, then Lloyd)
+//! with weights Ā partitions Ω into M regions; each region gives a
 //! prototype (u_m, e_m, ψ_m, b_m).
 
 use rand::{Rng, SeedableRng};
@@ -579,12 +580,12 @@ mod tests {
     }
 
     /// The typical peak is the median of the views' peaks (the upper one of an even
-    /// count; a NaN is no peak). A view that peaks at 0.2 against a typical 1.0 keeps Ā =
+    /// count; a NaN or an infinity is no peak: counted, ∞ would make it 3). A view that peaks at 0.2 against a typical 1.0 keeps Ā =
     /// A (all under δ_a = 0.3: no support), where its own peak would make 0.2 → 1; a view
     /// that peaks above the typical peak is normalised by its own, as without it.
     #[test]
     fn a_view_is_normalised_by_the_larger_of_its_peak_and_the_typical_one() {
-        let views: [&[f32]; 4] = [&[0.2, f32::NAN], &[3.0, 0.1], &[0.9], &[1.0, 0.5]];
+        let views: [&[f32]; 4] = [&[0.2, f32::NAN, f32::INFINITY], &[3.0, 0.1], &[0.9], &[1.0, 0.5]];
         assert_eq!(typical_peak(views), 1.0);
         assert_eq!(typical_peak([&[0.2f32][..], &[0.6]]), 0.6);
         assert_eq!(typical_peak(std::iter::empty::<&[f32]>()), 0.0);

@@ -224,8 +224,9 @@ pub fn auto(scene: &AutoScene, editor: &mut dyn Editor) -> Result<AutoChoice, Se
                 )));
             }
         }
-        // The typical attention peak over the views edited so far, as the engine takes it
-        // over all of them.
+        // The typical attention peak over the views edited so far: the engine takes it over
+        // the final set, so a view lifted early may have been measured against another peak
+        // (views already lifted are not lifted again).
         let peak = match scene.prototypes.normalise {
             Normalise::Job => {
                 let so_far = edited.iter().filter_map(|(_, e)| e.as_ref()).chain(out.iter().flatten());
