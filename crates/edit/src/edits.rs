@@ -3,7 +3,7 @@
 //! returned, and gather each usable view's evidence for the method.
 
 use crate::error::EditError;
-use crate::prototypes::{typical_peak, Normalise, ViewEvidence};
+use crate::prototypes::{Normalise, ViewEvidence};
 use crate::semantic::SemanticSpace;
 use transsplat_editors::{EditedView, Editor, SourceView};
 use transsplat_raster::{render, RenderOptions, Splats};
@@ -97,10 +97,7 @@ pub fn gather(
 ) -> (Vec<ViewData>, Vec<usize>) {
     let mut out = Vec::new();
     let mut counts = vec![0; views.len()];
-    let peak = match normalise {
-        Normalise::Job => typical_peak(edited.iter().flatten().map(|e| &e.attention[..])),
-        Normalise::View => 0.0,
-    };
+    let peak = normalise.peak(edited.iter().flatten().map(|e| &e.attention[..]));
     for (k, (e, &cam)) in edited.iter().zip(views).enumerate() {
         let (Some(e), Some(f)) = (e, space.edited[k].take()) else { continue };
         let semantic = space.pca.project(&f.semantic);

@@ -50,6 +50,18 @@ pub enum Normalise {
     Job,
 }
 
+impl Normalise {
+    /// The peak P that a view's Ā divides by when it is larger than the view's own, over
+    /// the edited views' `attentions`: [`typical_peak`] for [`Normalise::Job`], 0 for
+    /// [`Normalise::View`] (each view's own peak).
+    pub fn peak<'a>(self, attentions: impl IntoIterator<Item = &'a [f32]>) -> f32 {
+        match self {
+            Normalise::Job => typical_peak(attentions),
+            Normalise::View => 0.0,
+        }
+    }
+}
+
 impl Default for PrototypeConfig {
     fn default() -> Self {
         PrototypeConfig {
@@ -580,13 +592,15 @@ mod tests {
     }
 
     /// The typical peak is the median of the views' peaks (the upper one of an even
-    /// count; a NaN or an infinity is no peak: counted, ∞ would make it 3). A view that peaks at 0.2 against a typical 1.0 keeps Ā =
-    /// A (all under δ_a = 0.3: no support), where its own peak would make 0.2 → 1; a view
-    /// that peaks above the typical peak is normalised by its own, as without it.
+    /// count; a NaN or an infinity is no peak: counted, ∞ would make it 3); `View` asks
+    /// for none. A view that peaks at 0.2 against a typical 1.0 keeps Ā = A (all under
+    /// δ_a = 0.3: no support), where its own peak would make 0.2 → 1; a view that peaks
+    /// above the typical peak is normalised by its own, as without it.
     #[test]
     fn a_view_is_normalised_by_the_larger_of_its_peak_and_the_typical_one() {
         let views: [&[f32]; 4] = [&[0.2, f32::NAN, f32::INFINITY], &[3.0, 0.1], &[0.9], &[1.0, 0.5]];
         assert_eq!(typical_peak(views), 1.0);
+        assert_eq!((Normalise::Job.peak(views), Normalise::View.peak(views)), (1.0, 0.0));
         assert_eq!(typical_peak([&[0.2f32][..], &[0.6]]), 0.6);
         assert_eq!(typical_peak(std::iter::empty::<&[f32]>()), 0.0);
         let (sem, app) = (vec![0.0f32; 8], vec![0.0f32; 4]);

@@ -34,7 +34,7 @@ use std::collections::HashMap;
 
 use crate::SessionError;
 use transsplat_edit::edits::render_sources;
-use transsplat_edit::prototypes::{typical_peak, view_support, Normalise, PrototypeConfig, ViewEvidence};
+use transsplat_edit::prototypes::{view_support, PrototypeConfig, ViewEvidence};
 use transsplat_editors::{EditedView, Editor, Error as EditorError, SourceView};
 use transsplat_raster::{gaussian_stats, Splats};
 use transsplat_scene::cameras::split_views;
@@ -227,13 +227,8 @@ pub fn auto(scene: &AutoScene, editor: &mut dyn Editor) -> Result<AutoChoice, Se
         // The typical attention peak over the views edited so far: the engine takes it over
         // the final set, so a view lifted early may have been measured against another peak
         // (views already lifted are not lifted again).
-        let peak = match scene.prototypes.normalise {
-            Normalise::Job => {
-                let so_far = edited.iter().filter_map(|(_, e)| e.as_ref()).chain(out.iter().flatten());
-                typical_peak(so_far.map(|e| &e.attention[..]))
-            }
-            Normalise::View => 0.0,
-        };
+        let so_far = edited.iter().filter_map(|(_, e)| e.as_ref()).chain(out.iter().flatten());
+        let peak = scene.prototypes.normalise.peak(so_far.map(|e| &e.attention[..]));
         for ((&v, source), e) in views.iter().zip(&sources).zip(out) {
             if let Some(e) = &e {
                 lifted.insert(v, lift_view(scene, &splats, v, source, e, peak, on));
@@ -316,8 +311,8 @@ pub fn auto(scene: &AutoScene, editor: &mut dyn Editor) -> Result<AutoChoice, Se
     Ok(AutoChoice { views, edited, seeds: seeds.len() })
 }
 
-/// View `v`'s support Ω_v (its attention normalised with the typical peak `peak`,
-/// [`typical_peak`]) and change Δ_v = edit − render splatted back onto the Gaussians `on`
+/// View `v`'s support Ω_v (its attention normalised with the peak `peak`,
+/// [`transsplat_edit::prototypes::Normalise::peak`]) and change Δ_v = edit − render splatted back onto the Gaussians `on`
 /// (all when `None`).
 fn lift_view(
     scene: &AutoScene,
