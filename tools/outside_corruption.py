@@ -103,9 +103,21 @@ def target_labels(capture, stem):
     return (blocks == label).mean(axis=2), counts.argmax(axis=2) == label
 
 
+def refuse_inside(out, flag, *inputs):
+    """Exits with 2 when the output `out` (given by `flag`) lies in or over an input
+    folder: the tool never writes into what it reads."""
+    o = os.path.realpath(out)
+    for i in inputs:
+        r = os.path.realpath(i)
+        if o == r or o.startswith(r + os.sep) or r.startswith(o + os.sep):
+            print(f"{flag} {out}: lies in or over the input {i}; choose a folder outside it", file=sys.stderr)
+            sys.exit(2)
+
+
 def make(a):
     """Writes the edits into a staging folder renamed to `a.out` when every view is done,
     so an interrupted run leaves no folder that `run` would take as finished."""
+    refuse_inside(a.out, "--out", a.capture, a.renders)
     if os.path.exists(a.out):
         print(f"{a.out}: already exists; choose another --out", file=sys.stderr)
         sys.exit(2)
@@ -205,6 +217,7 @@ def run(a):
             subprocess.run([a.transsplat, *map(str, args)], check=True, stdout=f, stderr=subprocess.STDOUT)
 
     w = lambda *p: os.path.join(a.work, *p)
+    refuse_inside(a.work, "--work", a.capture)
     os.makedirs(a.work, exist_ok=True)
     if not os.path.isdir(w("trained")):
         sh("train", "--data", a.capture, "--out", w("trained"), "--iters", 2000, "--no-masks", log=w("train.log"))
