@@ -470,12 +470,16 @@ mod tests {
         assert!(c.with_overrides(&["transport.nope=1".into()]).unwrap_err().contains("unknown setting"));
         assert!(c.with_overrides(&["fusion.tau_r=-1".into()]).unwrap_err().contains("fusion.tau_r"));
         assert!(c.with_overrides(&["leak".into()]).unwrap_err().contains("KEY=VALUE"));
-        // The attention's normalisation: each view's own peak unless asked, always in `paper`.
+        // The attention's normalisation: each view's own peak above the floor unless asked,
+        // the paper's own peak always in `paper`.
         use crate::prototypes::Normalise;
-        assert_eq!(c.prototypes.normalise, Normalise::View);
+        assert_eq!(c.prototypes.normalise, Normalise::Floor);
+        assert_eq!(c.for_method(Method::Paper).prototypes.normalise, Normalise::View);
         let job = c.with_overrides(&["prototypes.normalise=job".into()]).unwrap();
         assert_eq!(job.prototypes.normalise, Normalise::Job);
         assert_eq!(job.for_method(Method::Paper).prototypes.normalise, Normalise::View);
+        let view = c.with_overrides(&["prototypes.normalise=view".into()]).unwrap();
+        assert_eq!(view.prototypes.normalise, Normalise::View);
         assert!(c.with_overrides(&["prototypes.normalise=scene".into()]).is_err());
     }
 

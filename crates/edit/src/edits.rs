@@ -3,7 +3,7 @@
 //! returned, and gather each usable view's evidence for the method.
 
 use crate::error::EditError;
-use crate::prototypes::{Normalise, ViewEvidence};
+use crate::prototypes::{attention_peak, PrototypeConfig, ViewEvidence};
 use crate::semantic::SemanticSpace;
 use transsplat_editors::{EditedView, Editor, SourceView};
 use transsplat_raster::{render, RenderOptions, Splats};
@@ -84,20 +84,21 @@ pub fn check_outputs(
 }
 
 /// The usable edit views in order, each handed with its evidence (attention, mask,
-/// projected semantic and appearance planes, and with [`Normalise::Job`] the edited
-/// views' typical attention peak) and camera index to `take`, which returns how many
+/// projected semantic and appearance planes, and the peak its attention is normalised
+/// by, [`crate::prototypes::Normalise::peak`]) and camera index to `take`, which returns how many
 /// prototypes it made of the view. Returns the views and the prototype count of every
 /// edit view (0 where the editor gave nothing).
 pub fn gather(
     views: &[usize],
     edited: &[Option<EditedView>],
-    normalise: Normalise,
+    prototypes: &PrototypeConfig,
     space: &mut SemanticSpace,
     mut take: impl FnMut(usize, &ViewEvidence) -> usize,
 ) -> (Vec<ViewData>, Vec<usize>) {
     let mut out = Vec::new();
     let mut counts = vec![0; views.len()];
-    let peak = normalise.peak(edited.iter().flatten().map(|e| &e.attention[..]));
+    let normalise = prototypes.normalise;
+    let typical = normalise.typical(edited.iter().flatten().map(|e| &e.attention[..]));
     for (k, (e, &cam)) in edited.iter().zip(views).enumerate() {
         let (Some(e), Some(f)) = (e, space.edited[k].take()) else { continue };
         let semantic = space.pca.project(&f.semantic);
@@ -110,8 +111,16 @@ pub fn gather(
             d: space.pca.d,
             appearance: &f.appearance,
             d_app: f.d_app,
-            peak,
+            peak: normalise.peak(attention_peak(&e.attention), typical, prototypes.threshold),
         };
+        if crate::prototypes::below_floor(&ev, prototypes.threshold) {
+            tracing::info!(
+                "edit view {cam}: its attention peaks at {:.2} of the edited views' median, under δ_a = {}: \
+                 no support, and it counts as a view that changed nothing it sees",
+                attention_peak(&e.attention) / typical,
+                prototypes.threshold
+            );
+        }
         counts[k] = take(cam, &ev);
         out.push(ViewData { cam, target: e.image.clone(), appearance: f.appearance, d_app: f.d_app });
     }

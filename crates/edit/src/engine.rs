@@ -77,7 +77,7 @@ pub fn run_with(
     // 3. Each usable view's evidence, taken in by the method.
     let mut method = crate::methods::part(cfg);
     let (views, prototypes) =
-        edits::gather(&job.edit_views, &edited, cfg.prototypes.normalise, &mut space, |cam, ev| {
+        edits::gather(&job.edit_views, &edited, &cfg.prototypes, &mut space, |cam, ev| {
             method.add_view(cam, ev)
         });
     let ctx = Context { cameras: job.cameras, views: &views };

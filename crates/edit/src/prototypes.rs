@@ -1,7 +1,9 @@
 //! Prompt-aware prototype extraction (paper Sec. 3.2 and appendix A.1).
 //!
 //! Ā = A / (max(max A, P) + ε_a), with P = 0 (each view by its own peak, as in the paper)
-//! or, opted into, the job's typical attention peak ([`typical_peak`]). Ā is closed
+//! unless the view's peak is under δ_a times the job's typical attention peak
+//! ([`typical_peak`]), where P is that typical peak and the view has no support; opted
+//! into, P is the typical peak for every view ([`Normalise`]). Ā is closed
 //! (grey-level morphology, [`grey_closing`]) over a square of radius `close_radius` × the
 //! image diagonal; support Ω = {Ā ≥ δ_a} ∩ mask with connected components below a minimum
 //! area dropped; weighted k-means on pixel coordinates (k-means++ seeding, then Lloyd)
@@ -39,25 +41,41 @@ pub struct PrototypeConfig {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Normalise {
-    /// The view's own peak (the paper; the default): every view's attention reaches 1
-    /// somewhere.
-    #[default]
+    /// The view's own peak (the paper): every view's attention reaches 1 somewhere.
     View,
-    /// The larger of the view's own peak and the job's typical peak ([`typical_peak`]):
-    /// a view whose attention stays below the other views' does not see it as full
-    /// evidence. Opt-in: it also weakens the views that see a small target, whose blurred
-    /// attention peaks lower (docs/results.md, "Settings measured and not made default").
+    /// The view's own peak, unless it is under δ_a times the job's typical peak
+    /// ([`typical_peak`]); then the typical peak, under which its attention reaches δ_a
+    /// nowhere and the view has no support (the default): a view whose attention stays
+    /// far below every other view's did not edit anything the others did.
+    #[default]
+    Floor,
+    /// The larger of the view's own peak and the job's typical peak: a view whose
+    /// attention stays below the other views' does not see it as full evidence. Opt-in: it
+    /// also weakens the views that see a small target, whose blurred attention peaks lower
+    /// (docs/results.md, "Settings measured and not made default").
     Job,
 }
 
 impl Normalise {
-    /// The peak P that a view's Ā divides by when it is larger than the view's own, over
-    /// the edited views' `attentions`: [`typical_peak`] for [`Normalise::Job`], 0 for
-    /// [`Normalise::View`] (each view's own peak).
-    pub fn peak<'a>(self, attentions: impl IntoIterator<Item = &'a [f32]>) -> f32 {
+    /// The job's typical peak over the edited views' `attentions` ([`typical_peak`]) when
+    /// this rule needs one, else 0.
+    pub fn typical<'a>(self, attentions: impl IntoIterator<Item = &'a [f32]>) -> f32 {
         match self {
-            Normalise::Job => typical_peak(attentions),
             Normalise::View => 0.0,
+            Normalise::Floor | Normalise::Job => typical_peak(attentions),
+        }
+    }
+
+    /// The peak P that a view's Ā divides by when it is larger than the view's own
+    /// ([`ViewEvidence::peak`]; 0: the view's own), for a view whose attention peaks at
+    /// `own`, given the job's `typical` peak ([`Normalise::typical`]) and the support
+    /// threshold δ_a.
+    pub fn peak(self, own: f32, typical: f32, threshold: f32) -> f32 {
+        match self {
+            Normalise::View => 0.0,
+            Normalise::Floor if own < threshold * typical => typical,
+            Normalise::Floor => 0.0,
+            Normalise::Job => typical,
         }
     }
 }
@@ -71,7 +89,7 @@ impl Default for PrototypeConfig {
             close_radius: 0.01,
             lloyd_iters: 10,
             outside_mask: 0.0,
-            normalise: Normalise::View,
+            normalise: Normalise::Floor,
         }
     }
 }
@@ -81,20 +99,31 @@ pub fn attention_peak(attention: &[f32]) -> f32 {
     attention.iter().fold(0.0f32, |m, &v| if v.is_finite() { m.max(v) } else { m })
 }
 
+/// Whether a view's attention stays under δ_a (`threshold`) on the scale it is
+/// normalised by ([`ViewEvidence::peak`]), so that its support is empty for want of
+/// attention: with [`Normalise::Floor`] a view whose peak is under δ_a times the job's
+/// typical one. Such a view edited nothing the other views did; it supports none of
+/// the Gaussians it sees, and says so (docs/method.md#m2-prototypes).
+pub fn below_floor(ev: &ViewEvidence, threshold: f32) -> bool {
+    attention_peak(ev.attention) < threshold * ev.peak
+}
+
 /// The job's typical attention peak (docs/method.md#m2-prototypes): the median of the
 /// edited views' peaks ([`attention_peak`]; the upper one of an even count), 0 for no
-/// view. With [`Normalise::Job`] a view's Ā divides by the larger of this and its own
-/// peak.
+/// view. By default ([`Normalise::Floor`]) a view whose own peak is under δ_a times this
+/// has no support; with [`Normalise::Job`] every view's Ā divides by the larger of this
+/// and its own peak.
 ///
 /// *Why:* normalised by its own peak, every view's attention reaches 1 somewhere,
 /// whatever the editor did there. A view the editor left unedited then turns its
 /// attention's noise into full evidence, and a folder edit's change map, in a view where
 /// the target's edit is missing, turns the texture a decoder blurred into it. The other
 /// views say what an edit's attention peaks at; the median is not moved by one view that
-/// peaks far above the rest, and views that reach it are normalised as before. *Why not
-/// the default:* a blurred attention peaks lower where the target is small, so the views
-/// that see a small or far target lose support with it (docs/results.md, "Settings
-/// measured and not made default").
+/// peaks far above the rest. *Why a floor, not the typical peak for every view:* a
+/// blurred attention peaks lower where the target is small, so with [`Normalise::Job`] the
+/// views that see a small or far target lose support (docs/results.md, "Settings measured
+/// and not made default"); such a view peaks within a factor of two of the others, an
+/// unedited one at a tenth.
 pub fn typical_peak<'a>(attentions: impl IntoIterator<Item = &'a [f32]>) -> f32 {
     let mut peaks: Vec<f32> = attentions.into_iter().map(attention_peak).collect();
     if peaks.is_empty() {
@@ -145,8 +174,8 @@ pub struct ViewEvidence<'a> {
     /// Appearance features Φ_v, `H × W × d_a`.
     pub appearance: &'a [f32],
     pub d_app: usize,
-    /// The job's typical attention peak ([`typical_peak`]); Ā divides by the larger of
-    /// it and the view's own peak (0: the view's own peak alone, as in the paper).
+    /// The peak Ā divides by when it is larger than the view's own peak
+    /// ([`Normalise::peak`]; 0: the view's own peak alone, as in the paper).
     pub peak: f32,
 }
 
@@ -595,12 +624,23 @@ mod tests {
     /// count; a NaN or an infinity is no peak: counted, ∞ would make it 3); `View` asks
     /// for none. A view that peaks at 0.2 against a typical 1.0 keeps Ā = A (all under
     /// δ_a = 0.3: no support), where its own peak would make 0.2 → 1; a view that peaks
-    /// above the typical peak is normalised by its own, as without it.
+    /// above the typical peak is normalised by its own, as without it. The floor
+    /// (δ_a = 0.3) divides a view by the typical peak only under 0.3 of it: 0.2 → 1.0
+    /// (no support), 0.5 → 0 (its own peak).
     #[test]
     fn a_view_is_normalised_by_the_larger_of_its_peak_and_the_typical_one() {
         let views: [&[f32]; 4] = [&[0.2, f32::NAN, f32::INFINITY], &[3.0, 0.1], &[0.9], &[1.0, 0.5]];
         assert_eq!(typical_peak(views), 1.0);
-        assert_eq!((Normalise::Job.peak(views), Normalise::View.peak(views)), (1.0, 0.0));
+        let typical = |n: Normalise| n.typical(views);
+        assert_eq!(
+            (typical(Normalise::Job), typical(Normalise::Floor), typical(Normalise::View)),
+            (1.0, 1.0, 0.0)
+        );
+        let peaks = |n: Normalise| [0.2, 0.29, 0.3, 0.5, 3.0].map(|own| n.peak(own, 1.0, 0.3));
+        assert_eq!(peaks(Normalise::Floor), [1.0, 1.0, 0.0, 0.0, 0.0]);
+        assert_eq!(peaks(Normalise::Job), [1.0; 5]);
+        assert_eq!(peaks(Normalise::View), [0.0; 5]);
+        assert_eq!(Normalise::Floor.peak(0.0, 0.0, 0.3), 0.0, "no typical peak: no floor");
         assert_eq!(typical_peak([&[0.2f32][..], &[0.6]]), 0.6);
         assert_eq!(typical_peak(std::iter::empty::<&[f32]>()), 0.0);
         let (sem, app) = (vec![0.0f32; 8], vec![0.0f32; 4]);
@@ -608,14 +648,17 @@ mod tests {
         let weak = [0.0f32, 0.1, 0.2, 0.05];
         let own = view_support(&evidence(4, 1, &weak, &sem, &app), &cfg);
         assert_eq!(own.omega, vec![false, true, true, false]);
-        let typical = view_support(&ViewEvidence { peak: 1.0, ..evidence(4, 1, &weak, &sem, &app) }, &cfg);
+        let under = ViewEvidence { peak: 1.0, ..evidence(4, 1, &weak, &sem, &app) };
+        let typical = view_support(&under, &cfg);
         assert_eq!(typical.omega, vec![false; 4]);
+        assert!(below_floor(&under, 0.3) && !below_floor(&evidence(4, 1, &weak, &sem, &app), 0.3));
         for (a, b) in typical.abar.iter().zip(weak) {
             assert!((a - b).abs() < 1e-6, "{:?}", typical.abar);
         }
         let strong = [0.0f32, 1.0, 2.0, 0.5];
-        let with = view_support(&ViewEvidence { peak: 1.0, ..evidence(4, 1, &strong, &sem, &app) }, &cfg);
-        assert_eq!(with, view_support(&evidence(4, 1, &strong, &sem, &app), &cfg));
+        let over = ViewEvidence { peak: 1.0, ..evidence(4, 1, &strong, &sem, &app) };
+        assert_eq!(view_support(&over, &cfg), view_support(&evidence(4, 1, &strong, &sem, &app), &cfg));
+        assert!(!below_floor(&over, 0.3));
     }
 
     /// Closing by radius 1 on a 5 × 3 plane: a one-pixel dip inside a plateau is

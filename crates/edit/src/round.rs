@@ -36,6 +36,10 @@ pub struct RoundView<'a> {
     pub d_app: usize,
     pub support: &'a [f32],
     pub prototypes: &'a Prototypes,
+    /// The view's attention stayed under the floor ([`crate::prototypes::below_floor`]):
+    /// it has no prototypes, and takes part in the gate as a view that sees its
+    /// Gaussians and supports none of them.
+    pub unedited: bool,
 }
 
 /// The source side of one view's transport: visible Gaussians, masses a_i^v,
@@ -73,7 +77,7 @@ pub fn view_sources(g: &Gaussians, views: &[RoundView], keep_blend: bool) -> Vec
     views
         .par_iter()
         .map(|v| {
-            if v.prototypes.is_empty() {
+            if v.prototypes.is_empty() && !v.unedited {
                 return ViewSources::default();
             }
             let has_support = !v.support.is_empty();
@@ -123,8 +127,11 @@ pub fn solve_views(
         .par_iter()
         .zip(sources)
         .zip(cam_index)
-        .filter(|((v, _), _)| !v.prototypes.is_empty())
+        .filter(|((v, _), _)| !v.prototypes.is_empty() || v.unedited)
         .map(|((v, src), &cam)| {
+            if v.prototypes.is_empty() {
+                return Ok(unsupported(src, cam, d, cfg.delta));
+            }
             let sv: Vec<f32> = src
                 .idx
                 .iter()
@@ -148,6 +155,25 @@ pub fn solve_views(
             Ok(t)
         })
         .collect()
+}
+
+/// The plan of a view below the attention floor ([`RoundView::unedited`]): it sees its
+/// sources and moves no mass to any of them, so in the gate each is a visible view
+/// without support (σ = 0; in the paper's aggregation r = 1), and fusion and L_uot
+/// get nothing from it.
+fn unsupported(src: &ViewSources, cam: usize, d: usize, delta: f32) -> ViewTransport {
+    let n = src.idx.len();
+    ViewTransport {
+        view: cam,
+        idx: src.idx.clone(),
+        a: src.a.clone(),
+        w: vec![0.0; n],
+        y: vec![0.0; n * d],
+        delta,
+        coverage: vec![0.0; n].into(),
+        blend: std::sync::Arc::clone(&src.blend),
+        ..Default::default()
+    }
 }
 
 /// What the transport rounds carry from one round to the next.
@@ -201,5 +227,52 @@ impl TransportState {
             mean_gate: self.gamma.iter().map(|&x| x as f64).sum::<f64>() / n.max(1) as f64,
             ..Default::default()
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gate::{residuals, Aggregation, Agreement, ViewWeight};
+
+    /// A view under the attention floor sees Gaussians 0 and 2 and supports neither: by
+    /// hand, with a view that fully supports Gaussian 0 (σ = 1, blend weight 2) beside it
+    /// (blend weight 2 there too), r_0 = 1 − (1·2 + 0·2)/(2 + 2) = 0.5, where without it r_0
+    /// = 0; Gaussian 2, seen by it alone, gets r = 1. In the paper's aggregation its view
+    /// counts as visible and unsupported: r_0 = (0.3 / 0.8)·1 = 0.375. Fusion gets nothing
+    /// from it.
+    #[test]
+    fn a_view_under_the_floor_rejects_what_it_sees() {
+        let edited = ViewTransport {
+            idx: vec![0, 1],
+            a: vec![0.5, 0.5],
+            w: vec![0.5, 0.0],
+            y: vec![1.0; 4],
+            target_mass: 0.5,
+            blend: vec![2.0, 1.0].into(),
+            ..Default::default()
+        };
+        let src = ViewSources {
+            idx: vec![0, 2],
+            a: vec![0.3, 0.7],
+            blend: vec![2.0, 1.0].into(),
+            ..Default::default()
+        };
+        let unedited = unsupported(&src, 7, 2, 1e-8);
+        assert_eq!((unedited.view, unedited.w.as_slice(), unedited.y.len()), (7, &[0.0f32, 0.0][..], 4));
+        let how = |agreement| Aggregation {
+            agreement,
+            coverage: true,
+            min_support: 1e-3,
+            view_weight: ViewWeight::Blend,
+        };
+        let alone = residuals(4, std::slice::from_ref(&edited), how(Agreement::Visibility));
+        assert_eq!(alone, vec![0.0, 1.0, 1.0, 1.0]);
+        let both = [edited, unedited];
+        assert_eq!(residuals(4, &both, how(Agreement::Visibility)), vec![0.5, 1.0, 1.0, 1.0]);
+        let paper = residuals(4, &both, how(Agreement::Transport));
+        assert!((paper[0] - 0.375).abs() < 1e-6 && paper[2] == 1.0, "{paper:?}");
+        let acc = crate::fusion::accumulate(4, 2, &both[1..], 1e-3);
+        assert!(acc.sum_w.iter().all(|&w| w == 0.0));
     }
 }

@@ -34,7 +34,7 @@ use std::collections::HashMap;
 
 use crate::SessionError;
 use transsplat_edit::edits::render_sources;
-use transsplat_edit::prototypes::{view_support, PrototypeConfig, ViewEvidence};
+use transsplat_edit::prototypes::{attention_peak, view_support, PrototypeConfig, ViewEvidence};
 use transsplat_editors::{EditedView, Editor, Error as EditorError, SourceView};
 use transsplat_raster::{gaussian_stats, Splats};
 use transsplat_scene::cameras::split_views;
@@ -228,10 +228,10 @@ pub fn auto(scene: &AutoScene, editor: &mut dyn Editor) -> Result<AutoChoice, Se
         // the final set, so a view lifted early may have been measured against another peak
         // (views already lifted are not lifted again).
         let so_far = edited.iter().filter_map(|(_, e)| e.as_ref()).chain(out.iter().flatten());
-        let peak = scene.prototypes.normalise.peak(so_far.map(|e| &e.attention[..]));
+        let typical = scene.prototypes.normalise.typical(so_far.map(|e| &e.attention[..]));
         for ((&v, source), e) in views.iter().zip(&sources).zip(out) {
             if let Some(e) = &e {
-                lifted.insert(v, lift_view(scene, &splats, v, source, e, peak, on));
+                lifted.insert(v, lift_view(scene, &splats, v, source, e, typical, on));
             }
             edited.push((v, e));
         }
@@ -311,18 +311,20 @@ pub fn auto(scene: &AutoScene, editor: &mut dyn Editor) -> Result<AutoChoice, Se
     Ok(AutoChoice { views, edited, seeds: seeds.len() })
 }
 
-/// View `v`'s support Ω_v (its attention normalised with the peak `peak`,
-/// [`transsplat_edit::prototypes::Normalise::peak`]) and change Δ_v = edit − render splatted back onto the Gaussians `on`
-/// (all when `None`).
+/// View `v`'s support Ω_v (its attention normalised as `scene.prototypes.normalise` says,
+/// given the job's `typical` attention peak, [`transsplat_edit::prototypes::Normalise::peak`])
+/// and change Δ_v = edit − render splatted back onto the Gaussians `on` (all when `None`).
 fn lift_view(
     scene: &AutoScene,
     splats: &Splats,
     v: usize,
     source: &[f32],
     e: &EditedView,
-    peak: f32,
+    typical: f32,
     on: Option<&[usize]>,
 ) -> Lifted {
+    let normalise = scene.prototypes.normalise;
+    let peak = normalise.peak(attention_peak(&e.attention), typical, scene.prototypes.threshold);
     let ev = ViewEvidence {
         width: e.width,
         height: e.height,

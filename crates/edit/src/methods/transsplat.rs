@@ -43,6 +43,9 @@ pub struct TransSplat {
     /// The evidence plane of each usable view ([`prototypes::evidence_plane`]; empty when
     /// neither evidence-mass balancing nor the coverage bound needs it).
     supports: Vec<Vec<f32>>,
+    /// Whether each usable view's attention stayed under the floor
+    /// ([`prototypes::below_floor`]).
+    unedited: Vec<bool>,
     /// The leakage reference c⁽⁰⁾: every SH coefficient of the source scene, `kc`
     /// values per Gaussian.
     sh0: Vec<f32>,
@@ -71,6 +74,7 @@ impl TransSplat {
             gated_densify,
             prototypes: Vec::new(),
             supports: Vec::new(),
+            unedited: Vec::new(),
             sh0: Vec::new(),
             kc: 0,
             transport: TransportState::new(0),
@@ -115,13 +119,14 @@ impl TransSplat {
         let views: Vec<RoundView> = ctx
             .views
             .iter()
-            .zip(self.prototypes.iter().zip(&self.supports))
-            .map(|(v, (p, sup))| RoundView {
+            .zip(self.prototypes.iter().zip(&self.supports).zip(&self.unedited))
+            .map(|(v, ((p, sup), &unedited))| RoundView {
                 cam: &ctx.cameras[v.cam],
                 appearance: &v.appearance,
                 d_app: v.d_app,
                 support: sup,
                 prototypes: p,
+                unedited,
             })
             .collect();
         let t = Instant::now();
@@ -164,6 +169,7 @@ impl EditMethod for TransSplat {
         };
         let count = protos.len();
         self.prototypes.push(protos);
+        self.unedited.push(count == 0 && prototypes::below_floor(ev, p.threshold));
         // The evidence plane, for evidence-mass balancing and the coverage bound.
         let needed = (self.cfg.transport.evidence_mass || self.cfg.fusion.coverage) && count > 0;
         self.supports.push(if needed { prototypes::evidence_plane(&sup) } else { Vec::new() });
