@@ -116,7 +116,7 @@ pub fn gather(
         if crate::prototypes::below_floor(&ev, prototypes.threshold) {
             tracing::info!(
                 "edit view {cam}: its attention peaks at {:.2} of the edited views' median, under δ_a = {}: \
-                 no support, and it counts as a view that changed nothing it sees",
+                 no support (a gate counts it as a view that changed nothing it sees)",
                 attention_peak(&e.attention) / typical,
                 prototypes.threshold
             );

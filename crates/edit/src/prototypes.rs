@@ -50,7 +50,8 @@ pub enum Normalise {
     #[default]
     Floor,
     /// The larger of the view's own peak and the job's typical peak: a view whose
-    /// attention stays below the other views' does not see it as full evidence. Opt-in: it
+    /// attention stays below the other views' does not see it as full evidence, and one
+    /// under δ_a of the typical peak is under the floor as with [`Normalise::Floor`]. Opt-in: it
     /// also weakens the views that see a small target, whose blurred attention peaks lower
     /// (docs/results.md, "Settings measured and not made default").
     Job,
@@ -101,9 +102,10 @@ pub fn attention_peak(attention: &[f32]) -> f32 {
 
 /// Whether a view's attention stays under δ_a (`threshold`) on the scale it is
 /// normalised by ([`ViewEvidence::peak`]), so that its support is empty for want of
-/// attention: with [`Normalise::Floor`] a view whose peak is under δ_a times the job's
-/// typical one. Such a view edited nothing the other views did; it supports none of
-/// the Gaussians it sees, and says so (docs/method.md#m2-prototypes).
+/// attention: with [`Normalise::Floor`] or [`Normalise::Job`] a view whose peak is under
+/// δ_a times the job's typical one (never with [`Normalise::View`]). Such a view edited
+/// nothing the other views did; it supports none of the Gaussians it sees, and says so
+/// (docs/method.md#m2-prototypes).
 pub fn below_floor(ev: &ViewEvidence, threshold: f32) -> bool {
     attention_peak(ev.attention) < threshold * ev.peak
 }

@@ -18,6 +18,7 @@ use transsplat_scene::{sigmoid, Camera, Gaussians};
 pub struct RoundStats {
     pub round: usize,
     pub step: usize,
+    /// The views with a plan: those with prototypes and those under the attention floor.
     pub views: usize,
     pub objective: f64,
     pub dual: f64,
@@ -68,7 +69,8 @@ fn with_support(appearance: &[f32], d_app: usize, support: &[f32]) -> Vec<f32> {
     out
 }
 
-/// The source side of every view (empty for views without prototypes), from one
+/// The source side of every view (empty for views without prototypes, unless the view
+/// is under the attention floor, [`RoundView::unedited`]), from one
 /// splat-back pass per view (docs/method.md#m1-visibility-and-source-masses); each
 /// source's blend weight is kept with `keep_blend`.
 pub fn view_sources(g: &Gaussians, views: &[RoundView], keep_blend: bool) -> Vec<ViewSources> {
@@ -112,7 +114,8 @@ pub fn view_sources(g: &Gaussians, views: &[RoundView], keep_blend: bool) -> Vec
 }
 
 /// The view-wise transport of every view with prototypes, against the current
-/// semantic latents `s` (`N × d`); `views` and `sources` are aligned, and each result
+/// semantic latents `s` (`N × d`), and the zero plan ([`unsupported`]) of every view
+/// under the attention floor; `views` and `sources` are aligned, and each result
 /// carries its view's camera index from `cam_index`.
 pub fn solve_views(
     s: &[f32],
@@ -272,7 +275,27 @@ mod tests {
         assert_eq!(residuals(4, &both, how(Agreement::Visibility)), vec![0.5, 1.0, 1.0, 1.0]);
         let paper = residuals(4, &both, how(Agreement::Transport));
         assert!((paper[0] - 0.375).abs() < 1e-6 && paper[2] == 1.0, "{paper:?}");
-        let acc = crate::fusion::accumulate(4, 2, &both[1..], 1e-3);
-        assert!(acc.sum_w.iter().all(|&w| w == 0.0));
+        let with = crate::fusion::accumulate(4, 2, &both, 1e-3);
+        let without = crate::fusion::accumulate(4, 2, &both[..1], 1e-3);
+        assert_eq!((with.sum_w, with.sum_wy), (without.sum_w, without.sum_wy));
+    }
+
+    /// `solve_views` makes the zero plan for a view without prototypes only when it is
+    /// under the floor, with that view's camera index; otherwise the view has no plan.
+    #[test]
+    fn only_a_view_under_the_floor_gets_a_plan_without_prototypes() {
+        let cam = crate::edits::tests::camera("a");
+        let none = Prototypes::default();
+        let src = ViewSources { idx: vec![0, 2], a: vec![0.3, 0.7], ..Default::default() };
+        let plans = |unedited| {
+            let view =
+                RoundView { cam: &cam, appearance: &[], d_app: 0, support: &[], prototypes: &none, unedited };
+            solve_views(&[0.0; 6], 2, &[view], &[5], std::slice::from_ref(&src), &TransportConfig::default())
+                .unwrap()
+        };
+        let p = plans(true);
+        assert_eq!(p.len(), 1);
+        assert_eq!((p[0].view, &p[0].idx, &p[0].w), (5, &vec![0, 2], &vec![0.0, 0.0]));
+        assert!(plans(false).is_empty());
     }
 }
