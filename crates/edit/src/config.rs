@@ -480,6 +480,8 @@ mod tests {
         assert_eq!(job.for_method(Method::Paper).prototypes.normalise, Normalise::View);
         let view = c.with_overrides(&["prototypes.normalise=view".into()]).unwrap();
         assert_eq!(view.prototypes.normalise, Normalise::View);
+        let floor = view.with_overrides(&["prototypes.normalise=floor".into()]).unwrap();
+        assert_eq!(floor.prototypes.normalise, Normalise::Floor);
         assert!(c.with_overrides(&["prototypes.normalise=scene".into()]).is_err());
     }
 
