@@ -85,7 +85,7 @@ pub fn check_outputs(
 
 /// The usable edit views in order, each handed with its evidence (attention, mask,
 /// projected semantic and appearance planes, and the peak its attention is normalised
-/// by, [`crate::prototypes::Normalise::peak`]) and camera index to `take`, which returns how many
+/// by, [`PrototypeConfig::view_peak`]) and camera index to `take`, which returns how many
 /// prototypes it made of the view. Returns the views and the prototype count of every
 /// edit view (0 where the editor gave nothing).
 pub fn gather(
@@ -97,8 +97,7 @@ pub fn gather(
 ) -> (Vec<ViewData>, Vec<usize>) {
     let mut out = Vec::new();
     let mut counts = vec![0; views.len()];
-    let normalise = prototypes.normalise;
-    let typical = normalise.typical(edited.iter().flatten().map(|e| &e.attention[..]));
+    let typical = prototypes.normalise.typical(edited.iter().flatten().map(|e| &e.attention[..]));
     for (k, (e, &cam)) in edited.iter().zip(views).enumerate() {
         let (Some(e), Some(f)) = (e, space.edited[k].take()) else { continue };
         let semantic = space.pca.project(&f.semantic);
@@ -111,7 +110,7 @@ pub fn gather(
             d: space.pca.d,
             appearance: &f.appearance,
             d_app: f.d_app,
-            peak: normalise.peak(attention_peak(&e.attention), typical, prototypes.threshold),
+            peak: prototypes.view_peak(&e.attention, typical),
         };
         if crate::prototypes::below_floor(&ev, prototypes.threshold) {
             tracing::info!(

@@ -95,6 +95,14 @@ impl Default for PrototypeConfig {
     }
 }
 
+impl PrototypeConfig {
+    /// The peak a view with `attention` is normalised against ([`ViewEvidence::peak`],
+    /// [`Normalise::peak`]), given the job's `typical` peak ([`Normalise::typical`]).
+    pub fn view_peak(&self, attention: &[f32], typical: f32) -> f32 {
+        self.normalise.peak(attention_peak(attention), typical, self.threshold)
+    }
+}
+
 /// A view's attention peak: its largest finite value (0 when it has none).
 pub fn attention_peak(attention: &[f32]) -> f32 {
     attention.iter().fold(0.0f32, |m, &v| if v.is_finite() { m.max(v) } else { m })
@@ -643,6 +651,8 @@ mod tests {
         assert_eq!(peaks(Normalise::Job), [1.0; 5]);
         assert_eq!(peaks(Normalise::View), [0.0; 5]);
         assert_eq!(Normalise::Floor.peak(0.0, 0.0, 0.3), 0.0, "no typical peak: no floor");
+        let floor = PrototypeConfig { threshold: 0.3, ..Default::default() };
+        assert_eq!((floor.view_peak(&[0.1, 0.2], 1.0), floor.view_peak(&[0.5, f32::NAN], 1.0)), (1.0, 0.0));
         assert_eq!(typical_peak([&[0.2f32][..], &[0.6]]), 0.6);
         assert_eq!(typical_peak(std::iter::empty::<&[f32]>()), 0.0);
         let (sem, app) = (vec![0.0f32; 8], vec![0.0f32; 4]);

@@ -34,7 +34,7 @@ use std::collections::HashMap;
 
 use crate::SessionError;
 use transsplat_edit::edits::render_sources;
-use transsplat_edit::prototypes::{attention_peak, view_support, PrototypeConfig, ViewEvidence};
+use transsplat_edit::prototypes::{view_support, PrototypeConfig, ViewEvidence};
 use transsplat_editors::{EditedView, Editor, Error as EditorError, SourceView};
 use transsplat_raster::{gaussian_stats, Splats};
 use transsplat_scene::cameras::split_views;
@@ -312,7 +312,7 @@ pub fn auto(scene: &AutoScene, editor: &mut dyn Editor) -> Result<AutoChoice, Se
 }
 
 /// View `v`'s support Ω_v (its attention normalised as `scene.prototypes.normalise` says,
-/// given the job's `typical` attention peak, [`transsplat_edit::prototypes::Normalise::peak`])
+/// given the job's `typical` attention peak, [`PrototypeConfig::view_peak`])
 /// and change Δ_v = edit − render splatted back onto the Gaussians `on` (all when `None`).
 fn lift_view(
     scene: &AutoScene,
@@ -323,8 +323,6 @@ fn lift_view(
     typical: f32,
     on: Option<&[usize]>,
 ) -> Lifted {
-    let normalise = scene.prototypes.normalise;
-    let peak = normalise.peak(attention_peak(&e.attention), typical, scene.prototypes.threshold);
     let ev = ViewEvidence {
         width: e.width,
         height: e.height,
@@ -334,7 +332,7 @@ fn lift_view(
         d: 0,
         appearance: &[],
         d_app: 0,
-        peak,
+        peak: scene.prototypes.view_peak(&e.attention, typical),
     };
     let omega = view_support(&ev, scene.prototypes).omega;
     // Four channels: Ω, then the change.
